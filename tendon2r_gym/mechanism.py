@@ -1,0 +1,194 @@
+"""Mechanism parameters: a frozen, validated description of the tendon-driven 2R arm.
+
+Geometry conventions (see README):
+- ``a``: fixed base link, wall (x = 0) to joint A.  ``c``: joint A to joint B.  ``b``: joint B to
+  the effector.  The 2R chain has l1 = c and l2 = b.
+- ``R1``, ``R2`` are pulley **diameters**; the pulley radii are ``R1 / 2`` and ``R2 / 2``.
+- The arm moves in the x-z plane.  Both hinges turn about -y, so a positive joint angle lifts the
+  arm (+z):  x = a + c cos q1 + b cos(q1 + q2),  z = c sin q1 + b sin(q1 + q2).
+- A tendon passes each pulley on side +1 (over the top, +z in the link frame) or -1 (under).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+Sides = tuple[tuple[int, int], tuple[int, int]]
+
+#: Named routings: the side (+1 over, -1 under) each tendon takes on (pulley 1, pulley 2).
+ROUTINGS: dict[str, Sides] = {
+    # Not mirror images: the moment-arm matrix is full rank, both joints are actuated.
+    "asymmetric": ((+1, +1), (-1, +1)),
+    # The reports' text: tendon 1 over both pulleys, tendon 2 under both (rank 1 at q = 0).
+    "parallel": ((+1, +1), (-1, -1)),
+    # The course XML template: tendon 1 under pulley 1 and over pulley 2, tendon 2 the reverse.
+    "crossed": ((-1, +1), (+1, -1)),
+}
+
+INTEGRATORS = ("Euler", "RK4", "implicit", "implicitfast")
+
+
+def _fail(name: str, value: Any, allowed: str) -> ValueError:
+    return ValueError(f"Mechanism.{name} = {value!r} is invalid; allowed: {allowed}")
+
+
+@dataclass(frozen=True)
+class Mechanism:
+    """Parameters of the tendon-driven 2R arm.  All lengths in m, forces in N, times in s."""
+
+    # Geometry.
+    R1: float = 0.014  # pulley diameter at joint A (m)
+    R2: float = 0.022  # pulley diameter at joint B (m)
+    a: float = 0.052  # base link, wall to joint A (m)
+    b: float = 0.073  # link from joint B to the effector (m)
+    c: float = 0.094  # link from joint A to joint B (m)
+    # Routing: a name from ROUTINGS or explicit sides ((s11, s12), (s21, s22)).
+    routing: str | Sides = "asymmetric"
+    # Actuation: an action of +-1 is +-max_tendon_force on the tendon (push or pull).
+    max_tendon_force: float = 0.5  # (N)
+    # Mass and joints.
+    density: float = 1000.0  # of links and pulleys (kg/m^3)
+    link_radius: float = 0.002  # capsule radius of the links (m)
+    pulley_thickness: float = 0.002  # (m)
+    joint_range_deg: tuple[float, float] = (-90.0, 90.0)  # both joints (deg)
+    joint_damping: float = 0.0  # (N m s / rad)
+    tendon_stiffness: float = 0.0  # (N / m); 0 is an ideal tendon
+    tendon_damping: float = 0.0  # (N s / m)
+    # Simulation.
+    sim_dt: float = 1e-4  # physics time step (s)
+    integrator: str = "RK4"
+
+    def __post_init__(self) -> None:
+        positive = {
+            "R1": self.R1,
+            "R2": self.R2,
+            "a": self.a,
+            "b": self.b,
+            "c": self.c,
+            "max_tendon_force": self.max_tendon_force,
+            "density": self.density,
+            "link_radius": self.link_radius,
+            "pulley_thickness": self.pulley_thickness,
+            "sim_dt": self.sim_dt,
+        }
+        for name, value in positive.items():
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise _fail(name, value, "a finite number > 0")
+            if not math.isfinite(value) or value <= 0:
+                raise _fail(name, value, "a finite number > 0")
+        for name in ("joint_damping", "tendon_stiffness", "tendon_damping"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+                raise _fail(name, value, "a finite number >= 0")
+        r1, r2 = self.R1 / 2, self.R2 / 2
+        if r1 >= self.a:
+            raise _fail("R1", self.R1, f"R1/2 < a = {self.a} (pulley 1 must clear the wall)")
+        if r1 + r2 >= self.c:
+            raise _fail(
+                "R2",
+                self.R2,
+                f"R1/2 + R2/2 < c = {self.c} (the pulleys must not overlap on link c)",
+            )
+        if r2 >= self.b:
+            raise _fail("R2", self.R2, f"R2/2 < b = {self.b} (pulley 2 must fit on link b)")
+        if self.link_radius >= min(r1, r2):
+            raise _fail(
+                "link_radius", self.link_radius, f"< the smaller pulley radius {min(r1, r2)}"
+            )
+        if self.sim_dt > 0.01:
+            raise _fail("sim_dt", self.sim_dt, "0 < sim_dt <= 0.01 s")
+        if self.integrator not in INTEGRATORS:
+            raise _fail("integrator", self.integrator, f"one of {INTEGRATORS}")
+        rng = tuple(float(v) for v in np.asarray(self.joint_range_deg, dtype=float).ravel())
+        if len(rng) != 2 or not all(map(math.isfinite, rng)) or not -180 < rng[0] < rng[1] < 180:
+            raise _fail(
+                "joint_range_deg", self.joint_range_deg, "(lo, hi) with -180 < lo < hi < 180"
+            )
+        object.__setattr__(self, "joint_range_deg", rng)
+        object.__setattr__(self, "routing", _normalize_routing(self.routing))
+
+    # -- construction ------------------------------------------------------------------------
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> Mechanism:
+        """Builds a Mechanism from a mapping with the same keys as the fields."""
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(values) - known
+        if unknown:
+            raise ValueError(
+                f"unknown Mechanism fields {sorted(unknown)}; allowed: {sorted(known)}"
+            )
+        return cls(**dict(values))
+
+    def replace(self, **changes: Any) -> Mechanism:
+        """Returns a copy with the named fields changed (validated again)."""
+        return Mechanism.from_dict({**self.to_dict(), **changes})
+
+    def to_dict(self) -> dict[str, Any]:
+        """Returns the fields as plain YAML-friendly values."""
+        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        out["joint_range_deg"] = list(self.joint_range_deg)
+        if not isinstance(self.routing, str):
+            out["routing"] = [list(s) for s in self.routing]
+        return out
+
+    # -- derived quantities ------------------------------------------------------------------
+    @property
+    def r1(self) -> float:
+        """Returns the radius of pulley 1 (m)."""
+        return self.R1 / 2
+
+    @property
+    def r2(self) -> float:
+        """Returns the radius of pulley 2 (m)."""
+        return self.R2 / 2
+
+    @property
+    def tendon_sides(self) -> Sides:
+        """Returns ((s11, s12), (s21, s22)): the side each tendon takes on each pulley."""
+        return ROUTINGS[self.routing] if isinstance(self.routing, str) else self.routing
+
+    @property
+    def joint_range_rad(self) -> tuple[float, float]:
+        """Returns the joint range (rad), the same for both joints."""
+        lo, hi = self.joint_range_deg
+        return math.radians(lo), math.radians(hi)
+
+    @property
+    def workspace_radii(self) -> tuple[float, float]:
+        """Returns the inner and outer radius (m) of the workspace annulus about joint A."""
+        return abs(self.c - self.b), self.c + self.b
+
+    def forward_kinematics(self, q: np.ndarray) -> np.ndarray:
+        """Returns the effector (x, z) in m for joint angles q (rad), shape (..., 2)."""
+        q = np.asarray(q, dtype=float)
+        q1, q12 = q[..., 0], q[..., 0] + q[..., 1]
+        x = self.a + self.c * np.cos(q1) + self.b * np.cos(q12)
+        z = self.c * np.sin(q1) + self.b * np.sin(q12)
+        return np.stack([x, z], axis=-1)
+
+    def joint_b_position(self, q: np.ndarray) -> np.ndarray:
+        """Returns the position (x, z) in m of joint B for joint angles q (rad)."""
+        q = np.asarray(q, dtype=float)
+        return np.stack([self.a + self.c * np.cos(q[..., 0]), self.c * np.sin(q[..., 0])], -1)
+
+
+def _normalize_routing(routing: Any) -> str | Sides:
+    if isinstance(routing, str):
+        if routing not in ROUTINGS:
+            raise _fail(
+                "routing", routing, f"one of {sorted(ROUTINGS)} or ((s11, s12), (s21, s22))"
+            )
+        return routing
+    try:
+        sides = tuple(tuple(int(s) for s in tendon) for tendon in routing)
+    except (TypeError, ValueError):
+        raise _fail("routing", routing, "a routing name or ((s11, s12), (s21, s22))") from None
+    if len(sides) != 2 or any(len(t) != 2 or any(s not in (-1, 1) for s in t) for t in sides):
+        raise _fail("routing", routing, "((s11, s12), (s21, s22)) with each s in {-1, +1}")
+    return sides  # type: ignore[return-value]

@@ -1,0 +1,261 @@
+"""Builds the MuJoCo model of a Mechanism with MjSpec (no string templates, no welds, no floating
+bodies).
+
+Frame: the arm moves in the x-z plane; the wall is the plane x = 0; hinges turn about -y; there is
+no gravity.  Body tree: world (wall, base link ``a``) -> ``link_c`` (hinge ``A``, ``pulley1``) ->
+``link_b`` (hinge ``B``, ``pulley2``, ``effector``).
+
+Each spatial tendon runs: wall anchor -> wraps ``pulley1`` -> guide site on link c (on the common
+tangent of the two pulleys for that tendon's sides, so the path is a true belt path) -> wraps
+``pulley2`` -> end site at the tip.  A tendon is anchored on the wall at z = s1 * R1/2 and ends on
+the tip at z = s2 * R2/2, where s1, s2 are the sides it takes on the pulleys.  Anchoring on the
+opposite side would make the tendon cross its pulley's centre at large joint angles, where its
+moment arm changes sign and the moment-arm matrix loses rank.
+"""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+
+from tendon2r_gym.mechanism import Mechanism
+
+JOINTS = ("A", "B")
+TENDONS = ("tendon1", "tendon2")
+MOTORS = ("motor1", "motor2")
+CAMERA = "side"
+#: Fairleads (eyelets) sit on the straight tendon line this many pulley radii before pulley 1 and
+#: after pulley 2.  MuJoCo decides wrap contact from the straight line between the neighbouring
+#: path points: with the wall anchor far away, a tendon jumps to the wrong side of pulley 1 at
+#: large angles; with a fairlead at the tangent point, a lifted-off tendon loses its moment arm.
+#: One radius keeps cond(J) < 10 over +-90 deg on every parameter set we tried (tests check it).
+FAIRLEAD_GAP = 1.0
+
+#: The path of every tendon: sites and wrapped pulleys (with the sidesite that picks the side).
+PATH = (
+    ("site", "anchor", None),
+    ("site", "fairlead1", None),
+    ("geom", "pulley1", "side1"),
+    ("site", "guide", None),
+    ("geom", "pulley2", "side2"),
+    ("site", "fairlead2", None),
+    ("site", "end", None),
+)
+
+_HINGE_AXIS = (0.0, -1.0, 0.0)  # positive angles lift the arm (+z)
+_Y_AXIS_QUAT = (math.sqrt(0.5), math.sqrt(0.5), 0.0, 0.0)  # cylinder axis (local z) along -y
+_CAMERA_QUAT = (math.sqrt(0.5), math.sqrt(0.5), 0.0, 0.0)  # looks along +y, z up
+_CAMERA_FOVY = 45.0  # deg
+
+_RGBA = {
+    "wall": (0.55, 0.55, 0.6, 1.0),
+    "link_a": (0.35, 0.35, 0.4, 1.0),
+    "link_c": (0.15, 0.55, 0.85, 1.0),
+    "link_b": (0.15, 0.75, 0.35, 1.0),
+    "pulley1": (0.95, 0.75, 0.1, 0.9),
+    "pulley2": (0.95, 0.45, 0.1, 0.9),
+    "tendon1": (0.85, 0.1, 0.1, 1.0),
+    "tendon2": (0.6, 0.1, 0.8, 1.0),
+    "site": (0.1, 0.1, 0.1, 1.0),
+}
+
+
+def belt_tangent(r1: float, r2: float, c: float, s1: int, s2: int) -> tuple[np.ndarray, np.ndarray]:
+    """Returns the tangent points (x, z) on pulley 1 (at the origin) and pulley 2 (at (c, 0)) of
+    the straight belt that passes pulley 1 on side s1 and pulley 2 on side s2, in link-c frame."""
+    nx = (s1 * r1 - s2 * r2) / c  # unit normal m of the belt line: m.p + s*r = h for both pulleys
+    m = np.array([nx, math.sqrt(1.0 - nx * nx)])
+    return s1 * r1 * m, np.array([c, 0.0]) + s2 * r2 * m
+
+
+def guide_site_positions(mech: Mechanism) -> list[np.ndarray]:
+    """Returns, per tendon, the (x, z) of its guide site on link c: the middle of its belt."""
+    out = []
+    for s1, s2 in mech.tendon_sides:
+        t1, t2 = belt_tangent(mech.r1, mech.r2, mech.c, s1, s2)
+        out.append(0.5 * (t1 + t2))
+    return out
+
+
+def build_spec(mech: Mechanism) -> mujoco.MjSpec:
+    """Returns the MjSpec of the mechanism (compile it with ``build_model``)."""
+    spec = mujoco.MjSpec()
+    spec.modelname = "tendon2r"
+    spec.option.timestep = mech.sim_dt
+    spec.option.integrator = getattr(mujoco.mjtIntegrator, f"mjINT_{mech.integrator.upper()}")
+    spec.option.gravity = [0.0, 0.0, 0.0]
+    spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT  # planar arm, nothing to hit
+    spec.compiler.degree = False
+    spec.visual.global_.offwidth = 640
+    spec.visual.global_.offheight = 480
+    spec.visual.headlight.ambient = [0.5, 0.5, 0.5]
+    r1, r2, a, b, c = mech.r1, mech.r2, mech.a, mech.b, mech.c
+    rl, half_t = mech.link_radius, mech.pulley_thickness / 2
+    lo, hi = mech.joint_range_rad
+    sides = mech.tendon_sides
+    reach = b + c
+    world = spec.worldbody
+
+    def geom(body, name, gtype, size, rgba, **kw):
+        g = body.add_geom(name=name, type=gtype, size=size, rgba=rgba, **kw)
+        g.contype = g.conaffinity = 0
+        g.density = mech.density
+        return g
+
+    def site(body, name, pos, size=0.0012, rgba=_RGBA["site"]):
+        return body.add_site(name=name, pos=[pos[0], 0.0, pos[1]], size=[size, 0, 0], rgba=rgba)
+
+    # The wall (x <= 0, visual only) and the fixed base link a.
+    world.add_light(name="light", pos=[a, -3 * reach, 2 * reach], dir=[0, 1, -0.5])
+    half_h = reach + 0.02
+    geom(
+        world,
+        "wall",
+        mujoco.mjtGeom.mjGEOM_BOX,
+        [0.002, 0.02, half_h],
+        _RGBA["wall"],
+        pos=[-0.002, 0.0, 0.0],
+    )
+    geom(
+        world,
+        "link_a",
+        mujoco.mjtGeom.mjGEOM_CAPSULE,
+        [rl, 0, 0],
+        _RGBA["link_a"],
+        fromto=[0, 0, 0, a, 0, 0],
+    )
+    for i in range(2):
+        site(world, f"anchor{i + 1}", (0.0, sides[i][0] * r1))
+        site(world, f"fairlead1_t{i + 1}", (a - FAIRLEAD_GAP * r1, sides[i][0] * r1), size=0.0008)
+    # The camera frames the disc of radius b + c about joint A, and the wall.
+    width = a + reach
+    dist = 1.15 * max(width / 2 / 0.75, half_h) / math.tan(math.radians(_CAMERA_FOVY / 2))
+    world.add_camera(
+        name=CAMERA, pos=[width / 2 - 0.01, -dist, 0.0], quat=_CAMERA_QUAT, fovy=_CAMERA_FOVY
+    )
+
+    # Link c, hinge A, pulley 1, guide sites and the sidesites of pulley 2.
+    link_c = world.add_body(name="link_c", pos=[a, 0.0, 0.0])
+    link_c.add_joint(
+        name="A",
+        type=mujoco.mjtJoint.mjJNT_HINGE,
+        axis=_HINGE_AXIS,
+        range=[lo, hi],
+        limited=mujoco.mjtLimited.mjLIMITED_TRUE,
+        damping=mech.joint_damping,
+    )
+    geom(
+        link_c,
+        "link_c",
+        mujoco.mjtGeom.mjGEOM_CAPSULE,
+        [rl, 0, 0],
+        _RGBA["link_c"],
+        fromto=[0, 0, 0, c, 0, 0],
+    )
+    geom(
+        link_c,
+        "pulley1",
+        mujoco.mjtGeom.mjGEOM_CYLINDER,
+        [r1, half_t, 0],
+        _RGBA["pulley1"],
+        quat=_Y_AXIS_QUAT,
+    )
+    for i, pos in enumerate(guide_site_positions(mech)):
+        site(link_c, f"guide{i + 1}", pos)
+
+    # Sidesites pick the side each tendon passes a pulley on.  Both sit on link c, which carries
+    # pulley 1 and is the proximal link of pulley 2 (measured: on the world or on link b, the
+    # choice fails for large wraps, and the moment-arm matrix loses rank).
+    for i in range(2):
+        site(link_c, f"side1_t{i + 1}", (0.0, sides[i][0] * 2.0 * r1), size=0.0005)
+        site(link_c, f"side2_t{i + 1}", (c, sides[i][1] * 2.0 * r2), size=0.0005)
+
+    # Link b, hinge B, pulley 2, the effector and the tendon ends.
+    link_b = link_c.add_body(name="link_b", pos=[c, 0.0, 0.0])
+    link_b.add_joint(
+        name="B",
+        type=mujoco.mjtJoint.mjJNT_HINGE,
+        axis=_HINGE_AXIS,
+        range=[lo, hi],
+        limited=mujoco.mjtLimited.mjLIMITED_TRUE,
+        damping=mech.joint_damping,
+    )
+    geom(
+        link_b,
+        "link_b",
+        mujoco.mjtGeom.mjGEOM_CAPSULE,
+        [rl, 0, 0],
+        _RGBA["link_b"],
+        fromto=[0, 0, 0, b, 0, 0],
+    )
+    geom(
+        link_b,
+        "pulley2",
+        mujoco.mjtGeom.mjGEOM_CYLINDER,
+        [r2, half_t, 0],
+        _RGBA["pulley2"],
+        quat=_Y_AXIS_QUAT,
+    )
+    site(link_b, "effector", (b, 0.0), size=0.003, rgba=(0.9, 0.9, 0.9, 1.0))
+    for i in range(2):
+        site(link_b, f"fairlead2_t{i + 1}", (FAIRLEAD_GAP * r2, sides[i][1] * r2), size=0.0008)
+        site(link_b, f"end{i + 1}", (b, sides[i][1] * r2))
+
+    # Tendons and their motors: ctrl in [-1, 1], gear = max force, so ctrl 1 is the full force.
+    for i, (name, motor) in enumerate(zip(TENDONS, MOTORS, strict=True)):
+        t = spec.add_tendon(
+            name=name,
+            width=0.0006,
+            rgba=_RGBA[name],
+            stiffness=mech.tendon_stiffness,
+            damping=mech.tendon_damping,
+        )
+        for kind, point, side in PATH:
+            if kind == "site":
+                t.wrap_site(
+                    f"{point}{i + 1}"
+                    if point in ("anchor", "guide", "end")
+                    else f"{point}_t{i + 1}"
+                )
+            else:
+                t.wrap_geom(point, f"{side}_t{i + 1}")
+        act = spec.add_actuator(name=motor, trntype=mujoco.mjtTrn.mjTRN_TENDON, target=name)
+        act.gear = [mech.max_tendon_force, 0, 0, 0, 0, 0]
+        act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+        act.ctrlrange = [-1.0, 1.0]
+
+    # Sensors.
+    S = mujoco.mjtSensor
+    obj = mujoco.mjtObj
+    for j in JOINTS:
+        spec.add_sensor(
+            name=f"qpos_{j}", type=S.mjSENS_JOINTPOS, objtype=obj.mjOBJ_JOINT, objname=j
+        )
+        spec.add_sensor(
+            name=f"qvel_{j}", type=S.mjSENS_JOINTVEL, objtype=obj.mjOBJ_JOINT, objname=j
+        )
+    spec.add_sensor(
+        name="effector_pos", type=S.mjSENS_FRAMEPOS, objtype=obj.mjOBJ_SITE, objname="effector"
+    )
+    for t, m in zip(TENDONS, MOTORS, strict=True):
+        spec.add_sensor(
+            name=f"length_{t}", type=S.mjSENS_TENDONPOS, objtype=obj.mjOBJ_TENDON, objname=t
+        )
+        spec.add_sensor(
+            name=f"force_{m}", type=S.mjSENS_ACTUATORFRC, objtype=obj.mjOBJ_ACTUATOR, objname=m
+        )
+    return spec
+
+
+def build_model(mech: Mechanism) -> mujoco.MjModel:
+    """Returns the compiled MuJoCo model of the mechanism."""
+    return build_spec(mech).compile()
+
+
+def to_xml(mech: Mechanism) -> str:
+    """Returns the MJCF XML of the mechanism."""
+    spec = build_spec(mech)
+    spec.compile()
+    return spec.to_xml()

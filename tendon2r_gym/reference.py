@@ -1,0 +1,193 @@
+"""The task: per-joint sinusoidal references q_des(t) = amp * sin(omega * t + phase) + bias.
+
+``freq_hz`` (reports 001/002: sin(2 pi f t)) or ``omega_rad_s`` (the course text: sin(FREQ t)
+with FREQ in rad/s) gives the frequency: exactly one of the two.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import warnings
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from tendon2r_gym.mechanism import Mechanism
+
+_FIELDS = ("amp_deg", "bias_deg", "freq_hz", "omega_rad_s", "phase_deg")
+
+
+def _pair(
+    name: str, value: Any, lo: float = -math.inf, hi: float = math.inf
+) -> tuple[float, float]:
+    try:
+        arr = np.asarray(value, dtype=float).ravel()
+    except (TypeError, ValueError):
+        arr = np.array([])
+    if arr.shape != (2,) or not np.all(np.isfinite(arr)) or np.any(arr < lo) or np.any(arr > hi):
+        raise ValueError(
+            f"reference.{name} = {value!r} is invalid; allowed: [joint A, joint B], "
+            f"finite, each in [{lo}, {hi}]"
+        )
+    return float(arr[0]), float(arr[1])
+
+
+@dataclass(frozen=True)
+class Reference:
+    """Sinusoidal joint references.  Angles in degrees, frequencies in Hz or rad/s."""
+
+    amp_deg: tuple[float, float]
+    bias_deg: tuple[float, float]
+    freq_hz: tuple[float, float] | None = None
+    omega_rad_s: tuple[float, float] | None = None
+    phase_deg: tuple[float, float] = (0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        if (self.freq_hz is None) == (self.omega_rad_s is None):
+            raise ValueError(
+                "reference needs exactly one of freq_hz (Hz, sin(2 pi f t)) and omega_rad_s "
+                f"(rad/s, sin(w t)); got freq_hz={self.freq_hz!r}, omega_rad_s={self.omega_rad_s!r}"
+            )
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
+        set_("amp_deg", _pair("amp_deg", self.amp_deg, 0.0, 180.0))
+        set_("bias_deg", _pair("bias_deg", self.bias_deg, -180.0, 180.0))
+        set_("phase_deg", _pair("phase_deg", self.phase_deg, -360.0, 360.0))
+        if self.freq_hz is not None:
+            set_("freq_hz", _pair("freq_hz", self.freq_hz, 0.0, 100.0))
+        else:
+            set_("omega_rad_s", _pair("omega_rad_s", self.omega_rad_s, 0.0, 200 * math.pi))
+        # Cached arrays for the hot path (rad, rad/s).
+        set_("_amp", np.radians(self.amp_deg))
+        set_("_bias", np.radians(self.bias_deg))
+        set_("_phase", np.radians(self.phase_deg))
+        set_("_omega", np.asarray(self.omega, dtype=float))
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> Reference:
+        """Builds a Reference from a mapping with the same keys as the fields."""
+        unknown = set(values) - set(_FIELDS)
+        if unknown:
+            raise ValueError(f"unknown reference fields {sorted(unknown)}; allowed: {_FIELDS}")
+        return cls(**dict(values))
+
+    def to_dict(self) -> dict[str, list[float]]:
+        return {k: list(getattr(self, k)) for k in _FIELDS if getattr(self, k) is not None}
+
+    @property
+    def omega(self) -> tuple[float, float]:
+        """Returns the angular frequency of each joint (rad/s)."""
+        if self.omega_rad_s is not None:
+            return self.omega_rad_s
+        return (2 * math.pi * self.freq_hz[0], 2 * math.pi * self.freq_hz[1])
+
+    def q(self, t: float | np.ndarray) -> np.ndarray:
+        """Returns q_des(t) (rad), shape (..., 2)."""
+        arg = np.multiply.outer(t, self._omega) + self._phase
+        return self._amp * np.sin(arg) + self._bias
+
+    def qdot(self, t: float | np.ndarray) -> np.ndarray:
+        """Returns dq_des/dt (rad/s), shape (..., 2)."""
+        arg = np.multiply.outer(t, self._omega) + self._phase
+        return self._amp * self._omega * np.cos(arg)
+
+    def qddot(self, t: float | np.ndarray) -> np.ndarray:
+        """Returns d2q_des/dt2 (rad/s^2), shape (..., 2)."""
+        arg = np.multiply.outer(t, self._omega) + self._phase
+        return -self._amp * self._omega**2 * np.sin(arg)
+
+    # -- workspace -----------------------------------------------------------------------------
+    def workspace_violations(self, mech: Mechanism) -> list[str]:
+        """Returns what is wrong with this reference on ``mech`` (empty if it fits).
+
+        Checked conservatively over the whole box bias +- amp of both joints (any phase, any
+        duration): each joint stays in the joint range, and joint B and the effector stay in
+        front of the wall (x > 0)."""
+        problems = []
+        lo, hi = mech.joint_range_deg
+        for j, name in enumerate("AB"):
+            qmin = self.bias_deg[j] - self.amp_deg[j]
+            qmax = self.bias_deg[j] + self.amp_deg[j]
+            if qmin < lo or qmax > hi:
+                problems.append(
+                    f"joint {name} spans [{qmin:.2f}, {qmax:.2f}] deg, outside the joint range "
+                    f"[{lo}, {hi}] deg"
+                )
+        grid = _box_grid(self.bias_deg, self.amp_deg)
+        x_min = float(
+            min(mech.forward_kinematics(grid)[:, 0].min(), mech.joint_b_position(grid)[:, 0].min())
+        )
+        if x_min <= 0.0:
+            problems.append(f"the arm reaches x = {x_min:.4f} m, into the wall (x must stay > 0)")
+        return problems
+
+    def fit_to_workspace(self, mech: Mechanism, warn: bool = True) -> Reference:
+        """Returns this reference with the amplitudes decreased until it fits ``mech`` (the
+        course's rule: decrease the amplitude; the bias is left to the user)."""
+        if not self.workspace_violations(mech):
+            return self
+        at_bias = dataclasses.replace(self, amp_deg=(0.0, 0.0))
+        if at_bias.workspace_violations(mech):
+            raise ValueError(
+                f"reference bias_deg = {self.bias_deg} does not fit even with zero amplitude: "
+                + "; ".join(at_bias.workspace_violations(mech))
+            )
+        lo_k, hi_k = 0.0, 1.0
+        for _ in range(40):
+            k = 0.5 * (lo_k + hi_k)
+            trial = dataclasses.replace(self, amp_deg=(k * self.amp_deg[0], k * self.amp_deg[1]))
+            lo_k, hi_k = (lo_k, k) if trial.workspace_violations(mech) else (k, hi_k)
+        fitted = dataclasses.replace(self, amp_deg=(lo_k * self.amp_deg[0], lo_k * self.amp_deg[1]))
+        if warn:
+            warnings.warn(
+                f"fit_to_workspace: amplitudes scaled by {lo_k:.4f}, from {self.amp_deg} to "
+                f"{tuple(round(a, 4) for a in fitted.amp_deg)} deg",
+                stacklevel=2,
+            )
+        return fitted
+
+
+def _box_grid(bias: tuple[float, float], amp: tuple[float, float], n: int = 33) -> np.ndarray:
+    q1 = np.radians(np.linspace(bias[0] - amp[0], bias[0] + amp[0], n))
+    q2 = np.radians(np.linspace(bias[1] - amp[1], bias[1] + amp[1], n))
+    return np.stack(np.meshgrid(q1, q2, indexing="ij"), -1).reshape(-1, 2)
+
+
+@dataclass(frozen=True)
+class ReferenceRanges:
+    """Ranges [[lo_A, hi_A], [lo_B, hi_B]] to draw a random reference from, each episode."""
+
+    amp_deg: tuple[tuple[float, float], tuple[float, float]]
+    freq_hz: tuple[tuple[float, float], tuple[float, float]]
+    bias_deg: tuple[tuple[float, float], tuple[float, float]]
+    phase_deg: tuple[tuple[float, float], tuple[float, float]] = ((0.0, 360.0), (0.0, 360.0))
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            arr = np.asarray(getattr(self, f.name), dtype=float)
+            if arr.shape != (2, 2) or not np.all(np.isfinite(arr)) or np.any(arr[:, 0] > arr[:, 1]):
+                raise ValueError(
+                    f"reference_ranges.{f.name} = {getattr(self, f.name)!r} is invalid; allowed: "
+                    "[[lo_A, hi_A], [lo_B, hi_B]] with finite lo <= hi"
+                )
+            object.__setattr__(self, f.name, tuple(map(tuple, arr.tolist())))
+        if min(self.amp_deg[0][0], self.amp_deg[1][0], self.freq_hz[0][0], self.freq_hz[1][0]) < 0:
+            raise ValueError(f"reference_ranges amp_deg and freq_hz must be >= 0, got {self}")
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> ReferenceRanges:
+        names = [f.name for f in dataclasses.fields(cls)]
+        unknown = set(values) - set(names)
+        if unknown:
+            raise ValueError(f"unknown reference_ranges fields {sorted(unknown)}; allowed: {names}")
+        return cls(**dict(values))
+
+    def sample(self, rng: np.random.Generator, mech: Mechanism) -> Reference:
+        """Draws a reference (uniform in each range), fitted to the workspace of ``mech``."""
+        draw = {
+            f.name: tuple(float(rng.uniform(lo, hi)) for lo, hi in getattr(self, f.name))
+            for f in dataclasses.fields(self)
+        }
+        return Reference(**draw).fit_to_workspace(mech, warn=False)

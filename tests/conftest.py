@@ -1,0 +1,22 @@
+"""Shared fixtures: mechanism parameter sets the physics tests run on."""
+
+import os
+
+import pytest
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+from tendon2r_gym import Mechanism  # noqa: E402
+
+#: The default, report 002's mechanism, and two sets with other pulley/link proportions.
+MECHANISMS = {
+    "default": Mechanism(),
+    "report_002": Mechanism(R1=0.013, R2=0.045, a=0.040, b=0.042, c=0.087),
+    "big_pulley1": Mechanism(R1=0.03, R2=0.01, a=0.02, b=0.12, c=0.06),
+    "long_links": Mechanism(R1=0.02, R2=0.02, a=0.1, b=0.03, c=0.2),
+}
+
+
+@pytest.fixture(params=sorted(MECHANISMS))
+def mech(request) -> Mechanism:
+    return MECHANISMS[request.param]
