@@ -3,7 +3,10 @@
 Data flows one way: Mechanism -> build_model -> Tendon2REnv -> policy -> rollout -> metrics.
 """
 
+import gymnasium as gym
+
 from tendon2r_gym.actuation import ActuationAnalysis, cond2
+from tendon2r_gym.env import Tendon2REnv
 from tendon2r_gym.mechanism import ROUTINGS, Mechanism
 from tendon2r_gym.model import build_model, build_spec, to_xml
 from tendon2r_gym.reference import Reference, ReferenceRanges
@@ -14,9 +17,20 @@ __all__ = [
     "Mechanism",
     "Reference",
     "ReferenceRanges",
+    "Tendon2REnv",
     "build_model",
     "build_spec",
     "cond2",
     "to_xml",
 ]
 __version__ = "0.1.0"
+
+#: The default episode: 2.0 s at ctrl_dt = 1 ms.
+DEFAULT_MAX_EPISODE_STEPS = 2000
+
+if "Tendon2R-v0" not in gym.registry:
+    gym.register(
+        id="Tendon2R-v0",
+        entry_point="tendon2r_gym.env:Tendon2REnv",
+        max_episode_steps=DEFAULT_MAX_EPISODE_STEPS,
+    )

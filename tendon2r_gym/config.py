@@ -1,7 +1,8 @@
 """Presets: YAML files in ``configs/env/`` whose keys are the Python fields.
 
 A preset has up to three sections: ``mechanism`` (Mechanism fields), ``reference`` (Reference
-fields) and ``env`` (Tendon2REnv keyword arguments).  Files are read with ``yaml.safe_load``.
+fields) and ``reference_ranges`` (ReferenceRanges fields: a random reference every episode).
+Files are read with ``yaml.safe_load``; the same format serves ``evaluate.py --env-config``.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ CONFIG_DIR = Path(
     os.environ.get("TENDON2R_CONFIG_DIR", Path(__file__).resolve().parent.parent / "configs")
 )
 PRESET_DIR = CONFIG_DIR / "env"
-PRESET_SECTIONS = ("mechanism", "reference", "env")
+PRESET_SECTIONS = ("mechanism", "reference", "reference_ranges")
 
 
 def list_presets() -> list[str]:
@@ -50,7 +51,7 @@ def load_yaml(path: str | os.PathLike) -> dict[str, Any]:
 
 
 def load_preset(preset: str | os.PathLike) -> dict[str, dict[str, Any]]:
-    """Returns the sections of a preset: {"mechanism": {...}, "reference": {...}, "env": {...}}."""
+    """Returns the sections of a preset, each a dict (empty when the file omits it)."""
     path = preset_path(preset)
     data = load_yaml(path)
     unknown = set(data) - set(PRESET_SECTIONS)

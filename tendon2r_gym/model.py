@@ -226,7 +226,7 @@ def build_spec(mech: Mechanism) -> mujoco.MjSpec:
         act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
         act.ctrlrange = [-1.0, 1.0]
 
-    # Sensors.
+    # Sensors.  actuatorfrc reads in actuator units (the command); times the gear it is N.
     S = mujoco.mjtSensor
     obj = mujoco.mjtObj
     for j in JOINTS:

@@ -1,0 +1,242 @@
+"""Tendon2R-v0 behaves as a Gymnasium / SB3 user expects."""
+
+import ast
+import copy
+import inspect
+import pickle
+import re
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env as gym_check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import tendon2r_gym
+from tendon2r_gym import Tendon2REnv
+
+
+def _rollout(env, seed, n=50):
+    obs, _ = env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    out = [obs]
+    for _ in range(n):
+        obs, *_ = env.step(rng.uniform(-1, 1, 2).astype(np.float32))
+        out.append(obs)
+    return np.array(out)
+
+
+def test_registered_and_importable_by_module_prefix():
+    env = gym.make("tendon2r_gym:Tendon2R-v0")
+    assert isinstance(env.unwrapped, Tendon2REnv)
+    assert env.spec.max_episode_steps == round(
+        env.unwrapped.episode_duration / env.unwrapped.ctrl_dt
+    )
+
+
+def test_episode_is_truncated_at_its_duration():
+    env = Tendon2REnv(episode_duration=0.05)
+    env.reset(seed=0)
+    for i in range(50):
+        _, _, terminated, truncated, info = env.step(np.zeros(2))
+        assert not terminated
+        assert truncated == (i == 49)
+    assert info["time"] == pytest.approx(0.05)
+
+
+def test_gymnasium_and_sb3_checkers_pass():
+    env = gym.make("Tendon2R-v0")
+    gym_check_env(env.unwrapped, skip_render_check=True)
+    sb3_check_env(env.unwrapped)
+
+
+def test_reward_equals_sum_of_terms_and_info_keys():
+    env = Tendon2REnv()
+    env.reset(seed=3)
+    for _ in range(20):
+        obs, reward, *_, info = env.step(env.action_space.sample())
+        terms = [v for k, v in info.items() if k.startswith("reward_")]
+        assert len(terms) == 3
+        assert reward == pytest.approx(sum(terms), abs=1e-12)
+        assert obs.dtype == env.observation_space.dtype
+        assert env.observation_space.contains(obs)
+        np.testing.assert_allclose(
+            info["tracking_error_deg"], np.degrees(info["q_des"] - info["q"])
+        )
+    for key in ("q", "q_des", "tendon_force", "moment_arm_cond", "effector_pos", "time"):
+        assert key in info
+
+
+def test_observation_entries_match_the_physics():
+    env = Tendon2REnv()
+    env.reset(seed=0)
+    obs, *_ = env.step(np.array([0.3, -0.2]))
+    d = env.unwrapped.data
+    import mujoco
+
+    mujoco.mj_forward(env.model, d)
+    np.testing.assert_allclose(obs[0:2], d.qpos)
+    np.testing.assert_allclose(obs[4:6], d.site("effector").xpos[[0, 2]], atol=1e-12)
+    jac = np.zeros((3, 2))
+    mujoco.mj_jacSite(env.model, d, jac, None, env.model.site("effector").id)
+    np.testing.assert_allclose(obs[6:8], (jac @ d.qvel)[[0, 2]], atol=1e-12)
+    ref = env.reference
+    np.testing.assert_allclose(obs[8:10], ref.q(d.time))
+    np.testing.assert_allclose(obs[10:12], ref.qdot(d.time))
+    np.testing.assert_allclose(obs[12:18], ref.q(d.time + np.array([1, 2, 3]) * 0.01).ravel())
+    assert env.unwrapped.tendon_forces() == pytest.approx(np.array([0.3, -0.2]) * 0.5)
+
+
+def test_same_seed_same_episode_bit_for_bit():
+    a, b = Tendon2REnv(), Tendon2REnv()
+    np.testing.assert_array_equal(_rollout(a, 7), _rollout(b, 7))
+    assert not np.array_equal(_rollout(a, 7), _rollout(a, 8))
+
+
+def test_random_reference_is_seeded():
+    ranges = {
+        "amp_deg": [[5, 20], [5, 20]],
+        "freq_hz": [[0.5, 3], [0.5, 3]],
+        "bias_deg": [[-10, 10], [-10, 10]],
+    }
+    a = Tendon2REnv(reference_ranges=ranges)
+    b = Tendon2REnv(reference_ranges=ranges)
+    _, info_a = a.reset(seed=1)
+    _, info_b = b.reset(seed=1)
+    assert info_a["reference"] == info_b["reference"]
+    _, info_c = a.reset(seed=2)
+    assert info_c["reference"] != info_a["reference"]
+
+
+def test_pickle_and_deepcopy_round_trip():
+    env = Tendon2REnv(mechanism={"R2": 0.03}, preview_steps=2)
+    env.reset(seed=0)
+    for clone in (pickle.loads(pickle.dumps(env)), copy.deepcopy(env)):
+        assert clone.mechanism == env.mechanism
+        np.testing.assert_array_equal(_rollout(clone, 4), _rollout(env, 4))
+
+
+@pytest.mark.parametrize("bad", [[np.nan, 0.0], [0.0, np.inf]])
+def test_non_finite_action_raises(bad):
+    env = Tendon2REnv()
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"not finite.*\[-1, 1\]"):
+        env.step(np.array(bad))
+
+
+def test_out_of_range_action_is_clipped():
+    env = Tendon2REnv()
+    env.reset(seed=0)
+    env.step(np.array([5.0, -7.0]))
+    np.testing.assert_array_equal(env.data.ctrl, [1.0, -1.0])
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"mechanism": {"a": -1.0}}, "Mechanism.a"),
+        ({"mechanism": {"routing": "zigzag"}}, "routing"),
+        ({"reference": {"amp_deg": [95, 10]}}, "joint range"),
+        (
+            {"reference": {"bias_deg": [0, 0], "amp_deg": [60, 85]}, "mechanism": {"a": 0.01}},
+            "wall",
+        ),
+        ({"reference": {"omega_rad_s": [1, 1], "freq_hz": [1, 1]}}, "exactly one"),
+        ({"ctrl_dt": 0.00125}, "ctrl_dt"),
+        ({"preset": "nope"}, "unknown preset"),
+        ({"tracking_weight": -1.0}, "tracking_weight"),
+    ],
+)
+def test_invalid_configuration_raises_at_make(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        gym.make("Tendon2R-v0", **kwargs)
+
+
+def test_fit_to_workspace_scales_amplitude_and_warns():
+    with pytest.warns(UserWarning, match="fit_to_workspace"):
+        env = gym.make("Tendon2R-v0", reference={"amp_deg": [95, 10]}, fit_to_workspace=True)
+    ref = env.unwrapped.reference
+    assert ref.amp_deg[0] < 95 and ref.bias_deg == (-0.4, -9.7)
+    assert not ref.workspace_violations(env.unwrapped.mechanism)
+
+
+def test_omega_and_freq_give_the_same_reference():
+    hz = Tendon2REnv(reference={"freq_hz": [2.0, 1.0]})
+    rad = Tendon2REnv(reference={"omega_rad_s": [4 * np.pi, 2 * np.pi]})
+    t = np.linspace(0, 1, 11)
+    np.testing.assert_allclose(hz.reference.q(t), rad.reference.q(t))
+
+
+def test_preset_plus_partial_override():
+    env = gym.make("Tendon2R-v0", preset="report_002", mechanism={"R1": 0.02})
+    mech = env.unwrapped.mechanism
+    assert mech.R1 == 0.02 and mech.R2 == 0.045 and mech.c == 0.087
+    assert env.unwrapped.model.geom("pulley1").size[0] == pytest.approx(0.01)
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"mechanism": {"max_tendon_force": 1e9}},
+        {
+            "mechanism": {"sim_dt": 0.01, "integrator": "Euler", "max_tendon_force": 50.0},
+            "ctrl_dt": 0.01,
+        },
+    ],
+)
+def test_forced_divergence_ends_episode_cleanly(kwargs):
+    env = gym.make("Tendon2R-v0", **kwargs)
+    env.reset(seed=0)
+    for _ in range(200):
+        obs, reward, terminated, truncated, info = env.step(np.array([1.0, -1.0]))
+        assert np.isfinite(obs).all() and np.isfinite(reward)
+        if terminated:
+            break
+    assert terminated and info["diverged"]
+    assert info["reward_divergence"] < 0
+
+
+def test_rgb_array_render_is_not_blank():
+    env = gym.make("Tendon2R-v0", render_mode="rgb_array", width=160, height=120)
+    env.reset(seed=0)
+    img = env.render()
+    env.close()
+    assert img.shape == (120, 160, 3)
+    assert img.std() > 5  # something other than a flat background
+
+
+@pytest.mark.parametrize("mode", ["sync", "async"])
+def test_vector_envs(mode):
+    envs = gym.make_vec("Tendon2R-v0", num_envs=2, vectorization_mode=mode)
+    obs, _ = envs.reset(seed=0)
+    obs2, rew, term, trunc, info = envs.step(np.zeros((2, 2), np.float32))
+    envs.close()
+    assert obs.shape == obs2.shape == (2, 20)
+    assert rew.shape == (2,)
+
+
+def test_documented_defaults_match_the_signature():
+    doc = inspect.getdoc(Tendon2REnv)
+    rows = dict(re.findall(r"^\| `(\w+)` \| `([^`]*)` \|", doc, flags=re.M))
+    params = {
+        k: v.default
+        for k, v in inspect.signature(Tendon2REnv.__init__).parameters.items()
+        if v.default is not inspect.Parameter.empty
+    }
+    assert set(rows) == set(params)
+    for name, text in rows.items():
+        assert ast.literal_eval(text) == params[name], name
+    for section in (
+        "Description",
+        "Action Space",
+        "Observation Space",
+        "Rewards",
+        "Starting State",
+        "Episode End",
+        "Arguments",
+        "Version History",
+    ):
+        assert f"## {section}" in doc
+    assert tendon2r_gym.DEFAULT_MAX_EPISODE_STEPS == round(
+        params["episode_duration"] / params["ctrl_dt"]
+    )
