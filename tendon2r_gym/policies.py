@@ -1,0 +1,154 @@
+"""Model-based baselines with the SB3 ``predict`` interface: a joint PD and computed torque.
+
+Both see only the observation and the mechanism's parameters: they build their own copy of the
+model to compute moment arms and inertia, and never read the environment's MjData.  Joint
+torques tau become tendon forces f through J^T f = tau (J = dL/dq), solved with a damped inverse
+so that f stays finite near singular configurations, then normalized by the force limit and
+clipped to the action box.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from tendon2r_gym.config import CONFIG_DIR, load_yaml
+from tendon2r_gym.mechanism import Mechanism
+from tendon2r_gym.model import build_model
+from tendon2r_gym.reference import Reference
+
+# Observation layout (see Tendon2REnv): q, dq, effector pos, effector vel, q_des, dq_des, ...
+_Q, _DQ, _Q_DES, _DQ_DES = slice(0, 2), slice(2, 4), slice(8, 10), slice(10, 12)
+PD_CONFIG = CONFIG_DIR / "pd.yaml"
+
+
+@dataclass(frozen=True)
+class Gains:
+    """Closed-loop gains that carry over between mechanisms and control rates.
+
+    The joint error obeys e'' + 2 zeta w e' + w^2 e = 0 with w = 2 pi bandwidth_hz, because the
+    feedback torque is scaled by the joint inertia M(q).  The bandwidth is capped at
+    ``max_bandwidth_fraction`` of the control rate so that the sampled loop stays stable."""
+
+    bandwidth_hz: float = 30.0  # closed-loop natural frequency (Hz)
+    damping_ratio: float = 1.0
+    max_bandwidth_fraction: float = 0.05  # of the control rate 1 / ctrl_dt
+    force_damping: float = 1e-3  # damped-inverse regularization, relative to |J|
+
+    def __post_init__(self) -> None:
+        for name in ("bandwidth_hz", "damping_ratio", "max_bandwidth_fraction", "force_damping"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+                raise ValueError(
+                    f"Gains.{name} = {value!r} is invalid; allowed: a finite number > 0"
+                )
+
+    @classmethod
+    def from_yaml(cls, path: str | Path = PD_CONFIG) -> Gains:
+        data = load_yaml(path)
+        unknown = set(data) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ValueError(f"{path}: unknown gain fields {sorted(unknown)}")
+        return cls(**data)
+
+    def natural_frequency(self, ctrl_dt: float) -> float:
+        """Returns w (rad/s): the bandwidth, capped at the fraction of the control rate."""
+        return 2 * math.pi * min(self.bandwidth_hz, self.max_bandwidth_fraction / ctrl_dt)
+
+
+class _TendonController:
+    """Shared machinery: a private model, joint torque -> normalized tendon command."""
+
+    def __init__(self, mechanism: Mechanism, ctrl_dt: float, gains: Gains | None = None) -> None:
+        self.mechanism = mechanism
+        self.gains = gains or Gains.from_yaml()
+        w = self.gains.natural_frequency(ctrl_dt)
+        self.kp, self.kd = w * w, 2.0 * self.gains.damping_ratio * w
+        self.model = build_model(mechanism)
+        self.data = mujoco.MjData(self.model)
+        self._M = np.zeros((self.model.nv, self.model.nv))
+        self._J = self.data.ten_J.reshape(self.model.ntendon, self.model.nv)
+        self._max_force = mechanism.max_tendon_force
+
+    @classmethod
+    def from_env(cls, env: Any, **kwargs: Any) -> _TendonController:
+        """Builds the controller from an env's mechanism and control period (not its state)."""
+        env = env.unwrapped
+        return cls(env.mechanism, env.ctrl_dt, **kwargs)
+
+    def tendon_command(self, tau: np.ndarray) -> np.ndarray:
+        """Returns the clipped normalized command whose tendon forces give joint torques tau,
+        with J (at the last computed configuration) from the private model."""
+        J = self._J
+        lam2 = self.gains.force_damping * float(np.sum(J * J))
+        f = J @ np.linalg.solve(J.T @ J + lam2 * np.eye(J.shape[1]), tau)
+        return np.clip(f / self._max_force, -1.0, 1.0).astype(np.float32)
+
+    def _torque(self, obs: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def predict(
+        self,
+        observation: np.ndarray,
+        state: Any = None,
+        episode_start: Any = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, Any]:
+        """SB3-style: returns (action, state) for one observation or a batch of them."""
+        obs = np.asarray(observation, dtype=np.float64)
+        if obs.ndim == 1:
+            return self.tendon_command(self._torque(obs)), state
+        return np.stack([self.tendon_command(self._torque(o)) for o in obs]), state
+
+
+class PDPolicy(_TendonController):
+    """Joint-space PD with reference-velocity feed-forward, scaled by the joint inertia:
+    tau = M(q) (kp (q_des - q) + kd (dq_des - dq))."""
+
+    def _torque(self, obs: np.ndarray) -> np.ndarray:
+        d = self.data
+        d.qpos[:] = obs[_Q]
+        mujoco.mj_fwdPosition(self.model, d)
+        mujoco.mj_fullM(self.model, d, self._M)
+        accel = self.kp * (obs[_Q_DES] - obs[_Q]) + self.kd * (obs[_DQ_DES] - obs[_DQ])
+        return self._M @ accel
+
+
+class ComputedTorquePolicy(_TendonController):
+    """Inverse dynamics of the full model plus PD: the 'perfect model' reference.
+    tau = ID(q, dq, ddq_des + kp e + kd de), with ddq_des = -w^2 (q_des - bias) exact for the
+    sinusoidal ``reference``.  It knows the reference, so it is a bound, not a deployable
+    baseline."""
+
+    def __init__(
+        self,
+        mechanism: Mechanism,
+        ctrl_dt: float,
+        reference: Reference,
+        gains: Gains | None = None,
+    ) -> None:
+        super().__init__(mechanism, ctrl_dt, gains)
+        self.reference = reference
+        self._w2 = np.asarray(reference.omega) ** 2
+        self._bias = np.radians(reference.bias_deg)
+
+    @classmethod
+    def from_env(cls, env: Any, **kwargs: Any) -> ComputedTorquePolicy:
+        env = env.unwrapped
+        return cls(env.mechanism, env.ctrl_dt, env.reference, **kwargs)
+
+    def _torque(self, obs: np.ndarray) -> np.ndarray:
+        d = self.data
+        d.qpos[:] = obs[_Q]
+        d.qvel[:] = obs[_DQ]
+        ddq_des = -self._w2 * (obs[_Q_DES] - self._bias)
+        d.qacc[:] = (
+            ddq_des + self.kp * (obs[_Q_DES] - obs[_Q]) + self.kd * (obs[_DQ_DES] - obs[_DQ])
+        )
+        mujoco.mj_inverse(self.model, d)
+        return d.qfrc_inverse.copy()

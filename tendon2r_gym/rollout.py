@@ -1,0 +1,98 @@
+"""Rollouts: run any policy with ``predict(obs) -> (action, state)`` on seeded episodes."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import gymnasium as gym
+import numpy as np
+
+
+class Policy(Protocol):
+    def predict(
+        self,
+        observation: np.ndarray,
+        state: Any = None,
+        episode_start: Any = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, Any]: ...
+
+
+@dataclass
+class Trace:
+    """One episode, one row per control step (after the step)."""
+
+    seed: int
+    time: np.ndarray  # (T,) s
+    q: np.ndarray  # (T, 2) rad
+    q_des: np.ndarray  # (T, 2) rad
+    error_deg: np.ndarray  # (T, 2) q_des - q, deg
+    tendon_force: np.ndarray  # (T, 2) N
+    action: np.ndarray  # (T, 2) normalized command (clipped)
+    effector_pos: np.ndarray  # (T, 2) m
+    reward: np.ndarray  # (T,)
+    diverged: bool
+    frames: list[np.ndarray] | None = None
+
+
+def rollout(
+    policy: Policy,
+    env: gym.Env,
+    seed: int,
+    options: dict[str, Any] | None = None,
+    render: bool = False,
+) -> Trace:
+    """Runs one deterministic episode of ``policy`` on ``env`` from ``reset(seed=seed)``."""
+    obs, _ = env.reset(seed=seed, options=options)
+    rows: dict[str, list] = {
+        k: []
+        for k in (
+            "time",
+            "q",
+            "q_des",
+            "error_deg",
+            "tendon_force",
+            "action",
+            "effector_pos",
+            "reward",
+        )
+    }
+    frames = [env.render()] if render else None
+    done, diverged = False, False
+    while not done:
+        action, _ = policy.predict(obs, deterministic=True)
+        obs, reward, terminated, truncated, info = env.step(action)
+        done = terminated or truncated
+        diverged = diverged or bool(info["diverged"])
+        rows["time"].append(info["time"])
+        rows["q"].append(info["q"])
+        rows["q_des"].append(info["q_des"])
+        rows["error_deg"].append(info["tracking_error_deg"])
+        rows["tendon_force"].append(info["tendon_force"])
+        rows["action"].append(np.clip(action, -1, 1))
+        rows["effector_pos"].append(info["effector_pos"])
+        rows["reward"].append(reward)
+        if render:
+            frames.append(env.render())
+    return Trace(
+        seed=seed,
+        diverged=diverged,
+        frames=frames,
+        **{k: np.asarray(v, dtype=float) for k, v in rows.items()},
+    )
+
+
+def rollouts(
+    policy: Policy,
+    make_env: Callable[[], gym.Env],
+    seeds: Sequence[int],
+    options: dict[str, Any] | None = None,
+) -> list[Trace]:
+    """Runs one episode per seed, each on the same env (same seeds for every policy)."""
+    env = make_env()
+    try:
+        return [rollout(policy, env, s, options) for s in seeds]
+    finally:
+        env.close()
