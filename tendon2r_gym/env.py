@@ -109,7 +109,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     | `tracking_weight` | `1.0` | weight of the squared tracking error (deg^2) |
     | `ctrl_cost_weight` | `0.01` | weight of the squared action |
     | `divergence_penalty` | `1000.0` | reward subtracted when the physics diverges |
-    | `reset_noise_scale` | `0.01` | initial-state noise (rad, rad/s) |
+    | `reset_noise_scale` | `0.001` | initial-state noise (rad, rad/s) |
     | `preview_steps` | `3` | number of future reference samples observed |
     | `preview_dt` | `0.01` | spacing of the future reference samples (s) |
     | `render_mode` | `None` | "human", "rgb_array" or "depth_array" |
@@ -135,7 +135,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         tracking_weight: float = 1.0,
         ctrl_cost_weight: float = 0.01,
         divergence_penalty: float = 1000.0,
-        reset_noise_scale: float = 0.01,
+        reset_noise_scale: float = 0.001,
         preview_steps: int = 3,
         preview_dt: float = 0.01,
         render_mode: str | None = None,

@@ -20,3 +20,10 @@ MECHANISMS = {
 @pytest.fixture(params=sorted(MECHANISMS))
 def mech(request) -> Mechanism:
     return MECHANISMS[request.param]
+
+
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+# The command-line scripts are tested through their main(argv) functions.
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts"))

@@ -1,0 +1,127 @@
+"""PD and computed torque: closed-loop behaviour, and the evaluation script's outputs."""
+
+import json
+
+import numpy as np
+import pytest
+
+from tendon2r_gym import Tendon2REnv
+from tendon2r_gym.evaluation import evaluate
+from tendon2r_gym.policies import ComputedTorquePolicy, Gains, PDPolicy
+
+
+def test_pd_removes_a_step_error():
+    env = Tendon2REnv(reference={"amp_deg": [0, 0], "bias_deg": [10, -10]}, episode_duration=0.3)
+    obs, _ = env.reset(seed=0)
+    env.set_state(np.zeros(2), np.zeros(2))  # 10 deg away from the set point on both joints
+    obs = env._get_obs()
+    pd = PDPolicy.from_env(env)
+    start = np.abs(np.degrees(obs[-2:]))
+    for _ in range(300):
+        obs, *_ = env.step(pd.predict(obs)[0])
+    assert np.all(start > 9.9)
+    assert np.all(np.abs(np.degrees(obs[-2:])) < 0.01 * start)
+
+
+def test_pd_never_reads_the_env_state():
+    env = Tendon2REnv()
+    pd = PDPolicy.from_env(env)
+    assert pd.model is not env.model and pd.data is not env.data
+
+
+def test_pd_action_is_bounded_and_batched():
+    env = Tendon2REnv()
+    obs, _ = env.reset(seed=0)
+    obs = obs.copy()
+    obs[8:10] += 3.0  # a huge error saturates the command
+    pd = PDPolicy.from_env(env)
+    single, _ = pd.predict(obs)
+    batch, _ = pd.predict(np.stack([obs, obs]))
+    assert single.shape == (2,) and batch.shape == (2, 2)
+    assert np.all(np.abs(single) <= 1.0)
+    np.testing.assert_array_equal(batch[0], single)
+
+
+def test_bandwidth_is_capped_by_the_control_rate():
+    gains = Gains(bandwidth_hz=1000.0, max_bandwidth_fraction=0.05)
+    assert gains.natural_frequency(0.001) == pytest.approx(2 * np.pi * 50)
+    with pytest.raises(ValueError, match="bandwidth_hz"):
+        Gains(bandwidth_hz=-1.0)
+
+
+def test_computed_torque_beats_pd_on_default():
+    kwargs = {"preset": "default", "episode_duration": 1.0}
+    pd, _ = evaluate("pd", kwargs, [0])
+    ct, _ = evaluate("ct", kwargs, [0])
+    assert all(c < p for c, p in zip(ct["rms_deg"], pd["rms_deg"], strict=True))
+
+
+@pytest.mark.parametrize(
+    ("preset", "policy", "limit_deg"),
+    [("default", "pd", 0.3), ("default", "ct", 0.02), ("report_002", "pd", 1.0)],
+)
+def test_tracking_targets(preset, policy, limit_deg):
+    metrics, _ = evaluate(policy, {"preset": preset}, [0, 1])
+    assert max(metrics["rms_deg"]) <= limit_deg, metrics["rms_deg"]
+    assert metrics["diverged_episodes"] == 0
+
+
+#: Mechanisms the PD gains were not tuned on: other pulley sizes and link lengths.
+UNTUNED = [
+    {"R1": 0.03, "R2": 0.01, "a": 0.02, "b": 0.12, "c": 0.06, "max_tendon_force": 1.0},
+    {"R1": 0.02, "R2": 0.02, "a": 0.1, "b": 0.03, "c": 0.2, "max_tendon_force": 1.0},
+    {"R1": 0.01, "R2": 0.04, "a": 0.03, "b": 0.05, "c": 0.08, "max_tendon_force": 1.0},
+]
+
+
+@pytest.mark.parametrize("mechanism", UNTUNED)
+def test_same_pd_config_tracks_untuned_mechanisms(mechanism):
+    metrics, _ = evaluate("pd", {"preset": "default", "mechanism": mechanism}, [0])
+    assert max(metrics["rms_deg"]) <= 1.0, (mechanism, metrics["rms_deg"])
+
+
+def test_evaluate_script_writes_json_plots_and_video(tmp_path):
+    import evaluate as script  # scripts/ is on sys.path via tests/conftest.py
+
+    config = tmp_path / "my_arm.yaml"
+    config.write_text(
+        "mechanism: {R1: 0.012, R2: 0.02, a: 0.05, b: 0.07, c: 0.09, max_tendon_force: 0.5}\n"
+        "reference: {amp_deg: [10, 10], omega_rad_s: [6.0, 9.0], bias_deg: [0, -5]}\n"
+    )
+    out = tmp_path / "m.json"
+    script.main(
+        [
+            "--policy",
+            "pd",
+            "--env-config",
+            str(config),
+            "--episodes",
+            "2",
+            "--episode-duration",
+            "0.1",
+            "--json",
+            str(out),
+            "--plots",
+            str(tmp_path / "p"),
+            "--video",
+            str(tmp_path / "v.gif"),
+        ]
+    )
+    metrics = json.loads(out.read_text())
+    for key in ("rms_deg", "max_deg", "rms_force_N", "saturated_fraction"):
+        assert len(metrics[key]) == 2
+    assert metrics["episodes"] == 2 and metrics["seeds"] == [0, 1]
+    for name in ("tracking.png", "forces.png", "effector_path.png"):
+        assert (tmp_path / "p" / name).stat().st_size > 1000
+    assert (tmp_path / "v.gif").stat().st_size > 1000
+
+
+def test_evaluate_rejects_unknown_policy():
+    with pytest.raises(ValueError, match="allowed"):
+        evaluate("lqr", {"preset": "default", "episode_duration": 0.01}, [0])
+
+
+def test_computed_torque_uses_the_model_not_the_env():
+    env = Tendon2REnv()
+    ct = ComputedTorquePolicy.from_env(env)
+    assert ct.data is not env.data
