@@ -6,6 +6,16 @@ import pytest
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+# Load torch (and the triton extension PPO pulls in) before any test creates an EGL context:
+# loading triton after Mesa's EGL segfaults on these machines.
+import stable_baselines3  # noqa: E402, F401
+from stable_baselines3 import PPO  # noqa: E402, F401
+
+try:
+    import triton.runtime  # noqa: E402, F401
+except ImportError:  # torch builds without triton have nothing to load
+    pass
+
 from tendon2r_gym import Mechanism  # noqa: E402
 
 #: The default, report 002's mechanism, and two sets with other pulley/link proportions.
