@@ -22,6 +22,13 @@ lint: venv
 	$(BIN)/ruff check tendon2r_gym scripts tests
 
 benchmark: venv
+	$(BIN)/python scripts/benchmark.py
+
+speed: venv
+	$(BIN)/python scripts/bench_speed.py
+	$(BIN)/python scripts/timestep_study.py
+
+view: venv
 	$(BIN)/python scripts/view.py --save results/default.png
 
 clean:
