@@ -10,6 +10,7 @@ import argparse
 import json
 import os
 import resource
+import sys
 import time
 from pathlib import Path
 
@@ -95,6 +96,10 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--steps", type=int, default=20000)
     p.add_argument("--ppo-timesteps", type=int, default=40960)
     args = p.parse_args(argv)
+    command = (
+        "python scripts/bench_speed.py"
+        + (" " + " ".join(argv if argv is not None else sys.argv[1:])).rstrip()
+    )
     result: dict = {"mujoco": mujoco.__version__, "gymnasium": gym.__version__}
     for env_id, kwargs in (("Tendon2R-v0", {}), ("Reacher-v5", {})):
         env = gym.make(env_id, **kwargs)
