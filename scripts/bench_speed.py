@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None) -> dict:
     lines = [
         "# Speed",
         "",
-        "Produced by `python scripts/bench_speed.py` (one run, 2 CPU cores; best "
+        f"Produced by `{command}` (one run, 2 CPU cores; best "
         "of 3 repeats; unwrapped envs, zero action).",
         "",
         "| env | substeps | raw mj_step (us) | env.step (us) | overhead (us) | steps/s |",
