@@ -11,7 +11,7 @@ import numpy as np
 def cond2(J: np.ndarray) -> float:
     """Returns the 2-norm condition number of a 2x2 matrix (closed form, no SVD; inf if
     singular).  The singular values satisfy s^2 = (T +- sqrt(T^2 - 4 det^2)) / 2, T = |J|_F^2."""
-    a, b, c, d = float(J[0, 0]), float(J[0, 1]), float(J[1, 0]), float(J[1, 1])
+    a, b, c, d = np.asarray(J, dtype=np.float64).ravel().tolist()
     t = a * a + b * b + c * c + d * d
     det = abs(a * d - b * c)
     if det <= 1e-300 * max(t, 1e-300) or not math.isfinite(t):

@@ -224,7 +224,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
 
     def _resolve_ids(self) -> None:
         """Caches views and constants used on every step (no name look-ups in the hot path)."""
-        m = self.mechanism
+        m, d = self.mechanism, self.data
         self._a, self._b, self._c = m.a, m.b, m.c
         self._q_lo, self._q_hi = m.joint_range_rad
         # Soft joint limits let a joint overshoot a little; this far past them (NaN included)
@@ -233,20 +233,27 @@ class Tendon2REnv(MujocoEnv, EzPickle):
             self._q_lo - DIVERGED_PAST_LIMIT,
             self._q_hi + DIVERGED_PAST_LIMIT,
         )
+        # Views into MjData stay valid for its lifetime; fetching them once saves a binding call
+        # per access on every step.
+        self._qpos, self._qvel, self._ctrl = d.qpos, d.qvel, d.ctrl
+        self._actuator_force = d.actuator_force
         self._gear = self.model.actuator_gear[:, 0].copy()
-        self._warnings = [self.data.warning[w] for w in _DIVERGENCE_WARNINGS]
-        self._ten_J = moment_arms_from_data(self.model, self.data)
-        self._offsets = np.arange(self.preview_steps + 1) * self.preview_dt
-        self._obs = np.zeros(self.observation_space.shape, np.float64)
+        self._gear1, self._gear2 = self._gear.tolist()
+        self._warnings = [d.warning[w] for w in _DIVERGENCE_WARNINGS]
+        self._ten_J = moment_arms_from_data(self.model, d)
+        self._offsets = [k * self.preview_dt for k in range(1, self.preview_steps + 1)]
         self._set_reference_cache(self.reference)
         self._step_count = 0
         self._warning_count = 0
 
     def _set_reference_cache(self, ref: Reference) -> None:
+        """Caches the reference as Python floats, joint A then B (scalar math is faster than
+        numpy on two-element arrays)."""
         self.reference = ref
-        self._amp, self._bias = ref._amp, ref._bias
-        self._omega, self._phase = ref._omega, ref._phase
-        self._amp_omega = self._amp * self._omega
+        self._amp1, self._amp2 = ref._amp.tolist()
+        self._bias1, self._bias2 = ref._bias.tolist()
+        self._omega1, self._omega2 = ref._omega.tolist()
+        self._phase1, self._phase2 = ref._phase.tolist()
 
     # -- named quantities ------------------------------------------------------------------------
     def joint_angles(self) -> np.ndarray:
@@ -264,69 +271,83 @@ class Tendon2REnv(MujocoEnv, EzPickle):
 
     # -- gymnasium API -----------------------------------------------------------------------------
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        action = np.asarray(action, dtype=np.float64)
-        if action.shape != (2,):
-            raise ValueError(f"action has shape {action.shape}; allowed: (2,) in [-1, 1]")
-        if not np.isfinite(action).all():
-            raise ValueError(
-                f"action = {action.tolist()} is not finite; allowed: 2 values in [-1, 1]"
-            )
-        d = self.data
-        np.clip(action, -1.0, 1.0, out=d.ctrl)
-        mujoco.mj_step(self.model, d, nstep=self.frame_skip)
+        if type(action) is not np.ndarray or action.shape != (2,):
+            action = np.asarray(action, dtype=np.float64)
+            if action.shape != (2,):
+                raise ValueError(f"action has shape {action.shape}; allowed: (2,) in [-1, 1]")
+        a1, a2 = action.tolist()
+        if not (math.isfinite(a1) and math.isfinite(a2)):
+            raise ValueError(f"action = {[a1, a2]} is not finite; allowed: 2 values in [-1, 1]")
+        a1, a2 = min(max(a1, -1.0), 1.0), min(max(a2, -1.0), 1.0)
+        ctrl = self._ctrl
+        ctrl[0], ctrl[1] = a1, a2
+        mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
         self._step_count += 1
-        n_warn = sum(w.number for w in self._warnings)
-        q1, q2 = float(d.qpos[0]), float(d.qpos[1])
-        diverged = (
-            n_warn > self._warning_count
-            or not (self._q_lo_div < q1 < self._q_hi_div and self._q_lo_div < q2 < self._q_hi_div)
-            or not np.isfinite(d.qvel).all()
-        )
-        self._warning_count = n_warn
-        if diverged:  # MuJoCo already reset the state on a bad QACC; make sure it is finite.
-            d.qpos[:] = np.nan_to_num(d.qpos, nan=0.0, posinf=0.0, neginf=0.0)
-            d.qvel[:] = 0.0
+        diverged = self._check_divergence()
         obs = self._get_obs()
-        reward, terms = self._get_rew(obs, d.ctrl, diverged)
+        reward, terms = self._get_rew(obs, (a1, a2), diverged)
         info = self._get_info(obs, terms, diverged)
         truncated = self._step_count >= self.max_steps
         if self.render_mode == "human":
             self.render()
         return obs, reward, diverged, truncated, info
 
+    def _check_divergence(self) -> bool:
+        """Returns whether the last step diverged (a new MuJoCo instability warning, a
+        non-finite state, or a joint far past its limit); if so, leaves a finite state."""
+        n_warn = sum(w.number for w in self._warnings)
+        (q1, q2), (w1, w2) = self._qpos.tolist(), self._qvel.tolist()
+        lo, hi = self._q_lo_div, self._q_hi_div
+        diverged = (
+            n_warn > self._warning_count
+            or not (lo < q1 < hi and lo < q2 < hi)  # also catches NaN
+            or not (math.isfinite(w1) and math.isfinite(w2))
+        )
+        self._warning_count = n_warn
+        if diverged:  # MuJoCo already reset the state on a bad QACC; make sure it is finite.
+            self._qpos[:] = np.nan_to_num(self._qpos, nan=0.0, posinf=0.0, neginf=0.0)
+            self._qvel[:] = 0.0
+        return diverged
+
     def _get_obs(self) -> np.ndarray:
-        d, o = self.data, self._obs
-        q1, q2 = float(d.qpos[0]), float(d.qpos[1])
-        w1, w2 = float(d.qvel[0]), float(d.qvel[1])
+        (q1, q2), (w1, w2) = self._qpos.tolist(), self._qvel.tolist()
+        a, b, c = self._a, self._b, self._c
         c1, s1 = math.cos(q1), math.sin(q1)
         c12, s12 = math.cos(q1 + q2), math.sin(q1 + q2)
-        o[0], o[1], o[2], o[3] = q1, q2, w1, w2
-        o[4] = self._a + self._c * c1 + self._b * c12
-        o[5] = self._c * s1 + self._b * s12
-        o[6] = -self._c * s1 * w1 - self._b * s12 * (w1 + w2)
-        o[7] = self._c * c1 * w1 + self._b * c12 * (w1 + w2)
-        arg = np.multiply.outer(d.time + self._offsets, self._omega)
-        arg += self._phase
-        q_des = self._amp * np.sin(arg) + self._bias  # (1 + preview_steps, 2)
-        o[8:10] = q_des[0]
-        o[10:12] = self._amp_omega * np.cos(arg[0])
-        o[12:-2] = q_des[1:].ravel()
-        o[-2] = q_des[0, 0] - q1
-        o[-1] = q_des[0, 1] - q2
-        return o.copy()
+        w12 = w1 + w2
+        t = self.data.time
+        amp1, amp2, om1, om2 = self._amp1, self._amp2, self._omega1, self._omega2
+        ph1, ph2, bias1, bias2 = self._phase1, self._phase2, self._bias1, self._bias2
+        arg1, arg2 = om1 * t + ph1, om2 * t + ph2
+        qd1, qd2 = amp1 * math.sin(arg1) + bias1, amp2 * math.sin(arg2) + bias2
+        obs = [
+            q1, q2, w1, w2,
+            a + c * c1 + b * c12, c * s1 + b * s12,  # effector x, z
+            -c * s1 * w1 - b * s12 * w12, c * c1 * w1 + b * c12 * w12,  # effector velocity
+            qd1, qd2,
+            amp1 * om1 * math.cos(arg1), amp2 * om2 * math.cos(arg2),
+        ]  # fmt: skip
+        for dt in self._offsets:
+            obs.append(amp1 * math.sin(arg1 + om1 * dt) + bias1)
+            obs.append(amp2 * math.sin(arg2 + om2 * dt) + bias2)
+        obs.append(qd1 - q1)
+        obs.append(qd2 - q2)
+        return np.array(obs, dtype=np.float64)
 
     def _get_rew(
-        self, obs: np.ndarray, action: np.ndarray, diverged: bool
+        self, obs: np.ndarray, action: tuple[float, float], diverged: bool
     ) -> tuple[float, dict[str, float]]:
         e1, e2 = math.degrees(obs[-2]), math.degrees(obs[-1])
+        a1, a2 = action
         terms = {
             "tracking": -self.tracking_weight * (e1 * e1 + e2 * e2),
-            "ctrl": -self.ctrl_cost_weight * float(action[0] ** 2 + action[1] ** 2),
+            "ctrl": -self.ctrl_cost_weight * (a1 * a1 + a2 * a2),
             "divergence": -self.divergence_penalty if diverged else 0.0,
         }
         return terms["tracking"] + terms["ctrl"] + terms["divergence"], terms
 
     def _get_info(self, obs: np.ndarray, terms: dict[str, float], diverged: bool) -> dict[str, Any]:
+        f1, f2 = self._actuator_force.tolist()
         return {
             "reward_tracking": terms["tracking"],
             "reward_ctrl": terms["ctrl"],
@@ -334,10 +355,10 @@ class Tendon2REnv(MujocoEnv, EzPickle):
             "q": obs[0:2],
             "q_des": obs[8:10],
             "tracking_error_deg": np.degrees(obs[-2:]),
-            "tendon_force": self.data.actuator_force * self._gear,
+            "tendon_force": np.array((f1 * self._gear1, f2 * self._gear2)),
             "moment_arm_cond": cond2(self._ten_J),
             "effector_pos": obs[4:6],
-            "time": float(self.data.time),
+            "time": self.data.time,
             "diverged": diverged,
         }
 
