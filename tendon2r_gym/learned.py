@@ -9,6 +9,7 @@ feed-forward.  With ``residual_scale = 0`` the agent drives the motors directly.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -36,13 +37,27 @@ class ResidualPDWrapper(gym.Wrapper):
         return self._obs, info
 
     def step(self, action: np.ndarray):
-        action = np.asarray(action, dtype=np.float64)
-        if action.shape != (2,) or not np.isfinite(action).all():
-            raise ValueError(f"action = {action!r} is invalid; allowed: 2 finite values in [-1, 1]")
-        base, _ = self.pd.predict(self._obs)
-        command = np.clip(base + self.residual_scale * np.clip(action, -1, 1), -1, 1)
+        a1, a2 = _finite_pair(action)
+        b1, b2 = self.pd.predict(self._obs)[0].tolist()
+        s = self.residual_scale
+        command = np.array(
+            (_clip1(b1 + s * _clip1(a1)), _clip1(b2 + s * _clip1(a2))), dtype=np.float64
+        )
         self._obs, reward, terminated, truncated, info = self.env.step(command)
         return self._obs, reward, terminated, truncated, info
+
+
+def _clip1(x: float) -> float:
+    return min(max(x, -1.0), 1.0)
+
+
+def _finite_pair(action: np.ndarray) -> tuple[float, float]:
+    """Returns the action as two Python floats; raises on a wrong shape or non-finite values."""
+    arr = np.asarray(action, dtype=np.float64)
+    if arr.shape != (2,) or not (math.isfinite(arr[0]) and math.isfinite(arr[1])):
+        raise ValueError(f"action = {action!r} is invalid; allowed: 2 finite values in [-1, 1]")
+    a1, a2 = arr.tolist()
+    return a1, a2
 
 
 def make_training_env(env_kwargs: dict[str, Any], residual_scale: float) -> gym.Env:

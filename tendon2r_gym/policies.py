@@ -81,15 +81,25 @@ class _TendonController:
         env = env.unwrapped
         return cls(env.mechanism, env.ctrl_dt, **kwargs)
 
-    def tendon_command(self, tau: np.ndarray) -> np.ndarray:
+    def tendon_command(self, tau: np.ndarray | tuple[float, float]) -> np.ndarray:
         """Returns the clipped normalized command whose tendon forces give joint torques tau,
-        with J (at the last computed configuration) from the private model."""
-        J = self._J
-        lam2 = self.gains.force_damping * float(np.sum(J * J))
-        f = J @ np.linalg.solve(J.T @ J + lam2 * np.eye(J.shape[1]), tau)
-        return np.clip(f / self._max_force, -1.0, 1.0).astype(np.float32)
+        with J (at the last computed configuration) from the private model:
+        f = J (J^T J + lam^2 I)^-1 tau, lam^2 = force_damping |J|_F^2 (closed form for 2x2)."""
+        (j11, j12), (j21, j22) = self._J.tolist()
+        t1, t2 = float(tau[0]), float(tau[1])
+        lam2 = self.gains.force_damping * (j11 * j11 + j12 * j12 + j21 * j21 + j22 * j22)
+        a11 = j11 * j11 + j21 * j21 + lam2  # A = J^T J + lam^2 I, symmetric
+        a12 = j11 * j12 + j21 * j22
+        a22 = j12 * j12 + j22 * j22 + lam2
+        det = a11 * a22 - a12 * a12
+        if not det > 0.0:  # J = 0 (no tendon touches a pulley) or non-finite
+            return np.zeros(2, dtype=np.float32)
+        x1, x2 = (a22 * t1 - a12 * t2) / det, (a11 * t2 - a12 * t1) / det
+        f_max = self._max_force
+        u1, u2 = (j11 * x1 + j12 * x2) / f_max, (j21 * x1 + j22 * x2) / f_max
+        return np.array((min(max(u1, -1.0), 1.0), min(max(u2, -1.0), 1.0)), dtype=np.float32)
 
-    def _torque(self, obs: np.ndarray) -> np.ndarray:
+    def _torque(self, obs: np.ndarray) -> np.ndarray | tuple[float, float]:
         raise NotImplementedError
 
     def predict(
@@ -110,13 +120,17 @@ class PDPolicy(_TendonController):
     """Joint-space PD with reference-velocity feed-forward, scaled by the joint inertia:
     tau = M(q) (kp (q_des - q) + kd (dq_des - dq))."""
 
-    def _torque(self, obs: np.ndarray) -> np.ndarray:
+    def _torque(self, obs: np.ndarray) -> tuple[float, float]:
         d = self.data
         d.qpos[:] = obs[_Q]
         mujoco.mj_fwdPosition(self.model, d)
         mujoco.mj_fullM(self.model, d, self._M)
-        accel = self.kp * (obs[_Q_DES] - obs[_Q]) + self.kd * (obs[_DQ_DES] - obs[_DQ])
-        return self._M @ accel
+        q1, q2, w1, w2 = obs[0:4].tolist()
+        qd1, qd2, wd1, wd2 = obs[8:12].tolist()
+        acc1 = self.kp * (qd1 - q1) + self.kd * (wd1 - w1)
+        acc2 = self.kp * (qd2 - q2) + self.kd * (wd2 - w2)
+        (m11, m12), (m21, m22) = self._M.tolist()
+        return (m11 * acc1 + m12 * acc2, m21 * acc1 + m22 * acc2)
 
 
 class ComputedTorquePolicy(_TendonController):
