@@ -3,6 +3,7 @@
     python scripts/train_ppo.py --preset default                        # configs/ppo.yaml
     python scripts/train_ppo.py --preset default --seeds 0 1 2          # mean +- std over seeds
     python scripts/train_ppo.py --run-dir runs/x --resume               # continue after Ctrl-C
+    python scripts/train_ppo.py --preset default --seeds 0 1 2 --bundle # and copy to models/
 
 Each run folder keeps config.yaml (resolved), command.txt, TensorBoard logs, checkpoints/ (model
 and VecNormalize), best_model.zip (+ _vecnormalize.pkl, chosen by tracking RMS on fixed seeds),
@@ -32,6 +33,7 @@ from stable_baselines3.common.env_util import make_vec_env  # noqa: E402
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize  # noqa: E402
 
 import tendon2r_gym  # noqa: E402, F401  (registers Tendon2R-v0)
+from tendon2r_gym.bundle import bundle_runs  # noqa: E402
 from tendon2r_gym.config import CONFIG_DIR, load_yaml  # noqa: E402
 from tendon2r_gym.learned import make_training_env  # noqa: E402
 from tendon2r_gym.training import (  # noqa: E402
@@ -52,6 +54,7 @@ class Args:
     run_dir: str | None = None  # default runs/<preset>/seed_<seed>
     resume: bool = False  # continue from run_dir/last_model.zip
     progress_bar: bool = False
+    bundle: bool = False  # copy the best model(s) to models/<preset>/ (tendon2r_gym.bundle)
 
 
 def parse_args(argv: list[str] | None = None) -> Args:
@@ -172,16 +175,29 @@ def train(args: Args) -> dict:
 
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
+    command = shlex.join(
+        ["python", "scripts/train_ppo.py", *(sys.argv[1:] if argv is None else argv)]
+    )
     if not args.seeds:
         train(args)
+        if args.bundle:
+            run = Path(args.run_dir or f"runs/{args.preset}/seed_{args.seed}")
+            print("bundled into", bundle_runs([run], args.preset, command), flush=True)
         return
     base = Path(args.run_dir or f"runs/{args.preset}")
-    results = []
+    results, runs = [], []
     for seed in args.seeds:
         one = Args(
-            **{**vars(args), "seed": seed, "seeds": [], "run_dir": str(base / f"seed_{seed}")}
+            **{
+                **vars(args),
+                "seed": seed,
+                "seeds": [],
+                "bundle": False,
+                "run_dir": str(base / f"seed_{seed}"),
+            }
         )
         results.append(train(one))
+        runs.append(Path(one.run_dir))
     rms = np.array([r["best_rms_deg"] for r in results], dtype=float)
     agg = {
         "preset": args.preset,
@@ -193,6 +209,8 @@ def main(argv: list[str] | None = None) -> None:
     }
     (base / "seeds_summary.json").write_text(json.dumps(agg, indent=1))
     print(json.dumps({k: v for k, v in agg.items() if k != "runs"}), flush=True)
+    if args.bundle:
+        print("bundled into", bundle_runs(runs, args.preset, command), flush=True)
 
 
 if __name__ == "__main__":

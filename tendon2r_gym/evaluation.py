@@ -7,13 +7,13 @@ from typing import Any
 
 import gymnasium as gym
 
+from tendon2r_gym.bundle import bundled_model
 from tendon2r_gym.config import CONFIG_DIR, load_preset, preset_path
 from tendon2r_gym.metrics import tracking_metrics
 from tendon2r_gym.policies import ComputedTorquePolicy, PDPolicy
 from tendon2r_gym.rollout import Policy, Trace, rollouts
 
 POLICIES = ("pd", "ct", "ppo")
-BUNDLED_DIR = Path(__file__).resolve().parent.parent / "models"
 
 
 def env_kwargs_for(
@@ -25,17 +25,6 @@ def env_kwargs_for(
         load_preset(path)  # validates the sections early
         return {"preset": path, **extra}
     return {"preset": preset or "default", **extra}
-
-
-def bundled_model(preset: str) -> Path:
-    """Returns the bundled PPO model for a preset (models/<preset>/best_model.zip)."""
-    path = BUNDLED_DIR / preset / "best_model.zip"
-    if not path.is_file():
-        available = sorted(p.name for p in BUNDLED_DIR.glob("*") if p.is_dir())
-        raise FileNotFoundError(
-            f"no bundled PPO model for preset {preset!r} (have {available}); pass --model PATH"
-        )
-    return path
 
 
 def make_policy(

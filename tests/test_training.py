@@ -69,6 +69,32 @@ def test_smoke_train_then_resume(tmp_path, tiny_config):
     )
     assert resumed["timesteps"] > first["timesteps"]
     assert yaml.safe_load((run / "config.yaml").read_text())["total_timesteps"] == 512
+    _check_bundle(run, tmp_path / "models")
+
+
+def _check_bundle(run, root):
+    """A finished run bundles into root/<preset>/seed_<n>/ and loads through the lookup."""
+    import gymnasium as gym
+
+    from tendon2r_gym.bundle import bundle_meta, bundle_runs, bundled_model
+    from tendon2r_gym.learned import PPOPolicy
+
+    with pytest.raises(FileNotFoundError, match="no bundled PPO model"):
+        bundled_model("default", root=root)
+    bundle_runs([run], "default", "python scripts/train_ppo.py --bundle", root=root)
+    meta = bundle_meta("default", root=root)
+    assert meta["seeds"] == [0] and meta["primary_seed"] == 0
+    path = bundled_model("default", root=root)
+    assert path == root / "default" / "seed_0" / "best_model.zip"
+    assert not (path.parent / "checkpoints").exists(), "only the small files are bundled"
+    env = gym.make("Tendon2R-v0")
+    obs, _ = env.reset(seed=0)
+    action, _ = PPOPolicy.load(path, env).predict(obs)
+    assert action.shape == (2,) and env.action_space.contains(action)
+    with pytest.raises(ValueError, match="seed = 7"):
+        bundled_model("default", seed=7, root=root)
+    with pytest.raises(FileNotFoundError, match="lacks"):
+        bundle_runs([root / "nothing"], "x", "cmd", root=root)
 
 
 def test_bad_override_is_rejected(tiny_config):
@@ -88,3 +114,4 @@ def test_benchmark_runs_on_bundled_models(tmp_path):
     assert {r["policy"] for r in rows} == {"pd", "ct", "ppo"}
     ppo = [r for r in result["presets"] if r["policy"] == "ppo" and r["preset"] == "default"]
     assert ppo and "rms_deg" in ppo[0], "the bundled default PPO model must load and run"
+    assert "Target (PPO RMS <= PD RMS on both joints)" in md
