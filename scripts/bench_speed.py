@@ -147,7 +147,7 @@ def ppo_throughput(timesteps: int) -> dict:
 def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--steps", type=int, default=20000)
-    p.add_argument("--ppo-timesteps", type=int, default=40960)
+    p.add_argument("--ppo-timesteps", type=int, default=102400)
     args = p.parse_args(argv)
     command = (
         "python scripts/bench_speed.py"

@@ -89,12 +89,22 @@ def resolve_config(args: Args) -> dict:
     return cfg
 
 
+def command_line() -> str:
+    """Returns this process's command as `python <script relative to cwd> args...`."""
+    script = Path(sys.argv[0])
+    try:
+        script = script.resolve().relative_to(Path.cwd())
+    except ValueError:
+        pass
+    return shlex.join(["python", str(script), *sys.argv[1:]])
+
+
 def train(args: Args) -> dict:
     cfg = resolve_config(args)
     run = Path(args.run_dir or f"runs/{args.preset}/seed_{args.seed}")
     run.mkdir(parents=True, exist_ok=True)
     (run / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
-    (run / "command.txt").write_text(shlex.join([sys.executable, *sys.argv]) + "\n")
+    (run / "command.txt").write_text(f"{command_line()}\n# interpreter: {sys.executable}\n")
     torch.set_num_threads(cfg["torch_threads"])
 
     # Environments: subprocesses when n_envs > 1, normalized observations and rewards.
@@ -175,8 +185,8 @@ def train(args: Args) -> dict:
 
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
-    command = shlex.join(
-        ["python", "scripts/train_ppo.py", *(sys.argv[1:] if argv is None else argv)]
+    command = (
+        command_line() if argv is None else shlex.join(["python", "scripts/train_ppo.py", *argv])
     )
     if not args.seeds:
         train(args)

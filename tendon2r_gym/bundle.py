@@ -55,7 +55,7 @@ def bundle_runs(run_dirs: list[Path], preset: str, command: str, root: Path = BU
         "preset": preset,
         "seeds": [s["seed"] for s in summaries],
         "primary_seed": summaries[0]["seed"],
-        "train_command": (runs[0] / "command.txt").read_text().strip(),
+        "train_command": (runs[0] / "command.txt").read_text().splitlines()[0],
         "command": command,
     }
     (dest / BUNDLE_META).write_text(json.dumps(meta, indent=1) + "\n")

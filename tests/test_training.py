@@ -111,7 +111,7 @@ def test_benchmark_runs_on_bundled_models(tmp_path):
     md = (tmp_path / "benchmark.md").read_text()
     assert "| default | pd |" in md and "quoted" in md
     rows = json.loads((tmp_path / "benchmark.json").read_text())["presets"]
-    assert {r["policy"] for r in rows} == {"pd", "ct", "ppo"}
+    assert {"pd", "ct", "ppo"} <= {r["policy"] for r in rows}
     ppo = [r for r in result["presets"] if r["policy"] == "ppo" and r["preset"] == "default"]
     assert ppo and "rms_deg" in ppo[0], "the bundled default PPO model must load and run"
     assert "Target (PPO RMS <= PD RMS on both joints)" in md
