@@ -124,6 +124,28 @@ def test_non_finite_action_raises(bad):
         env.step(np.array(bad))
 
 
+@pytest.mark.parametrize("bad", [np.zeros(3), np.zeros((2, 1)), [0.1]])
+def test_wrong_action_shape_raises(bad):
+    env = Tendon2REnv()
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"shape.*allowed: \(2,\)"):
+        env.step(bad)
+
+
+def test_list_and_float32_actions_match_float64():
+    envs = [Tendon2REnv() for _ in range(3)]
+    outs = []
+    for env, action in zip(
+        envs,
+        ([0.25, -0.5], np.array([0.25, -0.5], np.float32), np.array([0.25, -0.5])),
+        strict=True,
+    ):
+        env.reset(seed=0)
+        outs.append(env.step(action)[0])
+    np.testing.assert_array_equal(outs[0], outs[1])
+    np.testing.assert_array_equal(outs[0], outs[2])
+
+
 def test_out_of_range_action_is_clipped():
     env = Tendon2REnv()
     env.reset(seed=0)

@@ -125,3 +125,43 @@ def test_computed_torque_uses_the_model_not_the_env():
     env = Tendon2REnv()
     ct = ComputedTorquePolicy.from_env(env)
     assert ct.data is not env.data
+
+
+def test_tendon_command_is_the_damped_inverse_of_the_moment_arms():
+    """The closed-form 2x2 solve equals numpy's damped least squares, and the resulting tendon
+    forces give the asked joint torque through J^T (to the damping's relative error)."""
+    import mujoco
+
+    env = Tendon2REnv()
+    pd = PDPolicy.from_env(env)
+    rng = np.random.default_rng(0)
+    lo, hi = env.mechanism.joint_range_rad
+    for _ in range(20):
+        pd.data.qpos[:] = rng.uniform(0.8 * lo, 0.8 * hi, 2)
+        mujoco.mj_fwdPosition(pd.model, pd.data)
+        J = pd.data.ten_J.reshape(2, 2).copy()
+        tau = rng.uniform(-1, 1, 2) * 1e-3  # small: no saturation
+        lam2 = pd.gains.force_damping * np.sum(J * J)
+        f = J @ np.linalg.solve(J.T @ J + lam2 * np.eye(2), tau)
+        u = pd.tendon_command(tau)
+        np.testing.assert_allclose(u, f / env.mechanism.max_tendon_force, rtol=1e-5, atol=1e-7)
+        np.testing.assert_allclose(J.T @ f, tau, rtol=0.05, atol=1e-9)
+    pd._J[:] = 0.0  # no tendon touches a pulley: no force rather than a division by zero
+    np.testing.assert_array_equal(pd.tendon_command(np.ones(2)), np.zeros(2))
+
+
+def test_residual_wrapper_with_zero_residual_is_pd():
+    from tendon2r_gym.learned import make_training_env
+
+    wrapped = make_training_env({"preset": "default"}, residual_scale=0.5)
+    plain = Tendon2REnv()
+    pd = PDPolicy.from_env(plain)
+    obs_w, _ = wrapped.reset(seed=3)
+    obs_p, _ = plain.reset(seed=3)
+    for _ in range(100):
+        obs_w, *_ = wrapped.step(np.zeros(2, np.float32))
+        obs_p, *_ = plain.step(pd.predict(obs_p)[0])
+    np.testing.assert_array_equal(obs_w, obs_p)
+    for bad in (np.array([np.nan, 0.0]), np.zeros(3)):
+        with pytest.raises(ValueError, match=r"allowed: 2 finite values in \[-1, 1\]"):
+            wrapped.step(bad)
