@@ -53,7 +53,7 @@ class Args:
     seeds: list[int] = field(default_factory=list)  # several seeds, one run folder each
     run_dir: str | None = None  # default runs/<preset>/seed_<seed>
     resume: bool = False  # continue from run_dir/last_model.zip
-    progress_bar: bool = False
+    progress_bar: bool = False  # also on whenever stderr is a terminal
     bundle: bool = False  # copy the best model(s) to models/<preset>/ (tendon2r_gym.bundle)
 
 
@@ -153,7 +153,7 @@ def train(args: Args) -> dict:
                 remaining,
                 callback=CallbackList([TrackingLogCallback(), eval_cb, checkpoints]),
                 reset_num_timesteps=not args.resume,
-                progress_bar=args.progress_bar,
+                progress_bar=args.progress_bar or sys.stderr.isatty(),
                 tb_log_name="ppo",
             )
     except KeyboardInterrupt:

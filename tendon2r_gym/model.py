@@ -107,6 +107,24 @@ def build_spec(mech: Mechanism) -> mujoco.MjSpec:
     def site(body, name, pos, size=0.0012, rgba=_RGBA["site"]):
         return body.add_site(name=name, pos=[pos[0], 0.0, pos[1]], size=[size, 0, 0], rgba=rgba)
 
+    def link(parent, name, x, joint, length, pulley, radius):
+        """Adds a body at x on the parent's axis: its hinge, its capsule of the given length
+        along +x, and its pulley (a cylinder of the given radius) on the hinge."""
+        body = parent.add_body(name=name, pos=[x, 0.0, 0.0])
+        body.add_joint(
+            name=joint,
+            type=mujoco.mjtJoint.mjJNT_HINGE,
+            axis=_HINGE_AXIS,
+            range=[lo, hi],
+            limited=mujoco.mjtLimited.mjLIMITED_TRUE,
+            damping=mech.joint_damping,
+        )
+        capsule = mujoco.mjtGeom.mjGEOM_CAPSULE
+        geom(body, name, capsule, [rl, 0, 0], _RGBA[name], fromto=[0, 0, 0, length, 0, 0])
+        cylinder = mujoco.mjtGeom.mjGEOM_CYLINDER
+        geom(body, pulley, cylinder, [radius, half_t, 0], _RGBA[pulley], quat=_Y_AXIS_QUAT)
+        return body
+
     # The wall (x <= 0, visual only) and the fixed base link a.
     world.add_light(name="light", pos=[a, -3 * reach, 2 * reach], dir=[0, 1, -0.5])
     half_h = reach + 0.02
@@ -137,31 +155,7 @@ def build_spec(mech: Mechanism) -> mujoco.MjSpec:
     )
 
     # Link c, hinge A, pulley 1, guide sites and the sidesites of pulley 2.
-    link_c = world.add_body(name="link_c", pos=[a, 0.0, 0.0])
-    link_c.add_joint(
-        name="A",
-        type=mujoco.mjtJoint.mjJNT_HINGE,
-        axis=_HINGE_AXIS,
-        range=[lo, hi],
-        limited=mujoco.mjtLimited.mjLIMITED_TRUE,
-        damping=mech.joint_damping,
-    )
-    geom(
-        link_c,
-        "link_c",
-        mujoco.mjtGeom.mjGEOM_CAPSULE,
-        [rl, 0, 0],
-        _RGBA["link_c"],
-        fromto=[0, 0, 0, c, 0, 0],
-    )
-    geom(
-        link_c,
-        "pulley1",
-        mujoco.mjtGeom.mjGEOM_CYLINDER,
-        [r1, half_t, 0],
-        _RGBA["pulley1"],
-        quat=_Y_AXIS_QUAT,
-    )
+    link_c = link(world, "link_c", a, "A", c, "pulley1", r1)
     for i, pos in enumerate(guide_site_positions(mech)):
         site(link_c, f"guide{i + 1}", pos)
 
@@ -173,31 +167,7 @@ def build_spec(mech: Mechanism) -> mujoco.MjSpec:
         site(link_c, f"side2_t{i + 1}", (c, sides[i][1] * 2.0 * r2), size=0.0005)
 
     # Link b, hinge B, pulley 2, the effector and the tendon ends.
-    link_b = link_c.add_body(name="link_b", pos=[c, 0.0, 0.0])
-    link_b.add_joint(
-        name="B",
-        type=mujoco.mjtJoint.mjJNT_HINGE,
-        axis=_HINGE_AXIS,
-        range=[lo, hi],
-        limited=mujoco.mjtLimited.mjLIMITED_TRUE,
-        damping=mech.joint_damping,
-    )
-    geom(
-        link_b,
-        "link_b",
-        mujoco.mjtGeom.mjGEOM_CAPSULE,
-        [rl, 0, 0],
-        _RGBA["link_b"],
-        fromto=[0, 0, 0, b, 0, 0],
-    )
-    geom(
-        link_b,
-        "pulley2",
-        mujoco.mjtGeom.mjGEOM_CYLINDER,
-        [r2, half_t, 0],
-        _RGBA["pulley2"],
-        quat=_Y_AXIS_QUAT,
-    )
+    link_b = link(link_c, "link_b", c, "B", b, "pulley2", r2)
     site(link_b, "effector", (b, 0.0), size=0.003, rgba=(0.9, 0.9, 0.9, 1.0))
     for i in range(2):
         site(link_b, f"fairlead2_t{i + 1}", (FAIRLEAD_GAP * r2, sides[i][1] * r2), size=0.0008)
