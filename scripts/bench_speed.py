@@ -148,6 +148,8 @@ def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--steps", type=int, default=20000)
     p.add_argument("--ppo-timesteps", type=int, default=102400)
+    p.add_argument("--vector-seconds", type=float, default=1.5, help="per vector-env setting")
+    p.add_argument("--out", default="results", help="folder for speed.md and speed.json")
     args = p.parse_args(argv)
     command = (
         "python scripts/bench_speed.py"
@@ -170,7 +172,7 @@ def main(argv: list[str] | None = None) -> dict:
     ours, ref = result["Tendon2R-v0"]["overhead_us"], result["Reacher-v5"]["overhead_us"]
     result["overhead_ratio"] = ours / ref
     result["vector"] = {
-        f"{mode}_{n}": vector_throughput(n, mode)
+        f"{mode}_{n}": vector_throughput(n, mode, args.vector_seconds)
         for mode in ("sync", "async")
         for n in (1, 2, 4, 8)
     }
@@ -181,8 +183,9 @@ def main(argv: list[str] | None = None) -> dict:
     kids = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
     result["peak_rss_mb"] = {"main_process": round(own, 1), "largest_child": round(kids, 1)}
 
-    Path("results").mkdir(exist_ok=True)
-    Path("results/speed.json").write_text(json.dumps(result, indent=1))
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "speed.json").write_text(json.dumps(result, indent=1))
     t, r = result["Tendon2R-v0"], result["Reacher-v5"]
     lines = [
         "# Speed",
@@ -227,8 +230,8 @@ def main(argv: list[str] | None = None) -> dict:
         f"MB; of its largest child {result['peak_rss_mb']['largest_child']} MB (RSS counts the "
         "pages that forkserver children share).",
     ]
-    Path("results/speed.md").write_text("\n".join(lines) + "\n")
-    print("wrote results/speed.md")
+    (out / "speed.md").write_text("\n".join(lines) + "\n")
+    print("wrote", out / "speed.md")
     return result
 
 

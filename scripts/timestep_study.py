@@ -9,6 +9,7 @@ second.  The cheapest setting under 0.01 deg on every preset is the recommended 
 
 from __future__ import annotations
 
+import argparse
 import json
 import time
 from pathlib import Path
@@ -49,7 +50,10 @@ def trajectory(preset: str, integrator: str, sim_dt: float, seconds: float = 2.0
     return np.degrees(np.array(qs)), cost
 
 
-def main() -> dict:
+def main(argv: list[str] | None = None) -> dict:
+    p = argparse.ArgumentParser(description=__doc__)
+    p.add_argument("--out", default="results", help="folder for timestep_study.md and .json")
+    args = p.parse_args(argv)
     rows = []
     for preset in PRESETS:
         ref, _ = trajectory(preset, *REFERENCE)
@@ -97,10 +101,11 @@ def main() -> dict:
         f"Cheapest setting under {TOLERANCE_DEG} deg on every preset: "
         f"**{best[0]} at sim_dt = {best[1]:g} s**.",
     ]
-    Path("results").mkdir(exist_ok=True)
-    Path("results/timestep_study.md").write_text("\n".join(lines) + "\n")
+    folder = Path(args.out)
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "timestep_study.md").write_text("\n".join(lines) + "\n")
     out = {"rows": rows, "recommended": {"integrator": best[0], "sim_dt": best[1]}}
-    Path("results/timestep_study.json").write_text(json.dumps(out, indent=1))
+    (folder / "timestep_study.json").write_text(json.dumps(out, indent=1))
     print("recommended", best)
     return out
 
