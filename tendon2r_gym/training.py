@@ -38,7 +38,11 @@ class TrackingLogCallback(BaseCallback):
 
 class TrackingEvalCallback(BaseCallback):
     """Every ``eval_freq`` env steps, rolls the deterministic policy out on fixed seeds and keeps
-    the model with the lowest mean tracking RMS (over joints) as ``best_model``."""
+    the model with the lowest mean tracking RMS (over joints) as ``best_model``.
+
+    SB3's EvalCallback ranks by mean episode reward, which mixes in the control cost, and does
+    not save the VecNormalize statistics with the best model; this one ranks by the benchmark's
+    own metric and saves both."""
 
     def __init__(
         self,
