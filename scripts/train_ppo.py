@@ -2,7 +2,7 @@
 
     python scripts/train_ppo.py --preset default                        # configs/ppo.yaml
     python scripts/train_ppo.py --preset default --seeds 0 1 2          # mean +- std over seeds
-    python scripts/train_ppo.py --run-dir runs/x --resume               # continue after Ctrl-C
+    python scripts/train_ppo.py --run-dir runs/x --resume               # after Ctrl-C or a crash
     python scripts/train_ppo.py --preset default --seeds 0 1 2 --bundle # and copy to models/
 
 Each run folder keeps config.yaml (resolved), command.txt, TensorBoard logs, checkpoints/ (model
@@ -52,7 +52,7 @@ class Args:
     seed: int = 0
     seeds: list[int] = field(default_factory=list)  # several seeds, one run folder each
     run_dir: str | None = None  # default runs/<preset>/seed_<seed>
-    resume: bool = False  # continue from run_dir/last_model.zip
+    resume: bool = False  # continue from the newest of last_model and checkpoints/ in run_dir
     progress_bar: bool = False  # also on whenever stderr is a terminal
     bundle: bool = False  # copy the best model(s) to models/<preset>/ (tendon2r_gym.bundle)
 
@@ -99,6 +99,21 @@ def command_line() -> str:
     return shlex.join(["python", str(script), *sys.argv[1:]])
 
 
+def latest_state(run: Path) -> tuple[Path, Path]:
+    """Returns the newest saved (model zip, VecNormalize pkl) of a run: last_model (written on
+    Ctrl-C and at the end) or, after a crash that skipped it, the newest checkpoint."""
+    candidates = []
+    if (run / "last_model.zip").is_file():
+        candidates.append((run / "last_model.zip", run / "last_model_vecnormalize.pkl"))
+    for zip_path in (run / "checkpoints").glob("rl_model_*_steps.zip"):
+        steps = zip_path.stem.removeprefix("rl_model_")
+        candidates.append((zip_path, zip_path.with_name(f"rl_model_vecnormalize_{steps}.pkl")))
+    candidates = [c for c in candidates if c[1].is_file()]
+    if not candidates:
+        raise FileNotFoundError(f"--resume: no last_model or checkpoint in {run}")
+    return max(candidates, key=lambda c: c[0].stat().st_mtime_ns)
+
+
 def train(args: Args) -> dict:
     cfg = resolve_config(args)
     run = Path(args.run_dir or f"runs/{args.preset}/seed_{args.seed}")
@@ -118,10 +133,10 @@ def train(args: Args) -> dict:
     )
     last = run / "last_model"
     if args.resume:
-        if not last.with_suffix(".zip").is_file():
-            raise FileNotFoundError(f"--resume: no {last}.zip in {run}")
-        venv = VecNormalize.load(str(run / "last_model_vecnormalize.pkl"), venv)
-        model = PPO.load(last.with_suffix(".zip"), env=venv, device="cpu")
+        state, stats = latest_state(run)
+        print(f"resuming from {state}", flush=True)
+        venv = VecNormalize.load(str(stats), venv)
+        model = PPO.load(state, env=venv, device="cpu")
     else:
         venv = VecNormalize(venv, gamma=cfg["ppo"]["gamma"], **cfg["normalize"])
         model = PPO(

@@ -69,6 +69,19 @@ def test_smoke_train_then_resume(tmp_path, tiny_config):
     )
     assert resumed["timesteps"] > first["timesteps"]
     assert yaml.safe_load((run / "config.yaml").read_text())["total_timesteps"] == 512
+    # A crash that never wrote last_model: --resume falls back to the newest checkpoint.
+    for f in run.glob("last_model*"):
+        f.unlink()
+    state, stats = train_ppo.latest_state(run)
+    assert state.parent.name == "checkpoints" and stats.is_file()
+    assert PPO.load(state, device="cpu").num_timesteps == resumed["timesteps"]
+    again = train_ppo.train(
+        train_ppo.parse_args(
+            ["--config", str(tiny_config), "--total-timesteps", "768", "--n-envs", "2"]
+            + ["--run-dir", str(run), "--resume"]
+        )
+    )
+    assert again["timesteps"] >= 768
     _check_bundle(run, tmp_path / "models")
 
 
