@@ -154,6 +154,9 @@ def train(args: Args) -> dict:
     eval_cb = TrackingEvalCallback(
         env_kwargs, cfg["eval_seeds"], cfg["eval_freq"], run / "best_model", residual
     )
+    best_file = run / "best_metrics.json"
+    if args.resume and best_file.is_file():  # a resumed run only replaces a better best model
+        eval_cb.best_rms = float(np.mean(json.loads(best_file.read_text())["rms_deg"]))
     checkpoints = CheckpointCallback(
         max(cfg["checkpoint_freq"] // cfg["n_envs"], 1),
         str(run / "checkpoints"),

@@ -3,6 +3,7 @@
 import json
 import pickle
 
+import numpy as np
 import pytest
 import train_ppo  # scripts/ is on sys.path via tests/conftest.py
 import yaml
@@ -52,6 +53,7 @@ def test_smoke_train_then_resume(tmp_path, tiny_config):
     PPO.load(run / "best_model.zip", device="cpu")
     with open(run / "best_model_vecnormalize.pkl", "rb") as f:
         assert pickle.load(f).obs_rms.mean.shape == (20,)
+    best_before = np.mean(json.loads((run / "best_metrics.json").read_text())["rms_deg"])
     resumed = train_ppo.train(
         train_ppo.parse_args(
             [
@@ -68,6 +70,8 @@ def test_smoke_train_then_resume(tmp_path, tiny_config):
         )
     )
     assert resumed["timesteps"] > first["timesteps"]
+    best_after = np.mean(json.loads((run / "best_metrics.json").read_text())["rms_deg"])
+    assert best_after <= best_before, "a resumed run must not replace a better best model"
     assert yaml.safe_load((run / "config.yaml").read_text())["total_timesteps"] == 512
     # A crash that never wrote last_model: --resume falls back to the newest checkpoint.
     for f in run.glob("last_model*"):
