@@ -24,6 +24,7 @@ from tendon2r_gym.reference import Reference
 
 # Observation layout (see Tendon2REnv): q, dq, effector pos, effector vel, q_des, dq_des, ...
 _Q, _DQ, _Q_DES, _DQ_DES = slice(0, 2), slice(2, 4), slice(8, 10), slice(10, 12)
+_STATE, _TARGET = slice(0, 4), slice(8, 12)  # (q, dq) and (q_des, dq_des)
 PD_CONFIG = CONFIG_DIR / "pd.yaml"
 
 
@@ -125,8 +126,8 @@ class PDPolicy(_TendonController):
         d.qpos[:] = obs[_Q]
         mujoco.mj_fwdPosition(self.model, d)
         mujoco.mj_fullM(self.model, d, self._M)
-        q1, q2, w1, w2 = obs[0:4].tolist()
-        qd1, qd2, wd1, wd2 = obs[8:12].tolist()
+        q1, q2, w1, w2 = obs[_STATE].tolist()
+        qd1, qd2, wd1, wd2 = obs[_TARGET].tolist()
         acc1 = self.kp * (qd1 - q1) + self.kd * (wd1 - w1)
         acc2 = self.kp * (qd2 - q2) + self.kd * (wd2 - w2)
         (m11, m12), (m21, m22) = self._M.tolist()
