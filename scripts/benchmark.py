@@ -211,10 +211,10 @@ def write_markdown(rows: list[dict], held: list[dict], path: Path, command: str)
     lines += [
         "",
         "`ppo` is the bundled primary model (training seed chosen before training); "
-        "`ppo (N seeds)` is the mean ± std over the bundled training seeds, each evaluated on "
-        "the benchmark seeds above (not on the seeds that selected its best checkpoint); its "
-        "max error is the mean of the per-seed maxima. Wall time: one training run on 2 CPU "
-        "cores (mean over seeds for the seeds row).",
+        "`ppo (N seeds)` is the mean ± std (ddof = 0) over the bundled training seeds, each "
+        "evaluated on the benchmark seeds above (not on the seeds that selected its best "
+        "checkpoint); its max error is the mean of the per-seed maxima. Wall time: one "
+        "training run on 2 CPU cores (mean over seeds for the seeds row).",
         "",
         "Target (PPO RMS <= PD RMS on both joints):",
         "",
