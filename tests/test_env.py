@@ -262,3 +262,16 @@ def test_documented_defaults_match_the_signature():
     assert tendon2r_gym.DEFAULT_MAX_EPISODE_STEPS == round(
         params["episode_duration"] / params["ctrl_dt"]
     )
+
+
+def test_readme_python_examples_run():
+    """The README's Python blocks run as written, in order, in one namespace."""
+    from pathlib import Path
+
+    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", readme, flags=re.S)
+    assert len(blocks) >= 2
+    namespace: dict = {}
+    for block in blocks:
+        exec(compile(block, "README.md", "exec"), namespace)  # noqa: S102
+    assert namespace["env"].action_space.contains(namespace["action"])
