@@ -37,27 +37,32 @@ class ResidualPDWrapper(gym.Wrapper):
         return self._obs, info
 
     def step(self, action: np.ndarray):
-        a1, a2 = _finite_pair(action)
-        b1, b2 = self.pd.predict(self._obs)[0].tolist()
-        s = self.residual_scale
-        command = np.array(
-            (_clip1(b1 + s * _clip1(a1)), _clip1(b2 + s * _clip1(a2))), dtype=np.float64
-        )
+        base, _ = self.pd.predict(self._obs)
+        command = residual_command(base, _checked_action(action), self.residual_scale)
         self._obs, reward, terminated, truncated, info = self.env.step(command)
         return self._obs, reward, terminated, truncated, info
+
+
+def residual_command(base: np.ndarray, action: np.ndarray, scale: float) -> np.ndarray:
+    """Returns clip(base + scale * clip(action, -1, 1), -1, 1) for one observation: the PD
+    command ``base`` plus the agent's residual.  Scalar math, as it runs on every training step;
+    training (ResidualPDWrapper) and deployment (PPOPolicy) share it."""
+    (b1, b2), (a1, a2) = base.tolist(), action.tolist()
+    return np.array(
+        (_clip1(b1 + scale * _clip1(a1)), _clip1(b2 + scale * _clip1(a2))), dtype=np.float64
+    )
 
 
 def _clip1(x: float) -> float:
     return min(max(x, -1.0), 1.0)
 
 
-def _finite_pair(action: np.ndarray) -> tuple[float, float]:
-    """Returns the action as two Python floats; raises on a wrong shape or non-finite values."""
+def _checked_action(action: np.ndarray) -> np.ndarray:
+    """Returns the action as a float64 array; raises on a wrong shape or non-finite values."""
     arr = np.asarray(action, dtype=np.float64)
     if arr.shape != (2,) or not (math.isfinite(arr[0]) and math.isfinite(arr[1])):
         raise ValueError(f"action = {action!r} is invalid; allowed: 2 finite values in [-1, 1]")
-    a1, a2 = arr.tolist()
-    return a1, a2
+    return arr
 
 
 def make_training_env(env_kwargs: dict[str, Any], residual_scale: float) -> gym.Env:
@@ -126,8 +131,16 @@ class PPOPolicy:
     ) -> tuple[np.ndarray, Any]:
         obs = np.asarray(observation, dtype=np.float64)
         action, state = self.model.predict(self.normalize(obs), state, episode_start, deterministic)
-        action = np.clip(action, -1.0, 1.0)
-        if self.pd is not None:
-            base, _ = self.pd.predict(obs)
-            action = np.clip(base + self.residual_scale * action, -1.0, 1.0)
+        if self.pd is None:
+            return np.clip(action, -1.0, 1.0).astype(np.float32), state
+        base, _ = self.pd.predict(obs)
+        if obs.ndim == 1:
+            action = residual_command(base, action, self.residual_scale)
+        else:
+            action = np.stack(
+                [
+                    residual_command(b, a, self.residual_scale)
+                    for b, a in zip(base, action, strict=True)
+                ]
+            )
         return action.astype(np.float32), state
