@@ -238,7 +238,6 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         self._qpos, self._qvel, self._ctrl = d.qpos, d.qvel, d.ctrl
         self._actuator_force = d.actuator_force
         self._gear = self.model.actuator_gear[:, 0].copy()
-        self._gear1, self._gear2 = self._gear.tolist()
         self._warnings = [d.warning[w] for w in _DIVERGENCE_WARNINGS]
         self._ten_J = moment_arms_from_data(self.model, d)
         self._offsets = [k * self.preview_dt for k in range(1, self.preview_steps + 1)]
@@ -263,7 +262,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     def tendon_forces(self) -> np.ndarray:
         """Returns the tendon motor forces (N): gear times MuJoCo's actuator force, which is in
         actuator units (the clipped command) for a motor with a gear."""
-        return self.data.actuator_force * self._gear
+        return self._actuator_force * self._gear
 
     def moment_arms(self) -> np.ndarray:
         """Returns the tendon moment arms dL/dq (m) at the last computed state."""
@@ -347,7 +346,6 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         return terms["tracking"] + terms["ctrl"] + terms["divergence"], terms
 
     def _get_info(self, obs: np.ndarray, terms: dict[str, float], diverged: bool) -> dict[str, Any]:
-        f1, f2 = self._actuator_force.tolist()
         return {
             "reward_tracking": terms["tracking"],
             "reward_ctrl": terms["ctrl"],
@@ -355,7 +353,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
             "q": obs[0:2],
             "q_des": obs[8:10],
             "tracking_error_deg": np.degrees(obs[-2:]),
-            "tendon_force": np.array((f1 * self._gear1, f2 * self._gear2)),
+            "tendon_force": self.tendon_forces(),
             "moment_arm_cond": cond2(self._ten_J),
             "effector_pos": obs[4:6],
             "time": self.data.time,
