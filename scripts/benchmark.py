@@ -86,17 +86,21 @@ def run_presets(episodes: int, out: Path) -> list[dict]:
             rows.append(row)
             _print_row(row)
         if meta is not None and len(meta["seeds"]) > 1:
-            rows.append(_seed_spread(preset, meta, seeds))
+            rows.append(_seed_spread(preset, meta, seeds, primary=rows[-1]))
     return rows
 
 
-def _seed_spread(preset: str, meta: dict, seeds: list[int]) -> dict:
+def _seed_spread(preset: str, meta: dict, seeds: list[int], primary: dict) -> dict:
     """Evaluates every bundled training seed on the benchmark seeds (not the seeds that chose
-    each best model): mean and std over training seeds."""
+    each best model): mean and std over training seeds.  ``primary`` is the row already
+    measured for the primary seed."""
     rms, mx, walls, steps = [], [], [], []
     for seed in meta["seeds"]:
         model = bundled_model(preset, seed)
-        metrics, _ = evaluate("ppo", {"preset": preset}, seeds, model)
+        if seed == primary["seed"]:
+            metrics = primary
+        else:
+            metrics, _ = evaluate("ppo", {"preset": preset}, seeds, model)
         rms.append(metrics["rms_deg"])
         mx.append(metrics["max_deg"])
         s = training_summary(model)
