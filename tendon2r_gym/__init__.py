@@ -7,6 +7,7 @@ import gymnasium as gym
 
 from tendon2r_gym.actuation import ActuationAnalysis, cond2
 from tendon2r_gym.env import Tendon2REnv
+from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.mechanism import ROUTINGS, Mechanism
 from tendon2r_gym.model import build_model, build_spec, to_xml
 from tendon2r_gym.reference import Reference, ReferenceRanges
@@ -14,6 +15,7 @@ from tendon2r_gym.reference import Reference, ReferenceRanges
 __all__ = [
     "ROUTINGS",
     "ActuationAnalysis",
+    "EnvConfig",
     "Mechanism",
     "Reference",
     "ReferenceRanges",
@@ -25,12 +27,7 @@ __all__ = [
 ]
 __version__ = "0.1.0"
 
-#: The default episode: 2.0 s at ctrl_dt = 1 ms.
-DEFAULT_MAX_EPISODE_STEPS = 2000
-
 if "Tendon2R-v0" not in gym.registry:
-    gym.register(
-        id="Tendon2R-v0",
-        entry_point="tendon2r_gym.env:Tendon2REnv",
-        max_episode_steps=DEFAULT_MAX_EPISODE_STEPS,
-    )
+    # No max_episode_steps here: the entry point wraps the env in a TimeLimit of
+    # episode_duration / ctrl_dt steps, so episode length has one source of truth.
+    gym.register(id="Tendon2R-v0", entry_point="tendon2r_gym.env:make_env")

@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import mujoco
 import numpy as np
+
+from tendon2r_gym.reference import Reference
 
 
 def cond2(J: np.ndarray) -> float:
@@ -61,3 +64,34 @@ class ActuationAnalysis:
             for j, b in enumerate(q2):
                 out[i, j] = self.condition_number(np.array([a, b]))
         return out
+
+
+#: ``max_tendon_force: auto`` is this many times the peak force that inverse dynamics of the
+#: reference needs: PD's feedback and the start-up transient need room above feed-forward.
+FORCE_HEADROOM = 2.0
+
+
+def force_need(model: mujoco.MjModel, references: Sequence[Reference], grid: int = 24) -> float:
+    """Returns the peak tendon force (N) that inverse dynamics needs to follow any of
+    ``references`` exactly, over every combination of the two joints' phases.
+
+    Each joint j moves as q = bias + amp sin(theta_j); the torques tau come from mj_inverse at
+    (q, dq, ddq) on a ``grid`` x ``grid`` grid of (theta_A, theta_B), and the tendon forces from
+    the minimum-norm solution of J^T f = tau.  Taking every phase pair bounds the need of any
+    start time, phase and episode length."""
+    data = mujoco.MjData(model)
+    theta = np.linspace(0.0, 2.0 * np.pi, grid, endpoint=False)
+    s = np.stack(np.meshgrid(np.sin(theta), np.sin(theta), indexing="ij"), -1).reshape(-1, 2)
+    c = np.stack(np.meshgrid(np.cos(theta), np.cos(theta), indexing="ij"), -1).reshape(-1, 2)
+    peak = 0.0
+    for ref in references:
+        amp, bias, w = ref._amp, ref._bias, ref._omega
+        for si, ci in zip(s, c, strict=True):
+            data.qpos[:] = bias + amp * si
+            data.qvel[:] = amp * w * ci
+            data.qacc[:] = -amp * w * w * si
+            mujoco.mj_inverse(model, data)
+            J = moment_arms_from_data(model, data)
+            f = np.linalg.lstsq(J.T, data.qfrc_inverse, rcond=None)[0]
+            peak = max(peak, float(np.max(np.abs(f))))
+    return peak

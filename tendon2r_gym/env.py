@@ -3,19 +3,23 @@
 from __future__ import annotations
 
 import math
+import os
 from typing import Any
 
+import gymnasium as gym
 import mujoco
 import numpy as np
 from gymnasium import spaces
 from gymnasium.envs.mujoco.mujoco_env import DEFAULT_SIZE, MujocoEnv
 from gymnasium.utils import EzPickle
 
+from tendon2r_gym import observation as obs_layout
 from tendon2r_gym.actuation import cond2, moment_arms_from_data
-from tendon2r_gym.config import load_preset
-from tendon2r_gym.mechanism import Mechanism
+from tendon2r_gym.config import merge_reference
+from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.model import CAMERA, build_model
-from tendon2r_gym.reference import Reference, ReferenceRanges
+from tendon2r_gym.reference import Reference
+from tendon2r_gym.validation import integer, invalid
 
 _DIVERGENCE_WARNINGS = (
     mujoco.mjtWarning.mjWARN_BADQACC,
@@ -27,25 +31,12 @@ _DIVERGENCE_WARNINGS = (
 DIVERGED_PAST_LIMIT = 0.5  # rad past a joint limit that counts as diverged
 
 
-def resolve_mechanism(preset_mech: dict[str, Any], override: Mechanism | dict | None) -> Mechanism:
-    """Returns the preset's mechanism with ``override`` applied (a dict overrides only the fields
-    it names; a Mechanism replaces it)."""
-    if isinstance(override, Mechanism):
-        return override
-    return Mechanism.from_dict({**preset_mech, **(override or {})})
-
-
-def resolve_reference(preset_ref: dict[str, Any], override: Reference | dict | None) -> Reference:
-    """Returns the preset's reference with ``override`` applied (a dict overrides the fields it
-    names; naming one of freq_hz / omega_rad_s drops the other)."""
-    if isinstance(override, Reference):
-        return override
-    override = dict(override or {})
-    base = dict(preset_ref)
-    if {"freq_hz", "omega_rad_s"} & set(override):
-        base.pop("freq_hz", None)
-        base.pop("omega_rad_s", None)
-    return Reference.from_dict({**base, **override})
+def make_env(preset: str | os.PathLike = "default", **kwargs: Any) -> gym.Env:
+    """The registered entry point: Tendon2REnv under a TimeLimit of episode_duration / ctrl_dt
+    steps, so ``gym.make(..., episode_duration=X, ctrl_dt=Y)`` gives X / Y steps (the TimeLimit
+    is the one source of truth for truncation, and ``env.spec.max_episode_steps`` reports it)."""
+    env = Tendon2REnv(preset, **kwargs)
+    return gym.wrappers.TimeLimit(env, env.config.max_episode_steps)
 
 
 class Tendon2REnv(MujocoEnv, EzPickle):
@@ -55,60 +46,57 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     A fixed base link ``a`` (wall to joint A), link ``c`` (joint A to joint B) and link ``b``
     (joint B to the effector) move in the x-z plane without gravity.  Two spatial tendons run
     from the wall over pulleys on both joints (diameters ``R1``, ``R2``) to the effector; two
-    motors push or pull on them.  The mechanism and the reference come from a preset
-    (``configs/env/*.yaml``) with optional overrides.
+    motors push or pull on them.  The mechanism, the reference and any other argument below
+    come from a preset or an experiment file (``preset``), with keyword overrides.
 
     ## Action Space
     ``Box(-1, 1, (2,), float32)``: the normalized commands of ``motor1`` and ``motor2``; an
     action of +-1 is +-``max_tendon_force`` N on the tendon.  Out-of-range actions are clipped
-    to [-1, 1]; a non-finite action raises ValueError.
+    to [-1, 1]; a wrong shape or a non-finite action raises ValueError.
 
     ## Observation Space
-    ``Box(-inf, inf, (14 + 2 * preview_steps,), float64)``:
+    ``Box(-inf, inf, (14 + 2 * preview_steps,), float64)``, named slices in
+    ``tendon2r_gym.observation``:
 
-    | index | observation | unit |
-    |-------|-------------|------|
-    | 0-1 | joint angles q_A, q_B | rad |
-    | 2-3 | joint velocities | rad/s |
-    | 4-5 | effector position x, z | m |
-    | 6-7 | effector velocity | m/s |
-    | 8-9 | reference q_des(t) | rad |
-    | 10-11 | reference velocity dq_des/dt(t) | rad/s |
-    | 12 to 11 + 2P | q_des(t + k * preview_dt), k = 1..P (P = preview_steps), A then B | rad |
-    | last 2 | tracking error q_des - q | rad |
+    {obs_table}
 
     ## Rewards
-    ``reward = reward_tracking + reward_ctrl + reward_divergence`` (all in ``info``):
+    ``reward = sum(reward_scales[k] * term_k)`` over the terms below (each is in ``info`` as
+    ``reward_<k>``, already scaled):
 
-    - ``reward_tracking = -tracking_weight * sum((q_des - q)^2)``, errors in **degrees**;
-    - ``reward_ctrl = -ctrl_cost_weight * sum(action^2)``, on the clipped action;
-    - ``reward_divergence = -divergence_penalty`` on the step where the physics diverges, else 0.
+    - ``tracking``: with ``tracking_form="quadratic"``, ``-sum(e^2)`` with the errors e in
+      **degrees**; with ``"log"``, ``1 - sum(log(1 + (e / sigma)^2)) / (2 log(1 + (180 /
+      sigma)^2))`` with sigma = ``tracking_sigma_deg``: in [0, 1] for |e| <= 180 deg, 1 on
+      the reference, and quadratic near it.
+    - ``ctrl``: ``-sum(action^2)``, on the clipped action;
+    - ``divergence``: -1 on the step where the physics diverges, else 0.
 
     ## Starting State
     On the reference: q = q_des(0), dq = dq_des(0), plus uniform noise in
     [-reset_noise_scale, reset_noise_scale] (rad and rad/s), clipped to the joint range.
 
     ## Episode End
-    - Truncation: at ``episode_duration`` seconds (the registered ``max_episode_steps`` is the
-      default duration divided by the default ``ctrl_dt``).
+    - Truncation: after ``episode_duration / ctrl_dt`` steps, by the ``TimeLimit`` wrapper that
+      ``gym.make`` applies (``env.spec.max_episode_steps``).
     - Termination: if the physics diverges (non-finite state, a MuJoCo instability warning, or a
-      joint more than 0.5 rad past its limit).
-      The reward stays finite, the observation has no NaN, and ``info["diverged"]`` is True.
+      joint more than 0.5 rad past its limit).  That step returns the last good observation and
+      a reward of at most the tracking term of that state minus the divergence scale, and
+      ``info["diverged"]`` is True.
 
     ## Arguments
 
     | argument | default | description |
     |----------|---------|-------------|
-    | `preset` | `"default"` | name in configs/env/ or a YAML path |
+    | `preset` | `"default"` | a bundled preset name or an experiment-file path (.yaml) |
     | `mechanism` | `None` | dict of Mechanism fields overriding the preset, or a Mechanism |
     | `reference` | `None` | dict of Reference fields overriding the preset, or a Reference |
     | `reference_ranges` | `None` | dict of ReferenceRanges: draw a new reference every reset |
     | `fit_to_workspace` | `False` | scale the amplitudes down (with a warning) instead of raising |
     | `ctrl_dt` | `0.001` | control period (s), an integer multiple of the mechanism's sim_dt |
     | `episode_duration` | `2.0` | seconds per episode |
-    | `tracking_weight` | `1.0` | weight of the squared tracking error (deg^2) |
-    | `ctrl_cost_weight` | `0.01` | weight of the squared action |
-    | `divergence_penalty` | `1000.0` | reward subtracted when the physics diverges |
+    | `reward_scales` | `{{'tracking': 1, 'ctrl': 0.01, 'divergence': 1000}}` | term weights |
+    | `tracking_form` | `"quadratic"` | "quadratic" or "log" (bounded) tracking reward |
+    | `tracking_sigma_deg` | `1.0` | error scale of the "log" tracking reward (deg) |
     | `reset_noise_scale` | `0.001` | initial-state noise (rad, rad/s) |
     | `preview_steps` | `3` | number of future reference samples observed |
     | `preview_dt` | `0.01` | spacing of the future reference samples (s) |
@@ -116,6 +104,10 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     | `width` | `480` | render width (px) |
     | `height` | `480` | render height (px) |
     | `camera_name` | `"side"` | camera that frames the whole arm |
+
+    ``mechanism.max_tendon_force`` defaults to ``"auto"``: FORCE_HEADROOM (2) times the peak
+    tendon force that inverse dynamics of the reference needs (for ``reference_ranges``, of its
+    worst corner), see ``force_need()``.  A fixed limit below that need warns.
 
     ## Version History
     - v0: initial version.
@@ -125,94 +117,47 @@ class Tendon2REnv(MujocoEnv, EzPickle):
 
     def __init__(
         self,
-        preset: str = "default",
-        mechanism: Mechanism | dict[str, Any] | None = None,
-        reference: Reference | dict[str, Any] | None = None,
-        reference_ranges: ReferenceRanges | dict[str, Any] | None = None,
-        fit_to_workspace: bool = False,
-        ctrl_dt: float = 0.001,
-        episode_duration: float = 2.0,
-        tracking_weight: float = 1.0,
-        ctrl_cost_weight: float = 0.01,
-        divergence_penalty: float = 1000.0,
-        reset_noise_scale: float = 0.001,
-        preview_steps: int = 3,
-        preview_dt: float = 0.01,
+        preset: str | os.PathLike = "default",
         render_mode: str | None = None,
         width: int = DEFAULT_SIZE,
         height: int = DEFAULT_SIZE,
         camera_name: str | None = CAMERA,
         **kwargs: Any,
     ) -> None:
-        EzPickle.__init__(
-            self, preset, mechanism, reference, reference_ranges, fit_to_workspace, ctrl_dt,
-            episode_duration, tracking_weight, ctrl_cost_weight, divergence_penalty,
-            reset_noise_scale, preview_steps, preview_dt, render_mode, width, height,
-            camera_name, **kwargs,
-        )  # fmt: skip
-        sections = load_preset(preset)
-        self.mechanism = resolve_mechanism(sections["mechanism"], mechanism)
-        ref = resolve_reference(sections["reference"], reference)
-        if fit_to_workspace:
-            ref = ref.fit_to_workspace(self.mechanism)
-        elif problems := ref.workspace_violations(self.mechanism):
-            raise ValueError(
-                f"reference {ref.to_dict()} leaves the workspace: {'; '.join(problems)} "
-                "(pass fit_to_workspace=True to scale the amplitudes down)"
+        EzPickle.__init__(self, preset, render_mode, width, height, camera_name, **kwargs)
+        # Every argument is checked before the model is built.
+        self.config = cfg = EnvConfig.make(preset, **kwargs)
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise invalid(
+                "render_mode", render_mode, f"None or one of {self.metadata['render_modes']}"
             )
-        self.nominal_reference = self.reference = ref
-        ranges = reference_ranges or sections["reference_ranges"] or None
-        if ranges is not None and not isinstance(ranges, ReferenceRanges):
-            ranges = ReferenceRanges.from_dict(ranges)
-        self.reference_ranges: ReferenceRanges | None = ranges
+        integer("width", width, 1, 16384)
+        integer("height", height, 1, 16384)
+        self.mechanism = cfg.mechanism
+        self.nominal_reference = self.reference = cfg.reference
+        self.reference_ranges = cfg.reference_ranges
+        self.ctrl_dt = cfg.ctrl_dt
+        self.reward_scales = cfg.reward_scales
+        self.preview_steps, self.preview_dt = cfg.preview_steps, cfg.preview_dt
 
-        _check_positive("ctrl_dt", ctrl_dt, "> 0 s, a multiple of sim_dt")
-        _check_positive("episode_duration", episode_duration, "> 0 s")
-        _check_positive("preview_dt", preview_dt, "> 0 s")
-        for name, value in (
-            ("tracking_weight", tracking_weight),
-            ("ctrl_cost_weight", ctrl_cost_weight),
-            ("divergence_penalty", divergence_penalty),
-            ("reset_noise_scale", reset_noise_scale),
-        ):
-            if not math.isfinite(value) or value < 0:
-                raise ValueError(f"{name} = {value!r} is invalid; allowed: a finite number >= 0")
-        if not isinstance(preview_steps, int) or not 0 <= preview_steps <= 100:
-            raise ValueError(f"preview_steps = {preview_steps!r} is invalid; allowed: 0..100")
-        sim_dt = self.mechanism.sim_dt
-        n_substeps = round(ctrl_dt / sim_dt)
-        if n_substeps < 1 or abs(n_substeps * sim_dt - ctrl_dt) > 1e-9 * ctrl_dt:
-            raise ValueError(
-                f"ctrl_dt = {ctrl_dt!r} s is invalid; allowed: a positive integer multiple of "
-                f"sim_dt = {sim_dt} s"
-            )
-        self.ctrl_dt = ctrl_dt
-        self.episode_duration = episode_duration
-        self.max_steps = round(episode_duration / ctrl_dt)
-        self.tracking_weight = tracking_weight
-        self.ctrl_cost_weight = ctrl_cost_weight
-        self.divergence_penalty = divergence_penalty
-        self.reset_noise_scale = reset_noise_scale
-        self.preview_steps = preview_steps
-        self.preview_dt = preview_dt
-
-        n_obs = 14 + 2 * preview_steps
         # render_fps depends on ctrl_dt, so it is set per instance before MujocoEnv checks it.
-        self.metadata = {**type(self).metadata, "render_fps": int(round(1.0 / ctrl_dt))}
+        self.metadata = {**type(self).metadata, "render_fps": int(round(1.0 / cfg.ctrl_dt))}
         # MujocoEnv insists on an existing model_path and loads it in _initialize_simulation.
         # We build the model in memory with MjSpec (parameters stay exact, no file round trip)
         # and override _initialize_simulation; this module's path only passes the check.
+        n_obs = obs_layout.size(cfg.preview_steps)
         MujocoEnv.__init__(
             self,
             __file__,
-            n_substeps,
+            cfg.n_substeps,
             observation_space=spaces.Box(-np.inf, np.inf, (n_obs,), np.float64),
             render_mode=render_mode,
             width=width,
             height=height,
             camera_name=camera_name,
-            **kwargs,
         )
+        if camera_name is not None and self.model.camera(camera_name) is None:
+            raise invalid("camera_name", camera_name, f"None or {CAMERA!r}")
         self._resolve_ids()
 
     # -- set-up ----------------------------------------------------------------------------------
@@ -241,9 +186,16 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         self._warnings = [d.warning[w] for w in _DIVERGENCE_WARNINGS]
         self._ten_J = moment_arms_from_data(self.model, d)
         self._offsets = [k * self.preview_dt for k in range(1, self.preview_steps + 1)]
+        cfg = self.config
+        self._w_track, self._w_ctrl, self._w_div = (
+            cfg.reward_scales[k] for k in ("tracking", "ctrl", "divergence")
+        )
+        self._log_form = cfg.tracking_form == "log"
+        self._sigma = cfg.tracking_sigma_deg
+        self._log_norm = 2.0 * math.log1p((180.0 / self._sigma) ** 2)
         self._set_reference_cache(self.reference)
-        self._step_count = 0
         self._warning_count = 0
+        self._last_obs: np.ndarray | None = None
 
     def _set_reference_cache(self, ref: Reference) -> None:
         """Caches the reference as Python floats, joint A then B (scalar math is faster than
@@ -255,18 +207,16 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         self._phase1, self._phase2 = ref._phase.tolist()
 
     # -- named quantities ------------------------------------------------------------------------
-    def joint_angles(self) -> np.ndarray:
-        """Returns the joint angles (rad)."""
-        return self.data.qpos.copy()
-
     def tendon_forces(self) -> np.ndarray:
         """Returns the tendon motor forces (N): gear times MuJoCo's actuator force, which is in
         actuator units (the clipped command) for a motor with a gear."""
         return self._actuator_force * self._gear
 
-    def moment_arms(self) -> np.ndarray:
-        """Returns the tendon moment arms dL/dq (m) at the last computed state."""
-        return self._ten_J.copy()
+    def force_need(self) -> float:
+        """Returns the peak tendon force (N) that inverse dynamics of the reference needs (of
+        the worst corner of ``reference_ranges``, if set); ``max_tendon_force: auto`` is
+        FORCE_HEADROOM times this."""
+        return self.config.force_need
 
     # -- gymnasium API -----------------------------------------------------------------------------
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
@@ -281,15 +231,15 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         ctrl = self._ctrl
         ctrl[0], ctrl[1] = a1, a2
         mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
-        self._step_count += 1
         diverged = self._check_divergence()
-        obs = self._get_obs()
+        # A diverged step reports the last good state: nothing enormous reaches a learner.
+        obs = self._last_obs.copy() if diverged else self._get_obs()
         reward, terms = self._get_rew(obs, (a1, a2), diverged)
         info = self._get_info(obs, terms, diverged)
-        truncated = self._step_count >= self.max_steps
+        self._last_obs = obs
         if self.render_mode == "human":
             self.render()
-        return obs, reward, diverged, truncated, info
+        return obs, reward, diverged, False, info
 
     def _check_divergence(self) -> bool:
         """Returns whether the last step diverged (a new MuJoCo instability warning, a
@@ -309,6 +259,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         return diverged
 
     def _get_obs(self) -> np.ndarray:
+        """Writes the observation in the order of ``tendon2r_gym.observation.FIXED``."""
         (q1, q2), (w1, w2) = self._qpos.tolist(), self._qvel.tolist()
         a, b, c = self._a, self._b, self._c
         c1, s1 = math.cos(q1), math.sin(q1)
@@ -321,41 +272,45 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         qd1, qd2 = amp1 * math.sin(arg1) + bias1, amp2 * math.sin(arg2) + bias2
         obs = [
             q1, q2, w1, w2,
+            qd1, qd2, amp1 * om1 * math.cos(arg1), amp2 * om2 * math.cos(arg2),
+            qd1 - q1, qd2 - q2,
             a + c * c1 + b * c12, c * s1 + b * s12,  # effector x, z
             -c * s1 * w1 - b * s12 * w12, c * c1 * w1 + b * c12 * w12,  # effector velocity
-            qd1, qd2,
-            amp1 * om1 * math.cos(arg1), amp2 * om2 * math.cos(arg2),
         ]  # fmt: skip
         for dt in self._offsets:
             obs.append(amp1 * math.sin(arg1 + om1 * dt) + bias1)
             obs.append(amp2 * math.sin(arg2 + om2 * dt) + bias2)
-        obs.append(qd1 - q1)
-        obs.append(qd2 - q2)
         return np.array(obs, dtype=np.float64)
 
     def _get_rew(
         self, obs: np.ndarray, action: tuple[float, float], diverged: bool
     ) -> tuple[float, dict[str, float]]:
-        e1, e2 = math.degrees(obs[-2]), math.degrees(obs[-1])
+        """Returns (reward, scaled terms); the reward is the sum of the terms."""
+        e1, e2 = math.degrees(obs[8]), math.degrees(obs[9])  # observation.ERROR
+        if self._log_form:
+            sig = self._sigma
+            tracking = 1.0 - (math.log1p((e1 / sig) ** 2) + math.log1p((e2 / sig) ** 2)) / (
+                self._log_norm
+            )
+        else:
+            tracking = -(e1 * e1 + e2 * e2)
         a1, a2 = action
         terms = {
-            "tracking": -self.tracking_weight * (e1 * e1 + e2 * e2),
-            "ctrl": -self.ctrl_cost_weight * (a1 * a1 + a2 * a2),
-            "divergence": -self.divergence_penalty if diverged else 0.0,
+            "tracking": self._w_track * tracking,
+            "ctrl": -self._w_ctrl * (a1 * a1 + a2 * a2),
+            "divergence": -self._w_div if diverged else 0.0,
         }
-        return terms["tracking"] + terms["ctrl"] + terms["divergence"], terms
+        return sum(terms.values()), terms
 
     def _get_info(self, obs: np.ndarray, terms: dict[str, float], diverged: bool) -> dict[str, Any]:
         return {
-            "reward_tracking": terms["tracking"],
-            "reward_ctrl": terms["ctrl"],
-            "reward_divergence": terms["divergence"],
-            "q": obs[0:2],
-            "q_des": obs[8:10],
-            "tracking_error_deg": np.degrees(obs[-2:]),
+            **{f"reward_{k}": v for k, v in terms.items()},
+            "q": obs[obs_layout.Q],
+            "q_des": obs[obs_layout.Q_DES],
+            "tracking_error_deg": np.degrees(obs[obs_layout.ERROR]),
             "tendon_force": self.tendon_forces(),
             "moment_arm_cond": cond2(self._ten_J),
-            "effector_pos": obs[4:6],
+            "effector_pos": obs[obs_layout.EFFECTOR_POS],
             "time": self.data.time,
             "diverged": diverged,
         }
@@ -363,19 +318,22 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     def reset_model(self) -> np.ndarray:
         if self.reference_ranges is not None:
             self._set_reference_cache(self.reference_ranges.sample(self.np_random, self.mechanism))
-        noise = self.reset_noise_scale
+        noise = self.config.reset_noise_scale
         q = self.reference.q(0.0) + self.np_random.uniform(-noise, noise, 2)
         qdot = self.reference.qdot(0.0) + self.np_random.uniform(-noise, noise, 2)
         self.set_state(np.clip(q, self._q_lo, self._q_hi), qdot)
-        self._step_count = 0
         self._warning_count = sum(w.number for w in self._warnings)
-        return self._get_obs()
+        self._last_obs = self._get_obs()
+        return self._last_obs
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """Resets the episode.  ``options={"reference": {...}}`` fixes this episode's reference
-        (Reference fields; it must fit the workspace), e.g. for held-out evaluation."""
+        (Reference fields over the nominal one; it must fit the workspace), e.g. for held-out
+        evaluation."""
         if options and "reference" in options:
-            ref = resolve_reference(self.nominal_reference.to_dict(), options["reference"])
+            ref = Reference.from_dict(
+                merge_reference(self.nominal_reference.to_dict(), options["reference"])
+            )
             if problems := ref.workspace_violations(self.mechanism):
                 raise ValueError(f"options['reference'] leaves the workspace: {problems}")
             saved, self.reference_ranges = self.reference_ranges, None
@@ -389,11 +347,14 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         return super().reset(seed=seed, options=options)
 
     def _get_reset_info(self) -> dict[str, Any]:
-        return {"reference": self.reference.to_dict(), "time": float(self.data.time)}
+        return {
+            "reference": self.reference.to_dict(),
+            "time": float(self.data.time),
+            "force_need_N": self.force_need(),
+            "max_tendon_force_N": self.mechanism.max_tendon_force,
+        }
 
 
-def _check_positive(name: str, value: float, allowed: str) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ValueError(f"{name} = {value!r} is invalid; allowed: {allowed}")
-    if not math.isfinite(value) or value <= 0:
-        raise ValueError(f"{name} = {value!r} is invalid; allowed: {allowed}")
+Tendon2REnv.__doc__ = Tendon2REnv.__doc__.format(
+    obs_table=obs_layout.table().replace("\n", "\n    ")
+)

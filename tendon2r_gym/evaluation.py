@@ -2,44 +2,65 @@
 
 from __future__ import annotations
 
+import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 
-from tendon2r_gym.bundle import bundled_model
-from tendon2r_gym.config import CONFIG_DIR, load_preset, preset_path
+from tendon2r_gym.bundle import bundle_names, bundled_model
 from tendon2r_gym.metrics import tracking_metrics
 from tendon2r_gym.policies import ComputedTorquePolicy, PDPolicy
 from tendon2r_gym.rollout import Policy, Trace, rollouts
-
-POLICIES = ("pd", "ct", "ppo")
-
-
-def env_kwargs_for(
-    preset: str | None = None, env_config: str | None = None, **extra: Any
-) -> dict[str, Any]:
-    """Returns gym.make kwargs for a preset name or a YAML file with the preset's keys."""
-    if env_config is not None:
-        path = str(preset_path(env_config))
-        load_preset(path)  # validates the sections early
-        return {"preset": path, **extra}
-    return {"preset": preset or "default", **extra}
+from tendon2r_gym.validation import invalid
 
 
-def make_policy(
-    name: str, env: gym.Env, model: str | Path | None = None, preset: str = "default"
-) -> Policy:
-    """Returns the policy ``name`` (pd, ct or ppo) for ``env``."""
-    if name == "pd":
-        return PDPolicy.from_env(env)
-    if name == "ct":
-        return ComputedTorquePolicy.from_env(env)
-    if name == "ppo":
-        from tendon2r_gym.learned import PPOPolicy
+def _ppo(env: gym.Env, model: str | Path | None) -> Policy:
+    from tendon2r_gym.learned import PPOPolicy
 
-        return PPOPolicy.load(model or bundled_model(preset), env)
-    raise ValueError(f"policy {name!r} is invalid; allowed: {POLICIES}")
+    return PPOPolicy.load(model, env)
+
+
+#: Policy name -> (factory(env, model), whether it takes a model).  A new policy is one entry.
+POLICIES: dict[str, tuple[Callable[[gym.Env, Any], Policy], bool]] = {
+    "pd": (lambda env, _: PDPolicy.from_env(env), False),
+    "ct": (lambda env, _: ComputedTorquePolicy.from_env(env), False),
+    "ppo": (_ppo, True),
+}
+
+
+def resolve_model(
+    policy: str, model: str | os.PathLike | None, bundle: str | None, env_kwargs: dict[str, Any]
+) -> Path | None:
+    """Returns the model file a policy needs: ``model``, or the primary seed of ``bundle``, or
+    of the bundle named like the env's preset.  Raises for a model given to a policy that
+    takes none."""
+    if policy not in POLICIES:
+        raise invalid("policy", policy, f"one of {sorted(POLICIES)}")
+    takes_model = POLICIES[policy][1]
+    if not takes_model:
+        if model is not None or bundle is not None:
+            raise invalid(
+                "model" if model is not None else "bundle",
+                str(model or bundle),
+                f"nothing: policy {policy!r} uses no model (only "
+                f"{[k for k, v in POLICIES.items() if v[1]]} do)",
+            )
+        return None
+    if model is not None:
+        return Path(model)
+    name = bundle or Path(str(env_kwargs.get("preset", "default"))).stem
+    if name not in bundle_names():
+        raise invalid("bundle", name, f"one of {bundle_names()}, or pass a model file with --model")
+    return bundled_model(name)
+
+
+def make_policy(name: str, env: gym.Env, model: str | Path | None = None) -> Policy:
+    """Returns the policy ``name`` for ``env`` (a learned one loads ``model``)."""
+    if name not in POLICIES:
+        raise invalid("policy", name, f"one of {sorted(POLICIES)}")
+    return POLICIES[name][0](env, model)
 
 
 def evaluate(
@@ -52,10 +73,7 @@ def evaluate(
     """Rolls policy ``name`` out on ``seeds``; returns (metrics, traces)."""
     make = lambda: gym.make("Tendon2R-v0", **env_kwargs)  # noqa: E731
     probe = make()
-    preset = Path(str(env_kwargs.get("preset", "default"))).stem
-    policy = make_policy(name, probe, model, preset)
+    policy = make_policy(name, probe, model)
+    probe.close()
     traces = rollouts(policy, make, seeds, options)
     return {"policy": name, **tracking_metrics(traces)}, traces
-
-
-__all__ = ["CONFIG_DIR", "POLICIES", "bundled_model", "env_kwargs_for", "evaluate", "make_policy"]

@@ -3,13 +3,17 @@
 With ``residual_scale > 0`` the agent's action a in [-1, 1] is added to the PD command:
 command = clip(PD(obs) + residual_scale * a, -1, 1).  The agent starts at PD's performance
 (SB3 initializes the policy mean near zero) and learns what PD lacks, such as acceleration
-feed-forward.  With ``residual_scale = 0`` the agent drives the motors directly.
+feed-forward.  With ``residual_scale = 0`` the agent drives the motors directly ("from
+scratch").
+
+A trained model only meets the env it was trained for: :meth:`PPOPolicy.load` compares the env
+config recorded in the run (``run.json``) with the env's and refuses another mechanism,
+reference set or observation layout.
 """
 
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 from typing import Any
 
@@ -17,18 +21,27 @@ import gymnasium as gym
 import numpy as np
 
 from tendon2r_gym.policies import PDPolicy
+from tendon2r_gym.runs import RUN_META, model_files, stem_of
+from tendon2r_gym.validation import number
 
-RUN_META = "policy.json"  # written beside a saved model: how to rebuild the policy
+#: Env config fields a trained model depends on: what it observes and what it must track.
+MODEL_ENV_FIELDS = (
+    "mechanism",
+    "reference",
+    "reference_ranges",
+    "ctrl_dt",
+    "preview_steps",
+    "preview_dt",
+)
 
 
-class ResidualPDWrapper(gym.Wrapper):
+class ResidualPDWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """The agent's action is a residual on the PD command (see module docstring)."""
 
     def __init__(self, env: gym.Env, residual_scale: float) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self, residual_scale=residual_scale)
         super().__init__(env)
-        if not 0 < residual_scale <= 2:
-            raise ValueError(f"residual_scale = {residual_scale!r} is invalid; allowed: (0, 2]")
-        self.residual_scale = residual_scale
+        self.residual_scale = number("residual_scale", residual_scale, 0.0, 2.0, lo_open=True)
         self.pd = PDPolicy.from_env(env)
         self._obs: np.ndarray | None = None
 
@@ -38,31 +51,19 @@ class ResidualPDWrapper(gym.Wrapper):
 
     def step(self, action: np.ndarray):
         base, _ = self.pd.predict(self._obs)
-        command = residual_command(base, _checked_action(action), self.residual_scale)
+        command = residual_command(base, action, self.residual_scale)
         self._obs, reward, terminated, truncated, info = self.env.step(command)
         return self._obs, reward, terminated, truncated, info
 
 
 def residual_command(base: np.ndarray, action: np.ndarray, scale: float) -> np.ndarray:
     """Returns clip(base + scale * clip(action, -1, 1), -1, 1) for one observation: the PD
-    command ``base`` plus the agent's residual.  Scalar math, as it runs on every training step;
-    training (ResidualPDWrapper) and deployment (PPOPolicy) share it."""
-    (b1, b2), (a1, a2) = base.tolist(), action.tolist()
-    return np.array(
-        (_clip1(b1 + scale * _clip1(a1)), _clip1(b2 + scale * _clip1(a2))), dtype=np.float64
-    )
-
-
-def _clip1(x: float) -> float:
-    return min(max(x, -1.0), 1.0)
-
-
-def _checked_action(action: np.ndarray) -> np.ndarray:
-    """Returns the action as a float64 array; raises on a wrong shape or non-finite values."""
-    arr = np.asarray(action, dtype=np.float64)
-    if arr.shape != (2,) or not (math.isfinite(arr[0]) and math.isfinite(arr[1])):
-        raise ValueError(f"action = {action!r} is invalid; allowed: 2 finite values in [-1, 1]")
-    return arr
+    command ``base`` plus the agent's residual.  Training (ResidualPDWrapper) and deployment
+    (PPOPolicy) share it; the env checks the shape and finiteness of the result."""
+    a = np.asarray(action, dtype=np.float64)
+    if a.shape != np.shape(base):
+        raise ValueError(f"action has shape {a.shape}; allowed: {np.shape(base)} in [-1, 1]")
+    return np.clip(base + scale * np.clip(a, -1.0, 1.0), -1.0, 1.0)
 
 
 def make_training_env(env_kwargs: dict[str, Any], residual_scale: float) -> gym.Env:
@@ -71,56 +72,66 @@ def make_training_env(env_kwargs: dict[str, Any], residual_scale: float) -> gym.
     return ResidualPDWrapper(env, residual_scale) if residual_scale > 0 else env
 
 
+def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
+    """Raises if ``env`` differs from the env config a model was trained with in any field of
+    MODEL_ENV_FIELDS (for a model trained on reference_ranges, the nominal reference does not
+    matter)."""
+    current = env.unwrapped.config.to_dict()
+    fields = [
+        f for f in MODEL_ENV_FIELDS if not (f == "reference" and recorded.get("reference_ranges"))
+    ]
+    for name in fields:
+        if _plain(recorded.get(name)) != _plain(current.get(name)):
+            raise ValueError(
+                f"{where} was trained for another env: {name} = {recorded.get(name)!r} there, "
+                f"{current.get(name)!r} in this env; allowed: the env it was trained on "
+                "(make the env from the run's run.json env_config)"
+            )
+
+
+def _plain(value: Any) -> Any:
+    """Returns value with tuples as lists (YAML and JSON round trips give lists)."""
+    return json.loads(json.dumps(value))
+
+
 class PPOPolicy:
-    """A trained PPO (+ VecNormalize statistics) behind the SB3 ``predict`` interface, acting on
-    raw observations of the unwrapped env: normalizes them, and adds PD if it was residual."""
+    """A trained PPO (+ its VecNormalize statistics) behind the SB3 ``predict`` interface,
+    acting on raw observations of the unwrapped env: normalizes them with VecNormalize's own
+    ``normalize_obs``, and adds PD if it was residual."""
 
     def __init__(
-        self,
-        model: Any,
-        obs_rms: Any,
-        clip_obs: float,
-        epsilon: float,
-        residual_scale: float,
-        env: gym.Env | None = None,
+        self, model: Any, vecnormalize: Any, residual_scale: float, env: gym.Env | None = None
     ) -> None:
         self.model = model
-        self.obs_rms = obs_rms
-        self.clip_obs, self.epsilon = clip_obs, epsilon
+        self.vecnormalize = vecnormalize
         self.residual_scale = residual_scale
         self.pd = PDPolicy.from_env(env) if residual_scale > 0 and env is not None else None
 
     @classmethod
     def load(cls, model_path: str | Path, env: gym.Env) -> PPOPolicy:
-        """Loads ``<name>.zip`` with ``<name>_vecnormalize.pkl`` and the run's policy.json."""
-        import pickle
-
+        """Loads ``<name>.zip`` with ``<name>_vecnormalize.pkl`` and the run's run.json; raises
+        if the env is not the one the model was trained on."""
         from stable_baselines3 import PPO
+        from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
-        model_path = Path(model_path)
-        model = PPO.load(model_path, device="cpu")
-        stats = model_path.with_name(model_path.stem + "_vecnormalize.pkl")
-        if not stats.is_file():
-            raise FileNotFoundError(
-                f"VecNormalize statistics {stats} not found beside {model_path}"
+        zip_path, stats = model_files(stem_of(model_path))
+        if zip_path.is_dir() or not zip_path.is_file():
+            raise ValueError(
+                f"model = {str(model_path)!r} is invalid; allowed: an existing SB3 model file "
+                f"(<name>.zip, here {zip_path}) written by tendon2r-train"
             )
-        with open(stats, "rb") as f:
-            vecnorm = pickle.load(f)
-        meta = json.loads((model_path.parent / RUN_META).read_text())
-        return cls(
-            model,
-            vecnorm.obs_rms if vecnorm.norm_obs else None,
-            vecnorm.clip_obs,
-            vecnorm.epsilon,
-            float(meta["residual_scale"]),
-            env,
-        )
-
-    def normalize(self, obs: np.ndarray) -> np.ndarray:
-        if self.obs_rms is None:
-            return obs
-        z = (obs - self.obs_rms.mean) / np.sqrt(self.obs_rms.var + self.epsilon)
-        return np.clip(z, -self.clip_obs, self.clip_obs).astype(np.float32)
+        for needed in (stats, zip_path.parent / RUN_META):
+            if not needed.is_file():
+                raise ValueError(
+                    f"model = {str(model_path)!r} is invalid: {needed.name} is missing beside "
+                    "it; allowed: a model from a tendon2r-train run folder or bundle"
+                )
+        meta = json.loads((zip_path.parent / RUN_META).read_text())
+        check_model_env(meta["env_config"], env, f"model {zip_path}")
+        model = PPO.load(zip_path, device="cpu")
+        vecnorm = VecNormalize.load(str(stats), DummyVecEnv([lambda: env]))
+        vecnorm.training, vecnorm.norm_reward = False, False
+        return cls(model, vecnorm, float(meta["residual_scale"]), env)
 
     def predict(
         self,
@@ -130,17 +141,9 @@ class PPOPolicy:
         deterministic: bool = True,
     ) -> tuple[np.ndarray, Any]:
         obs = np.asarray(observation, dtype=np.float64)
-        action, state = self.model.predict(self.normalize(obs), state, episode_start, deterministic)
+        norm = self.vecnormalize.normalize_obs(obs) if self.vecnormalize is not None else obs
+        action, state = self.model.predict(norm, state, episode_start, deterministic)
         if self.pd is None:
             return np.clip(action, -1.0, 1.0).astype(np.float32), state
         base, _ = self.pd.predict(obs)
-        if obs.ndim == 1:
-            action = residual_command(base, action, self.residual_scale)
-        else:
-            action = np.stack(
-                [
-                    residual_command(b, a, self.residual_scale)
-                    for b, a in zip(base, action, strict=True)
-                ]
-            )
-        return action.astype(np.float32), state
+        return residual_command(base, action, self.residual_scale).astype(np.float32), state

@@ -19,6 +19,8 @@ from typing import Any
 
 import numpy as np
 
+from tendon2r_gym.validation import check_keys, invalid, is_number, mapping, number
+
 Sides = tuple[tuple[int, int], tuple[int, int]]
 
 #: Named routings: the side (+1 over, -1 under) each tendon takes on (pulley 1, pulley 2).
@@ -32,10 +34,12 @@ ROUTINGS: dict[str, Sides] = {
 }
 
 INTEGRATORS = ("Euler", "RK4", "implicit", "implicitfast")
+#: ``max_tendon_force: auto`` sizes the force limit from the reference (Tendon2REnv does it).
+AUTO = "auto"
 
 
 def _fail(name: str, value: Any, allowed: str) -> ValueError:
-    return ValueError(f"Mechanism.{name} = {value!r} is invalid; allowed: {allowed}")
+    return invalid(f"Mechanism.{name}", value, allowed)
 
 
 @dataclass(frozen=True)
@@ -50,8 +54,10 @@ class Mechanism:
     c: float = 0.094  # link from joint A to joint B (m)
     # Routing: a name from ROUTINGS or explicit sides ((s11, s12), (s21, s22)).
     routing: str | Sides = "asymmetric"
-    # Actuation: an action of +-1 is +-max_tendon_force on the tendon (push or pull).
-    max_tendon_force: float = 0.5  # (N)
+    # Actuation: an action of +-1 is +-max_tendon_force on the tendon (push or pull).  "auto":
+    # the env sets it from the peak force that inverse dynamics of its reference needs, times
+    # FORCE_HEADROOM (tendon2r_gym.actuation.force_need).
+    max_tendon_force: float | str = AUTO  # (N)
     # Mass and joints.
     density: float = 1000.0  # of links and pulleys (kg/m^3)
     link_radius: float = 0.002  # capsule radius of the links (m)
@@ -67,27 +73,17 @@ class Mechanism:
     integrator: str = "RK4"
 
     def __post_init__(self) -> None:
-        positive = {
-            "R1": self.R1,
-            "R2": self.R2,
-            "a": self.a,
-            "b": self.b,
-            "c": self.c,
-            "max_tendon_force": self.max_tendon_force,
-            "density": self.density,
-            "link_radius": self.link_radius,
-            "pulley_thickness": self.pulley_thickness,
-            "sim_dt": self.sim_dt,
-        }
-        for name, value in positive.items():
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise _fail(name, value, "a finite number > 0")
-            if not math.isfinite(value) or value <= 0:
-                raise _fail(name, value, "a finite number > 0")
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
+        for name in ("R1", "R2", "a", "b", "c", "density", "link_radius", "pulley_thickness"):
+            set_(name, number(f"Mechanism.{name}", getattr(self, name), 0.0, lo_open=True))
+        if self.max_tendon_force != AUTO:
+            set_(
+                "max_tendon_force",
+                _positive_or_auto("max_tendon_force", self.max_tendon_force),
+            )
         for name in ("joint_damping", "tendon_stiffness", "tendon_damping"):
-            value = getattr(self, name)
-            if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-                raise _fail(name, value, "a finite number >= 0")
+            set_(name, number(f"Mechanism.{name}", getattr(self, name), 0.0))
+        set_("sim_dt", number("Mechanism.sim_dt", self.sim_dt, 0.0, 0.01, lo_open=True))
         r1, r2 = self.R1 / 2, self.R2 / 2
         if r1 >= self.a:
             raise _fail("R1", self.R1, f"R1/2 < a = {self.a} (pulley 1 must clear the wall)")
@@ -95,7 +91,8 @@ class Mechanism:
             raise _fail(
                 "R2",
                 self.R2,
-                f"R1/2 + R2/2 < c = {self.c} (the pulleys must not overlap on link c)",
+                f"R1/2 + R2/2 < c = {self.c} (the pulleys must not overlap on link c, and a "
+                "crossed belt needs room between them)",
             )
         if r2 >= self.b:
             raise _fail("R2", self.R2, f"R2/2 < b = {self.b} (pulley 2 must fit on link b)")
@@ -103,29 +100,25 @@ class Mechanism:
             raise _fail(
                 "link_radius", self.link_radius, f"< the smaller pulley radius {min(r1, r2)}"
             )
-        if self.sim_dt > 0.01:
-            raise _fail("sim_dt", self.sim_dt, "0 < sim_dt <= 0.01 s")
         if self.integrator not in INTEGRATORS:
             raise _fail("integrator", self.integrator, f"one of {INTEGRATORS}")
-        rng = tuple(float(v) for v in np.asarray(self.joint_range_deg, dtype=float).ravel())
-        if len(rng) != 2 or not all(map(math.isfinite, rng)) or not -180 < rng[0] < rng[1] < 180:
-            raise _fail(
-                "joint_range_deg", self.joint_range_deg, "(lo, hi) with -180 < lo < hi < 180"
-            )
-        object.__setattr__(self, "joint_range_deg", rng)
-        object.__setattr__(self, "routing", _normalize_routing(self.routing))
+        rng = self.joint_range_deg
+        allowed = "(lo, hi) with -180 < lo < hi < 180 (deg)"
+        if isinstance(rng, (str, bytes)) or not hasattr(rng, "__len__") or len(rng) != 2:
+            raise _fail("joint_range_deg", rng, allowed)
+        lo, hi = (number("Mechanism.joint_range_deg", v, -180, 180) for v in rng)
+        if not -180 < lo < hi < 180:
+            raise _fail("joint_range_deg", rng, allowed)
+        set_("joint_range_deg", (lo, hi))
+        set_("routing", _normalize_routing(self.routing))
 
     # -- construction ------------------------------------------------------------------------
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> Mechanism:
         """Builds a Mechanism from a mapping with the same keys as the fields."""
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(values) - known
-        if unknown:
-            raise ValueError(
-                f"unknown Mechanism fields {sorted(unknown)}; allowed: {sorted(known)}"
-            )
-        return cls(**dict(values))
+        values = mapping("mechanism", values)
+        check_keys("mechanism", values, [f.name for f in dataclasses.fields(cls)])
+        return cls(**values)
 
     def replace(self, **changes: Any) -> Mechanism:
         """Returns a copy with the named fields changed (validated again)."""
@@ -187,10 +180,20 @@ def _normalize_routing(routing: Any) -> str | Sides:
                 "routing", routing, f"one of {sorted(ROUTINGS)} or ((s11, s12), (s21, s22))"
             )
         return routing
+    allowed = "a routing name or ((s11, s12), (s21, s22)) with each s the integer -1 or +1"
     try:
-        sides = tuple(tuple(int(s) for s in tendon) for tendon in routing)
-    except (TypeError, ValueError):
-        raise _fail("routing", routing, "a routing name or ((s11, s12), (s21, s22))") from None
-    if len(sides) != 2 or any(len(t) != 2 or any(s not in (-1, 1) for s in t) for t in sides):
-        raise _fail("routing", routing, "((s11, s12), (s21, s22)) with each s in {-1, +1}")
-    return sides  # type: ignore[return-value]
+        rows = [list(tendon) for tendon in routing]
+    except TypeError:
+        raise _fail("routing", routing, allowed) from None
+    if len(rows) != 2 or any(len(t) != 2 for t in rows):
+        raise _fail("routing", routing, allowed)
+    # Exact integers only: 1.5 must not be truncated to 1.
+    if not all(is_number(s) and s in (-1, 1) for t in rows for s in t):
+        raise _fail("routing", routing, allowed)
+    return tuple(tuple(int(s) for s in t) for t in rows)  # type: ignore[return-value]
+
+
+def _positive_or_auto(name: str, value: Any) -> float:
+    if not is_number(value) or not math.isfinite(value) or value <= 0:
+        raise _fail(name, value, f"a finite number > 0 (N) or {AUTO!r}")
+    return float(value)

@@ -174,6 +174,8 @@ def build_spec(mech: Mechanism) -> mujoco.MjSpec:
         site(link_b, f"end{i + 1}", (b, sides[i][1] * r2))
 
     # Tendons and their motors: ctrl in [-1, 1], gear = max force, so ctrl 1 is the full force.
+    # An unresolved "auto" limit (the env sizes it from the reference) builds with 1 N.
+    gear = mech.max_tendon_force if isinstance(mech.max_tendon_force, float) else 1.0
     for i, (name, motor) in enumerate(zip(TENDONS, MOTORS, strict=True)):
         t = spec.add_tendon(
             name=name,
@@ -192,7 +194,7 @@ def build_spec(mech: Mechanism) -> mujoco.MjSpec:
             else:
                 t.wrap_geom(point, f"{side}_t{i + 1}")
         act = spec.add_actuator(name=motor, trntype=mujoco.mjtTrn.mjTRN_TENDON, target=name)
-        act.gear = [mech.max_tendon_force, 0, 0, 0, 0, 0]
+        act.gear = [gear, 0, 0, 0, 0, 0]
         act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
         act.ctrlrange = [-1.0, 1.0]
 

@@ -17,15 +17,12 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from tendon2r_gym.config import CONFIG_DIR, load_yaml
+from tendon2r_gym.config import PD_CONFIG, load_yaml
 from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.model import build_model
+from tendon2r_gym.observation import DQ, DQ_DES, Q_DES, Q
 from tendon2r_gym.reference import Reference
-
-# Observation layout (see Tendon2REnv): q, dq, effector pos, effector vel, q_des, dq_des, ...
-_Q, _DQ, _Q_DES, _DQ_DES = slice(0, 2), slice(2, 4), slice(8, 10), slice(10, 12)
-_STATE, _TARGET = slice(0, 4), slice(8, 12)  # (q, dq) and (q_des, dq_des)
-PD_CONFIG = CONFIG_DIR / "pd.yaml"
+from tendon2r_gym.validation import check_keys, number
 
 
 @dataclass(frozen=True)
@@ -43,18 +40,12 @@ class Gains:
 
     def __post_init__(self) -> None:
         for name in ("bandwidth_hz", "damping_ratio", "max_bandwidth_fraction", "force_damping"):
-            value = getattr(self, name)
-            if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-                raise ValueError(
-                    f"Gains.{name} = {value!r} is invalid; allowed: a finite number > 0"
-                )
+            number(f"Gains.{name}", getattr(self, name), 0.0, lo_open=True)
 
     @classmethod
     def from_yaml(cls, path: str | Path = PD_CONFIG) -> Gains:
         data = load_yaml(path)
-        unknown = set(data) - set(cls.__dataclass_fields__)
-        if unknown:
-            raise ValueError(f"{path}: unknown gain fields {sorted(unknown)}")
+        check_keys(str(path), data, cls.__dataclass_fields__)
         return cls(**data)
 
     def natural_frequency(self, ctrl_dt: float) -> float:
@@ -123,11 +114,11 @@ class PDPolicy(_TendonController):
 
     def _torque(self, obs: np.ndarray) -> tuple[float, float]:
         d = self.data
-        d.qpos[:] = obs[_Q]
+        d.qpos[:] = obs[Q]
         mujoco.mj_fwdPosition(self.model, d)
         mujoco.mj_fullM(self.model, d, self._M)
-        q1, q2, w1, w2 = obs[_STATE].tolist()
-        qd1, qd2, wd1, wd2 = obs[_TARGET].tolist()
+        (q1, q2), (w1, w2) = obs[Q].tolist(), obs[DQ].tolist()
+        (qd1, qd2), (wd1, wd2) = obs[Q_DES].tolist(), obs[DQ_DES].tolist()
         acc1 = self.kp * (qd1 - q1) + self.kd * (wd1 - w1)
         acc2 = self.kp * (qd2 - q2) + self.kd * (wd2 - w2)
         (m11, m12), (m21, m22) = self._M.tolist()
@@ -159,11 +150,9 @@ class ComputedTorquePolicy(_TendonController):
 
     def _torque(self, obs: np.ndarray) -> np.ndarray:
         d = self.data
-        d.qpos[:] = obs[_Q]
-        d.qvel[:] = obs[_DQ]
-        ddq_des = -self._w2 * (obs[_Q_DES] - self._bias)
-        d.qacc[:] = (
-            ddq_des + self.kp * (obs[_Q_DES] - obs[_Q]) + self.kd * (obs[_DQ_DES] - obs[_DQ])
-        )
+        d.qpos[:] = obs[Q]
+        d.qvel[:] = obs[DQ]
+        ddq_des = -self._w2 * (obs[Q_DES] - self._bias)
+        d.qacc[:] = ddq_des + self.kp * (obs[Q_DES] - obs[Q]) + self.kd * (obs[DQ_DES] - obs[DQ])
         mujoco.mj_inverse(self.model, d)
         return d.qfrc_inverse.copy()

@@ -16,23 +16,13 @@ from typing import Any
 import numpy as np
 
 from tendon2r_gym.mechanism import Mechanism
+from tendon2r_gym.validation import check_keys, invalid, mapping, pair
 
 _FIELDS = ("amp_deg", "bias_deg", "freq_hz", "omega_rad_s", "phase_deg")
 
 
-def _pair(
-    name: str, value: Any, lo: float = -math.inf, hi: float = math.inf
-) -> tuple[float, float]:
-    try:
-        arr = np.asarray(value, dtype=float).ravel()
-    except (TypeError, ValueError):
-        arr = np.array([])
-    if arr.shape != (2,) or not np.all(np.isfinite(arr)) or np.any(arr < lo) or np.any(arr > hi):
-        raise ValueError(
-            f"reference.{name} = {value!r} is invalid; allowed: [joint A, joint B], "
-            f"finite, each in [{lo}, {hi}]"
-        )
-    return float(arr[0]), float(arr[1])
+def _pair(name: str, value: Any, lo: float, hi: float) -> tuple[float, float]:
+    return pair(f"reference.{name}", value, lo, hi)
 
 
 @dataclass(frozen=True)
@@ -68,10 +58,14 @@ class Reference:
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> Reference:
         """Builds a Reference from a mapping with the same keys as the fields."""
-        unknown = set(values) - set(_FIELDS)
-        if unknown:
-            raise ValueError(f"unknown reference fields {sorted(unknown)}; allowed: {_FIELDS}")
-        return cls(**dict(values))
+        values = mapping("reference", values)
+        check_keys("reference", values, _FIELDS)
+        if "amp_deg" not in values or "bias_deg" not in values:
+            raise ValueError(
+                f"reference = {values!r} is invalid; allowed: a mapping with amp_deg, bias_deg "
+                "and one of freq_hz / omega_rad_s (an experiment file needs a reference section)"
+            )
+        return cls(**values)
 
     def to_dict(self) -> dict[str, list[float]]:
         return {k: list(getattr(self, k)) for k in _FIELDS if getattr(self, k) is not None}
@@ -165,24 +159,58 @@ class ReferenceRanges:
     phase_deg: tuple[tuple[float, float], tuple[float, float]] = ((0.0, 360.0), (0.0, 360.0))
 
     def __post_init__(self) -> None:
+        limits = {  # the same bounds as a Reference's fields
+            "amp_deg": (0.0, 180.0),
+            "freq_hz": (0.0, 100.0),
+            "bias_deg": (-180.0, 180.0),
+            "phase_deg": (-360.0, 360.0),
+        }
         for f in dataclasses.fields(self):
-            arr = np.asarray(getattr(self, f.name), dtype=float)
-            if arr.shape != (2, 2) or not np.all(np.isfinite(arr)) or np.any(arr[:, 0] > arr[:, 1]):
-                raise ValueError(
-                    f"reference_ranges.{f.name} = {getattr(self, f.name)!r} is invalid; allowed: "
-                    "[[lo_A, hi_A], [lo_B, hi_B]] with finite lo <= hi"
-                )
-            object.__setattr__(self, f.name, tuple(map(tuple, arr.tolist())))
-        if min(self.amp_deg[0][0], self.amp_deg[1][0], self.freq_hz[0][0], self.freq_hz[1][0]) < 0:
-            raise ValueError(f"reference_ranges amp_deg and freq_hz must be >= 0, got {self}")
+            value = getattr(self, f.name)
+            lo, hi = limits[f.name]
+            field = f"reference_ranges.{f.name}"
+            allowed = f"[[lo_A, hi_A], [lo_B, hi_B]] with {lo:g} <= lo <= hi <= {hi:g}"
+            if isinstance(value, (str, bytes, Mapping)) or not hasattr(value, "__len__"):
+                raise invalid(field, value, allowed)
+            if len(value) != 2:
+                raise invalid(field, value, allowed)
+            rows = tuple(pair(field, row, lo, hi) for row in value)
+            if any(r[0] > r[1] for r in rows):
+                raise invalid(field, value, allowed)
+            object.__setattr__(self, f.name, rows)
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> ReferenceRanges:
+        values = mapping("reference_ranges", values)
         names = [f.name for f in dataclasses.fields(cls)]
-        unknown = set(values) - set(names)
-        if unknown:
-            raise ValueError(f"unknown reference_ranges fields {sorted(unknown)}; allowed: {names}")
-        return cls(**dict(values))
+        check_keys("reference_ranges", values, names)
+        missing = [n for n in ("amp_deg", "freq_hz", "bias_deg") if n not in values]
+        if missing:
+            raise invalid("reference_ranges", values, f"a mapping that also has {missing}")
+        return cls(**values)
+
+    def corner_violations(self, mech: Mechanism) -> list[str]:
+        """Returns why some draw could fail on ``mech`` (empty if none can): every bias in the
+        ranges must fit the workspace at zero amplitude, since a draw's amplitudes are scaled
+        down to fit but its bias is kept."""
+        (b1lo, b1hi), (b2lo, b2hi) = self.bias_deg
+        box = Reference(
+            amp_deg=((b1hi - b1lo) / 2, (b2hi - b2lo) / 2),
+            bias_deg=((b1hi + b1lo) / 2, (b2hi + b2lo) / 2),
+            freq_hz=(0.0, 0.0),
+        )
+        return [f"bias_deg range {self.bias_deg}: {p}" for p in box.workspace_violations(mech)]
+
+    def corners(self) -> list[Reference]:
+        """Returns the references at the largest amplitudes and frequencies, at each corner of
+        the bias ranges (where the force need peaks; phases do not matter to it)."""
+        amp = (self.amp_deg[0][1], self.amp_deg[1][1])
+        freq = (self.freq_hz[0][1], self.freq_hz[1][1])
+        return [
+            Reference(amp_deg=amp, freq_hz=freq, bias_deg=(b1, b2))
+            for b1 in self.bias_deg[0]
+            for b2 in self.bias_deg[1]
+        ]
 
     def sample(self, rng: np.random.Generator, mech: Mechanism) -> Reference:
         """Draws a reference (uniform in each range), fitted to the workspace of ``mech``."""

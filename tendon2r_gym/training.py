@@ -1,30 +1,107 @@
-"""SB3 training helpers: tracking-error logging and model selection by tracking RMS."""
+"""PPO training: hyperparameters, the training loop, resume, several seeds, and its callbacks.
+
+``train(TrainSpec)`` owns one run from config to saved models (the run folder's layout belongs to
+tendon2r_gym.runs).  It survives interruption:
+- Ctrl-C (or SIGTERM) saves ``last_model`` and the summary, then re-raises, so a multi-seed
+  command stops as a whole (exit code 130) after writing the summary of the seeds that
+  finished;
+- checkpoints are taken every ``checkpoint_freq`` steps and every ``checkpoint_minutes``;
+- ``resume`` continues from the newest readable saved state, skipping a corrupt one with a
+  warning;
+- ``summary.json`` adds up steps and wall time over every segment, and command.txt keeps the
+  original command with one line per resume.
+"""
 
 from __future__ import annotations
 
+import copy
 import json
+import signal
+import time
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 
-from tendon2r_gym.learned import RUN_META, PPOPolicy
+from tendon2r_gym.config import PPO_CONFIG, load_yaml
+from tendon2r_gym.env_config import EnvConfig
+from tendon2r_gym.learned import PPOPolicy, make_training_env
 from tendon2r_gym.metrics import tracking_metrics
+from tendon2r_gym.policies import PDPolicy
 from tendon2r_gym.rollout import rollouts
+from tendon2r_gym.runs import CHECKPOINT_PREFIX, RUN_META, RunFolder, model_files
+from tendon2r_gym.validation import check_keys, integer, invalid, mapping, number
+
+#: Keys of one entry of the hyperparameter file (configs/ppo.yaml).
+HYPERPARAM_KEYS = (
+    "env_kwargs",
+    "residual_scale",
+    "total_timesteps",
+    "n_envs",
+    "vec_env",
+    "torch_threads",
+    "ppo",
+    "policy_kwargs",
+    "normalize",
+    "eval_seeds",
+    "eval_freq",
+    "checkpoint_freq",
+    "checkpoint_minutes",
+)
+VEC_ENVS = ("subproc", "dummy")
 
 
-def save_model(model: Any, path: Path, residual_scale: float) -> None:
-    """Saves ``path.zip``, ``path_vecnormalize.pkl`` and policy.json beside them."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    model.save(path.with_suffix(".zip"))
-    venv = model.get_vec_normalize_env()
-    if venv is not None:
-        venv.save(str(path.parent / f"{path.name}_vecnormalize.pkl"))
-    (path.parent / RUN_META).write_text(json.dumps({"residual_scale": residual_scale}))
+def load_hyperparams(
+    name: str = "default", path: str | Path = PPO_CONFIG, env_config: str | None = None
+) -> dict[str, Any]:
+    """Returns entry ``name`` of a hyperparameter file, validated.  ``env_config`` (a preset
+    name or experiment-file path) replaces the entry's env preset, keeping its other env
+    kwargs."""
+    table = load_yaml(path)
+    if name not in table:
+        raise invalid("hyperparams", name, f"an entry of {path}: {sorted(table)}")
+    cfg = copy.deepcopy(mapping(f"{path}: {name}", table[name]))
+    check_keys(f"{path}: {name}", cfg, HYPERPARAM_KEYS)
+    cfg.setdefault("vec_env", "subproc")
+    cfg.setdefault("checkpoint_minutes", 2.0)
+    cfg["env_kwargs"] = mapping("env_kwargs", cfg.get("env_kwargs"))
+    if env_config is not None:
+        cfg["env_kwargs"]["preset"] = str(env_config)
+    return cfg
 
 
+def check_hyperparams(cfg: dict[str, Any]) -> None:
+    """Raises a ValueError naming the first bad value of a resolved entry."""
+    integer("total_timesteps", cfg["total_timesteps"], 1, 10**10)
+    integer("n_envs", cfg["n_envs"], 1, 1024)
+    integer("torch_threads", cfg["torch_threads"], 1, 256)
+    number("residual_scale", cfg["residual_scale"], 0.0, 2.0)
+    integer("eval_freq", cfg["eval_freq"], 1, 10**10)
+    integer("checkpoint_freq", cfg["checkpoint_freq"], 1, 10**10)
+    number("checkpoint_minutes", cfg["checkpoint_minutes"], 0.0, lo_open=True)
+    if cfg["vec_env"] not in VEC_ENVS:
+        raise invalid("vec_env", cfg["vec_env"], f"one of {VEC_ENVS}")
+    EnvConfig.make(**cfg["env_kwargs"])  # the env kwargs, before any worker starts
+
+
+@dataclass
+class TrainSpec:
+    """One run: resolved hyperparameters, its folder, its seed and the command to record."""
+
+    cfg: dict[str, Any]
+    run: RunFolder
+    seed: int = 0
+    resume: bool = False
+    command: str = ""
+    progress_bar: bool = False
+
+
+# -- callbacks ---------------------------------------------------------------------------------
 class TrackingLogCallback(BaseCallback):
     """Logs the training envs' absolute tracking errors (deg) to TensorBoard."""
 
@@ -36,9 +113,32 @@ class TrackingLogCallback(BaseCallback):
         return True
 
 
+class TimedCheckpointCallback(CheckpointCallback):
+    """SB3's CheckpointCallback (model + VecNormalize every ``save_freq`` calls), also every
+    ``minutes`` of wall time, so that a SIGKILL loses little."""
+
+    def __init__(self, save_freq: int, save_path: str, minutes: float) -> None:
+        super().__init__(
+            save_freq, save_path, name_prefix=CHECKPOINT_PREFIX, save_vecnormalize=True
+        )
+        self.period_s = 60.0 * minutes
+        self._last_save = time.monotonic()
+
+    def _on_step(self) -> bool:
+        due = time.monotonic() - self._last_save >= self.period_s
+        if due or self.n_calls % self.save_freq == 0:
+            self._last_save = time.monotonic()
+            self.n_calls, saved = self.save_freq, self.n_calls  # makes the parent save now
+            super()._on_step()
+            self.n_calls = saved
+        return True
+
+
 class TrackingEvalCallback(BaseCallback):
     """Every ``eval_freq`` env steps, rolls the deterministic policy out on fixed seeds and keeps
-    the model with the lowest mean tracking RMS (over joints) as ``best_model``.
+    the model with the lowest mean tracking RMS (over joints) as ``best_model``.  Each
+    evaluation is appended to evaluations.json with the cumulative wall time, and the first
+    one that beats PD on both joints is noted.
 
     SB3's EvalCallback ranks by mean episode reward, which mixes in the control cost, and does
     not save the VecNormalize statistics with the best model; this one ranks by the benchmark's
@@ -49,15 +149,29 @@ class TrackingEvalCallback(BaseCallback):
         env_kwargs: dict[str, Any],
         seeds: list[int],
         eval_freq: int,
-        best_path: Path,
+        run: RunFolder,
         residual_scale: float,
+        wall_offset_s: float = 0.0,
         verbose: int = 1,
     ) -> None:
         super().__init__(verbose)
         self.env_kwargs, self.seeds, self.eval_freq = env_kwargs, seeds, eval_freq
-        self.best_path, self.residual_scale = best_path, residual_scale
-        self.best_rms = float("inf")
+        self.run, self.residual_scale = run, residual_scale
+        best = run.read_json("best_metrics.json")
+        self.best_rms = float(np.mean(best["rms_deg"])) if best else float("inf")
         self._last_eval = 0
+        self._start = time.perf_counter() - wall_offset_s
+        self._make = lambda: gym.make("Tendon2R-v0", **self.env_kwargs)  # noqa: E731
+        self.pd_rms = run.read_json("pd_eval.json")
+        if self.pd_rms is None:
+            pd_metrics = tracking_metrics(
+                rollouts(PDPolicy.from_env(self._make()), self._make, seeds)
+            )
+            self.pd_rms = pd_metrics["rms_deg"]
+            run.write_json("pd_eval.json", self.pd_rms)
+
+    def _on_training_start(self) -> None:
+        self._last_eval = self.num_timesteps
 
     def _on_step(self) -> bool:
         if self.num_timesteps - self._last_eval >= self.eval_freq:
@@ -66,35 +180,280 @@ class TrackingEvalCallback(BaseCallback):
         return True
 
     def _on_training_end(self) -> None:
-        self.evaluate()
+        if self.num_timesteps > self._last_eval:
+            self.evaluate()
 
     def evaluate(self) -> dict[str, Any]:
-        venv = self.model.get_vec_normalize_env()
-        make = lambda: gym.make("Tendon2R-v0", **self.env_kwargs)  # noqa: E731
-        env = make()
-        policy = PPOPolicy(
-            self.model,
-            venv.obs_rms if venv else None,
-            venv.clip_obs if venv else 10.0,
-            venv.epsilon if venv else 1e-8,
-            self.residual_scale,
-            env,
-        )
-        metrics = tracking_metrics(rollouts(policy, make, self.seeds))
+        env = self._make()
+        policy = PPOPolicy(self.model, self.model.get_vec_normalize_env(), self.residual_scale, env)
+        metrics = tracking_metrics(rollouts(policy, self._make, self.seeds))
         rms = float(np.mean(metrics["rms_deg"]))
         self.logger.record("eval/rms_deg_A", metrics["rms_deg"][0])
         self.logger.record("eval/rms_deg_B", metrics["rms_deg"][1])
         self.logger.record("eval/rms_deg_mean", rms)
+        wall = round(time.perf_counter() - self._start, 1)
+        beats = all(p <= d for p, d in zip(metrics["rms_deg"], self.pd_rms, strict=True))
+        self.run.append_evaluation(
+            {
+                "timesteps": self.num_timesteps,
+                "wall_time_s": wall,
+                "rms_deg": metrics["rms_deg"],
+                "beats_pd": beats,
+            }
+        )
         if rms < self.best_rms:
             self.best_rms = rms
-            save_model(self.model, self.best_path, self.residual_scale)
-            (self.best_path.parent / "best_metrics.json").write_text(
-                json.dumps({"timesteps": self.num_timesteps, **metrics}, indent=1)
-            )
+            save_model(self.model, self.run.best)
+            self.run.write_json("best_metrics.json", {"timesteps": self.num_timesteps, **metrics})
         if self.verbose:
             print(
-                f"[eval] {self.num_timesteps} steps: RMS {metrics['rms_deg']} deg "
-                f"(best mean {self.best_rms:.4f})",
+                f"[eval] {self.num_timesteps} steps, {wall} s: RMS {_fmt(metrics['rms_deg'])} "
+                f"deg (PD {_fmt(self.pd_rms)}; best mean {self.best_rms:.4f})",
                 flush=True,
             )
         return metrics
+
+
+def _fmt(pair: list[float]) -> str:
+    return " / ".join(f"{v:.4f}" for v in pair)
+
+
+def save_model(model: Any, stem: Path) -> None:
+    """Saves ``stem.zip`` and ``stem_vecnormalize.pkl``."""
+    zip_path, stats = model_files(stem)
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    model.save(zip_path)
+    venv = model.get_vec_normalize_env()
+    if venv is not None:
+        venv.save(str(stats))
+
+
+def first_beat_pd(run: RunFolder) -> dict[str, Any] | None:
+    """Returns the first evaluation of a run that beat PD on both joints, or None."""
+    for row in run.read_json("evaluations.json") or []:
+        if row["beats_pd"]:
+            return {"timesteps": row["timesteps"], "wall_time_s": row["wall_time_s"]}
+    return None
+
+
+# -- the training loop ---------------------------------------------------------------------------
+def _load_newest(run: RunFolder, venv: Any) -> tuple[Any, Any]:
+    """Returns (PPO, VecNormalize) from the newest readable saved state of the run; a corrupt
+    one is skipped with a warning."""
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    candidates = run.checkpoint_candidates()
+    if not candidates:
+        raise FileNotFoundError(f"resume: no last_model or checkpoint in {run.path}")
+    for zip_path, stats in candidates:
+        try:
+            vecnorm = VecNormalize.load(str(stats), venv)
+            model = PPO.load(zip_path, env=vecnorm, device="cpu")
+        except Exception as e:  # noqa: BLE001 (any unreadable file: try the one before)
+            warnings.warn(f"resume: skipping unreadable {zip_path.name} ({e!r})", stacklevel=2)
+            continue
+        print(f"resuming from {zip_path} at {model.num_timesteps} steps", flush=True)
+        return model, vecnorm
+    raise FileNotFoundError(f"resume: every saved state in {run.path} is unreadable")
+
+
+def make_vec_env(cfg: dict[str, Any], seed: int) -> Any:
+    """Returns the training VecEnv (SB3 make_vec_env) of a resolved entry."""
+    from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+    subproc = cfg["vec_env"] == "subproc" and cfg["n_envs"] > 1
+    return sb3_make_vec_env(
+        make_training_env,
+        n_envs=cfg["n_envs"],
+        seed=seed,
+        env_kwargs={"env_kwargs": cfg["env_kwargs"], "residual_scale": cfg["residual_scale"]},
+        vec_env_cls=SubprocVecEnv if subproc else DummyVecEnv,
+    )
+
+
+def train(spec: TrainSpec) -> dict[str, Any]:
+    """Trains one run; returns its summary.  Ctrl-C saves, writes the summary, re-raises."""
+    import torch
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.callbacks import CallbackList
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    cfg, run = spec.cfg, spec.run
+    check_hyperparams(cfg)
+    env_config = EnvConfig.make(**cfg["env_kwargs"])
+    previous = run.read_json("summary.json") if spec.resume else None
+    run.write_config({**cfg, "seed": spec.seed})
+    run.record_command(spec.command, spec.resume)
+    run.write_json(
+        RUN_META,
+        {
+            "residual_scale": float(cfg["residual_scale"]),
+            "seed": spec.seed,
+            "env_kwargs": cfg["env_kwargs"],
+            "env_config": env_config.to_dict(),
+        },
+    )
+    torch.set_num_threads(cfg["torch_threads"])
+    venv = make_vec_env(cfg, spec.seed)
+    if spec.resume:
+        model, vecnorm = _load_newest(run, venv)
+    else:
+        vecnorm = VecNormalize(venv, gamma=cfg["ppo"].get("gamma", 0.99), **cfg["normalize"])
+        model = PPO(
+            "MlpPolicy",
+            vecnorm,
+            seed=spec.seed,
+            device="cpu",
+            verbose=0,
+            tensorboard_log=str(run.file("tb")),
+            policy_kwargs=cfg["policy_kwargs"],
+            **cfg["ppo"],
+        )
+    prior_wall = previous["wall_time_s"] if previous else 0.0
+    callbacks = [
+        TrackingLogCallback(),
+        TrackingEvalCallback(
+            cfg["env_kwargs"],
+            cfg["eval_seeds"],
+            cfg["eval_freq"],
+            run,
+            float(cfg["residual_scale"]),
+            wall_offset_s=prior_wall,
+        ),
+        TimedCheckpointCallback(
+            max(cfg["checkpoint_freq"] // cfg["n_envs"], 1),
+            str(run.checkpoints),
+            cfg["checkpoint_minutes"],
+        ),
+    ]
+    start_steps = int(model.num_timesteps)
+    remaining = cfg["total_timesteps"] - start_steps
+    start = time.perf_counter()
+    interrupted = False
+    try:
+        with _sigterm_as_interrupt():
+            if remaining > 0:
+                model.learn(
+                    remaining,
+                    callback=CallbackList(callbacks),
+                    reset_num_timesteps=not spec.resume,
+                    progress_bar=spec.progress_bar,
+                    tb_log_name="ppo",
+                )
+    except KeyboardInterrupt:
+        interrupted = True
+        print(f"interrupted at {model.num_timesteps} steps; resume with --resume", flush=True)
+        raise
+    finally:
+        save_model(model, run.last)  # Ctrl-C or a crash keeps the last state
+        _close(vecnorm)
+        summary = _write_summary(spec, previous, start_steps, model, start, interrupted)
+    return summary
+
+
+def _write_summary(
+    spec: TrainSpec,
+    previous: dict[str, Any] | None,
+    start_steps: int,
+    model: Any,
+    start: float,
+    interrupted: bool,
+) -> dict[str, Any]:
+    """Writes summary.json: this segment appended to the earlier ones, totals summed."""
+    run = spec.run
+    wall = time.perf_counter() - start
+    steps = int(model.num_timesteps)
+    segment = {
+        "command": spec.command,
+        "start_timesteps": start_steps,
+        "end_timesteps": steps,
+        "wall_time_s": round(wall, 1),
+        "interrupted": interrupted,
+    }
+    segments = [*(previous or {}).get("segments", []), segment]
+    total_wall = round(sum(s["wall_time_s"] for s in segments), 1)
+    best = run.read_json("best_metrics.json") or {}
+    summary = {
+        "seed": spec.seed,
+        "timesteps": steps,
+        "wall_time_s": total_wall,
+        "steps_per_s": round(
+            sum(s["end_timesteps"] - s["start_timesteps"] for s in segments)
+            / max(total_wall, 1e-9),
+            1,
+        ),
+        "interrupted": interrupted,
+        "best_rms_deg": best.get("rms_deg"),
+        "best_timesteps": best.get("timesteps"),
+        "pd_eval_rms_deg": run.read_json("pd_eval.json"),
+        "first_beat_pd": first_beat_pd(run),
+        "segments": segments,
+    }
+    run.write_json("summary.json", summary)
+    print(json.dumps({k: v for k, v in summary.items() if k != "segments"}), flush=True)
+    return summary
+
+
+def _close(vecnorm: Any) -> None:
+    try:
+        vecnorm.close()
+    except (BrokenPipeError, EOFError, ConnectionResetError):  # workers already gone (Ctrl-C)
+        pass
+
+
+class _sigterm_as_interrupt:
+    """Turns SIGTERM into KeyboardInterrupt while training (main thread only), so that
+    ``kill`` saves the run like Ctrl-C does."""
+
+    def __enter__(self) -> None:
+        self._old: Callable | int | None = None
+        try:
+            self._old = signal.signal(signal.SIGTERM, self._raise)
+        except ValueError:  # not the main thread
+            self._old = None
+
+    def __exit__(self, *exc: object) -> None:
+        if self._old is not None:
+            signal.signal(signal.SIGTERM, self._old)
+
+    @staticmethod
+    def _raise(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt(f"signal {signum}")
+
+
+def train_seeds(
+    cfg: dict[str, Any],
+    base: Path,
+    seeds: list[int],
+    command: str,
+    resume: bool = False,
+    progress_bar: bool = False,
+) -> dict[str, Any]:
+    """Trains one run per seed in ``base/seed_<n>`` and writes base/seeds_summary.json.  A
+    Ctrl-C stops them all: the summary of the finished seeds is written, then it re-raises."""
+    results: list[dict[str, Any]] = []
+    try:
+        for seed in seeds:
+            run = RunFolder(base / f"seed_{seed}")
+            resume_this = resume and bool(run.checkpoint_candidates())
+            results.append(train(TrainSpec(cfg, run, seed, resume_this, command, progress_bar)))
+    finally:
+        agg = seeds_summary(seeds, results)
+        RunFolder(base).write_json("seeds_summary.json", agg)
+    return agg
+
+
+def seeds_summary(seeds: list[int], results: list[dict[str, Any]]) -> dict[str, Any]:
+    """Returns mean +- std (ddof 0) of the finished runs' best RMS."""
+    done = [r for r in results if r.get("best_rms_deg") is not None]
+    out: dict[str, Any] = {"seeds": seeds, "finished": [r["seed"] for r in done], "runs": results}
+    if done:
+        rms = np.array([r["best_rms_deg"] for r in done], dtype=float)
+        out.update(
+            rms_deg_mean=rms.mean(0).tolist(),
+            rms_deg_std=rms.std(0).tolist(),
+            wall_time_s_mean=float(np.mean([r["wall_time_s"] for r in done])),
+        )
+    return out

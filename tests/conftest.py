@@ -20,20 +20,13 @@ from tendon2r_gym import Mechanism  # noqa: E402
 
 #: The default, report 002's mechanism, and two sets with other pulley/link proportions.
 MECHANISMS = {
-    "default": Mechanism(),
-    "report_002": Mechanism(R1=0.013, R2=0.045, a=0.040, b=0.042, c=0.087),
-    "big_pulley1": Mechanism(R1=0.03, R2=0.01, a=0.02, b=0.12, c=0.06),
-    "long_links": Mechanism(R1=0.02, R2=0.02, a=0.1, b=0.03, c=0.2),
+    "default": Mechanism(max_tendon_force=0.5),
+    "report_002": Mechanism(R1=0.013, R2=0.045, a=0.040, b=0.042, c=0.087, max_tendon_force=1.5),
+    "big_pulley1": Mechanism(R1=0.03, R2=0.01, a=0.02, b=0.12, c=0.06, max_tendon_force=1.0),
+    "long_links": Mechanism(R1=0.02, R2=0.02, a=0.1, b=0.03, c=0.2, max_tendon_force=1.0),
 }
 
 
 @pytest.fixture(params=sorted(MECHANISMS))
 def mech(request) -> Mechanism:
     return MECHANISMS[request.param]
-
-
-import sys  # noqa: E402
-from pathlib import Path  # noqa: E402
-
-# The command-line scripts are tested through their main(argv) functions.
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts"))

@@ -2,6 +2,7 @@
 
 import ast
 import copy
+import dataclasses
 import inspect
 import pickle
 import re
@@ -13,7 +14,8 @@ from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import tendon2r_gym
-from tendon2r_gym import Tendon2REnv
+from tendon2r_gym import EnvConfig, Tendon2REnv
+from tendon2r_gym import observation as L
 
 
 def _rollout(env, seed, n=50):
@@ -29,19 +31,47 @@ def _rollout(env, seed, n=50):
 def test_registered_and_importable_by_module_prefix():
     env = gym.make("tendon2r_gym:Tendon2R-v0")
     assert isinstance(env.unwrapped, Tendon2REnv)
-    assert env.spec.max_episode_steps == round(
-        env.unwrapped.episode_duration / env.unwrapped.ctrl_dt
-    )
+    cfg = env.unwrapped.config
+    assert env.spec.max_episode_steps == round(cfg.episode_duration / cfg.ctrl_dt)
 
 
-def test_episode_is_truncated_at_its_duration():
-    env = Tendon2REnv(episode_duration=0.05)
+def _episode_length(env) -> int:
     env.reset(seed=0)
-    for i in range(50):
+    n = 0
+    while True:
+        n += 1
         _, _, terminated, truncated, info = env.step(np.zeros(2))
         assert not terminated
-        assert truncated == (i == 49)
-    assert info["time"] == pytest.approx(0.05)
+        if truncated:
+            return n
+
+
+@pytest.mark.parametrize(("duration", "ctrl_dt"), [(0.05, 0.001), (0.3, 0.002), (0.05, 0.005)])
+def test_episode_length_is_duration_over_ctrl_dt(duration, ctrl_dt):
+    """One source of truth: gym.make and gym.make_vec give episode_duration / ctrl_dt steps."""
+    steps = round(duration / ctrl_dt)
+    env = gym.make("Tendon2R-v0", episode_duration=duration, ctrl_dt=ctrl_dt)
+    assert env.spec.max_episode_steps == steps
+    assert _episode_length(env) == steps
+    envs = gym.make_vec(
+        "Tendon2R-v0", num_envs=2, episode_duration=duration, ctrl_dt=ctrl_dt
+    )
+    envs.reset(seed=0)
+    for i in range(steps):
+        *_, trunc, _ = envs.step(np.zeros((2, 2)))
+        assert trunc.all() == (i == steps - 1)
+
+
+def test_episode_duration_in_an_experiment_file(tmp_path):
+    path = tmp_path / "arm.yaml"
+    path.write_text(
+        "episode_duration: 0.04\nctrl_dt: 2e-3\nmechanism: {R1: 0.02}\n"
+        "reference: {amp_deg: [10, 10], bias_deg: [0, 0], freq_hz: [1, 1]}\n"
+    )
+    env = gym.make("Tendon2R-v0", preset=str(path))
+    assert env.unwrapped.mechanism.R1 == 0.02
+    assert _episode_length(env) == 20
+    assert _episode_length(gym.make("Tendon2R-v0", preset=str(path), ctrl_dt=0.001)) == 40
 
 
 def test_gymnasium_and_sb3_checkers_pass():
@@ -56,7 +86,7 @@ def test_reward_equals_sum_of_terms_and_info_keys():
     for _ in range(20):
         obs, reward, *_, info = env.step(env.action_space.sample())
         terms = [v for k, v in info.items() if k.startswith("reward_")]
-        assert len(terms) == 3
+        assert len(terms) == len(env.config.reward_scales)
         assert reward == pytest.approx(sum(terms), abs=1e-12)
         assert obs.dtype == env.observation_space.dtype
         assert env.observation_space.contains(obs)
@@ -75,15 +105,18 @@ def test_observation_entries_match_the_physics():
     import mujoco
 
     mujoco.mj_forward(env.model, d)
-    np.testing.assert_allclose(obs[0:2], d.qpos)
-    np.testing.assert_allclose(obs[4:6], d.site("effector").xpos[[0, 2]], atol=1e-12)
+    np.testing.assert_allclose(obs[L.Q], d.qpos)
+    np.testing.assert_allclose(obs[L.EFFECTOR_POS], d.site("effector").xpos[[0, 2]], atol=1e-12)
     jac = np.zeros((3, 2))
     mujoco.mj_jacSite(env.model, d, jac, None, env.model.site("effector").id)
-    np.testing.assert_allclose(obs[6:8], (jac @ d.qvel)[[0, 2]], atol=1e-12)
+    np.testing.assert_allclose(obs[L.EFFECTOR_VEL], (jac @ d.qvel)[[0, 2]], atol=1e-12)
     ref = env.reference
-    np.testing.assert_allclose(obs[8:10], ref.q(d.time))
-    np.testing.assert_allclose(obs[10:12], ref.qdot(d.time))
-    np.testing.assert_allclose(obs[12:18], ref.q(d.time + np.array([1, 2, 3]) * 0.01).ravel())
+    np.testing.assert_allclose(obs[L.Q_DES], ref.q(d.time))
+    np.testing.assert_allclose(obs[L.DQ_DES], ref.qdot(d.time))
+    np.testing.assert_allclose(obs[L.ERROR], ref.q(d.time) - d.qpos)
+    preview = ref.q(d.time + np.array([1, 2, 3]) * 0.01).ravel()
+    np.testing.assert_allclose(obs[L.preview_slice(3)], preview)
+    assert obs.shape == (L.size(3),)
     assert env.unwrapped.tendon_forces() == pytest.approx(np.array([0.3, -0.2]) * 0.5)
 
 
@@ -233,11 +266,13 @@ def test_vector_envs(mode):
     obs, _ = envs.reset(seed=0)
     obs2, rew, term, trunc, info = envs.step(np.zeros((2, 2), np.float32))
     envs.close()
-    assert obs.shape == obs2.shape == (2, 20)
+    assert obs.shape == obs2.shape == (2, L.size(3))
     assert rew.shape == (2,)
 
 
 def test_documented_defaults_match_the_signature():
+    """The Arguments table lists every argument: the env's own (rendering, preset) with their
+    signature defaults, and every EnvConfig field with its default (sections: None)."""
     doc = inspect.getdoc(Tendon2REnv)
     rows = dict(re.findall(r"^\| `(\w+)` \| `([^`]*)` \|", doc, flags=re.M))
     params = {
@@ -245,6 +280,16 @@ def test_documented_defaults_match_the_signature():
         for k, v in inspect.signature(Tendon2REnv.__init__).parameters.items()
         if v.default is not inspect.Parameter.empty
     }
+    for f in dataclasses.fields(EnvConfig):
+        if f.name == "force_need":
+            continue
+        if f.default is not dataclasses.MISSING:
+            params[f.name] = f.default
+        elif f.default_factory is not dataclasses.MISSING:
+            params[f.name] = f.default_factory()
+        else:
+            params[f.name] = None  # a section: from the preset
+    params["reference_ranges"] = None
     assert set(rows) == set(params)
     for name, text in rows.items():
         assert ast.literal_eval(text) == params[name], name
@@ -259,9 +304,7 @@ def test_documented_defaults_match_the_signature():
         "Version History",
     ):
         assert f"## {section}" in doc
-    assert tendon2r_gym.DEFAULT_MAX_EPISODE_STEPS == round(
-        params["episode_duration"] / params["ctrl_dt"]
-    )
+    assert tendon2r_gym.__version__
 
 
 def test_readme_python_examples_run():

@@ -1,0 +1,353 @@
+"""The benchmark: PD, computed torque and PPO (from scratch and residual on PD), same seeds.
+
+- :func:`benchmark_bundled` (``tendon2r-benchmark``, ``make benchmark``): the bundled presets
+  with their bundled models, plus held-out references for the random-reference model.
+- :func:`benchmark_own_arm` (``tendon2r-benchmark --env-config my_arm.yaml``): trains both PPO
+  variants on the user's experiment file, then compares all four on it.
+
+Every learned row is evaluated on the benchmark seeds (0, 1, ...), never on the seeds that
+chose its checkpoint (configs/ppo.yaml eval_seeds).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tendon2r_gym.bundle import bundle_meta, bundled_model, training_summary
+from tendon2r_gym.evaluation import evaluate
+from tendon2r_gym.plots import plot_trace
+from tendon2r_gym.runs import BEST, RunFolder, model_files
+
+#: Learned variants: label -> (bundle suffix, hyperparameter entry used to train on your arm).
+LEARNED = {
+    "ppo scratch": ("_scratch", "default_scratch"),
+    "ppo residual": ("", "default"),
+}
+PRESETS = ("default", "report_002")
+#: Figures quoted from the lab reports (their own measurements), shown for comparison only.
+REPORT_ROWS = {
+    "default": ("report 001 (position actuators on the joints)", [0.92, 1.15], [1.85, 2.34]),
+    "report_002": ("report 002 (open-loop tendon commands)", [37.5, 35.8], [60.0, 70.0]),
+}
+#: Held-out references for the generalization check (inside the training ranges of
+#: configs/ppo.yaml random_reference, never drawn exactly).
+HELD_OUT = [
+    {"amp_deg": [12.0, 18.0], "freq_hz": [1.3, 2.2], "bias_deg": [5.0, -8.0],
+     "phase_deg": [30.0, 200.0]},
+    {"amp_deg": [22.0, 7.0], "freq_hz": [2.8, 0.9], "bias_deg": [-6.0, 2.0],
+     "phase_deg": [90.0, 0.0]},
+    {"amp_deg": [8.0, 14.0], "freq_hz": [0.7, 2.6], "bias_deg": [0.0, -12.0],
+     "phase_deg": [270.0, 45.0]},
+]  # fmt: skip
+
+
+def _fmt(pair: list[float] | None, digits: int = 4) -> str:
+    return "-" if pair is None else " / ".join(f"{v:.{digits}f}" for v in pair)
+
+
+def compare(
+    name: str,
+    env_kwargs: dict[str, Any],
+    learned: dict[str, list[Path]],
+    seeds: list[int],
+    plots: Path | None,
+    progress: Any = None,
+) -> list[dict[str, Any]]:
+    """Returns the rows of one env: PD, CT, and per learned label its primary model and the
+    mean +- std (ddof 0) over all its training seeds."""
+    rows = []
+    for policy in ("pd", "ct"):
+        rows.append(_row(name, policy, policy, env_kwargs, seeds, None, plots))
+        _tick(progress)
+    for label, models in learned.items():
+        if not models:
+            rows.append({"env": name, "policy": label, "missing": "no trained model"})
+            continue
+        per_seed = []
+        for i, model in enumerate(models):
+            row = _row(name, label, "ppo", env_kwargs, seeds, model, plots if i == 0 else None)
+            per_seed.append(row)
+            _tick(progress)
+        rows.append(per_seed[0])
+        if len(per_seed) > 1:
+            rows.append(_spread(name, label, per_seed))
+    for row in rows:
+        _print(row)
+    return rows
+
+
+def _row(
+    name: str,
+    label: str,
+    policy: str,
+    env_kwargs: dict[str, Any],
+    seeds: list[int],
+    model: Path | None,
+    plots: Path | None,
+) -> dict[str, Any]:
+    start = time.perf_counter()
+    metrics, traces = evaluate(policy, env_kwargs, seeds, model)
+    row = {"env": name, "policy": label, **metrics, "eval_s": round(time.perf_counter() - start, 1)}
+    if model is not None:
+        s = training_summary(model)
+        row.update(
+            model=str(model),
+            train_seed=s["seed"],
+            train_steps=s["timesteps"],
+            train_wall_s=s["wall_time_s"],
+            first_beat_pd=s.get("first_beat_pd"),
+        )
+    if plots is not None:
+        plot_trace(traces[0], plots / name / label.replace(" ", "_"), f"{label} on {name}")
+    return row
+
+
+def _spread(name: str, label: str, per_seed: list[dict[str, Any]]) -> dict[str, Any]:
+    rms = [r["rms_deg"] for r in per_seed]
+    beat = [r["first_beat_pd"] for r in per_seed]
+    return {
+        "env": name,
+        "policy": f"{label} ({len(per_seed)} seeds)",
+        "training_seeds": [r["train_seed"] for r in per_seed],
+        "rms_deg_per_seed": rms,
+        "rms_deg": np.mean(rms, axis=0).tolist(),
+        "rms_deg_std": np.std(rms, axis=0).tolist(),
+        "max_deg": np.mean([r["max_deg"] for r in per_seed], axis=0).tolist(),
+        "train_steps": int(np.mean([r["train_steps"] for r in per_seed])),
+        "train_wall_s": round(float(np.mean([r["train_wall_s"] for r in per_seed])), 1),
+        "train_wall_s_max": max(r["train_wall_s"] for r in per_seed),
+        "first_beat_pd": beat,
+    }
+
+
+def _print(row: dict[str, Any]) -> None:
+    if "missing" in row:
+        print(f"{row['env']:11s} {row['policy']:24s} {row['missing']}", flush=True)
+        return
+    std = f" +- {_fmt(row['rms_deg_std'])}" if "rms_deg_std" in row else ""
+    print(
+        f"{row['env']:11s} {row['policy']:24s} RMS {_fmt(row['rms_deg'])}{std} deg  "
+        f"max {_fmt(row['max_deg'], 3)} deg",
+        flush=True,
+    )
+
+
+def _tick(progress: Any) -> None:
+    if progress is not None:
+        progress.update(1)
+
+
+def verdicts(rows: list[dict[str, Any]]) -> list[str]:
+    """Returns, per env and learned row, whether its RMS is <= PD's on both joints."""
+    lines = []
+    for name in dict.fromkeys(r["env"] for r in rows):
+        by = {r["policy"]: r for r in rows if r["env"] == name and "rms_deg" in r}
+        if "pd" not in by:
+            continue
+        for label, r in by.items():
+            if not label.startswith("ppo"):
+                continue
+            wins = all(p <= d for p, d in zip(r["rms_deg"], by["pd"]["rms_deg"], strict=True))
+            ct = by.get("ct", {}).get("rms_deg")
+            vs_ct = (
+                f"; {max(p / c for p, c in zip(r['rms_deg'], ct, strict=True)):.1f}x CT"
+                if ct
+                else ""
+            )
+            lines.append(
+                f"- {name}, {label}: RMS {_fmt(r['rms_deg'])} vs PD {_fmt(by['pd']['rms_deg'])}"
+                f" deg: {'<= PD on both joints' if wins else 'WORSE than PD on at least one joint'}"
+                f"{vs_ct}; trained {r['train_steps']} steps in {r['train_wall_s']} s"
+                + (f" (slowest seed {r['train_wall_s_max']} s)" if "train_wall_s_max" in r else "")
+            )
+    return lines
+
+
+def _beat(value: Any) -> str:
+    if isinstance(value, list):
+        return ", ".join(_beat(v) for v in value)
+    return "never" if value is None else f"{value['timesteps']} / {value['wall_time_s']} s"
+
+
+def table(rows: list[dict[str, Any]], quoted: dict[str, tuple] | None = None) -> list[str]:
+    """Returns the markdown table of benchmark rows."""
+    lines = [
+        "| env | policy | RMS error A / B (deg) | max error (deg) | RMS force (N) | saturated | "
+        "train steps | train wall (s) | first beat PD (steps / wall) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name in dict.fromkeys(r["env"] for r in rows):
+        for r in (r for r in rows if r["env"] == name):
+            if "missing" in r:
+                lines.append(f"| {name} | {r['policy']} | {r['missing']} | | | | | | |")
+                continue
+            std = f" ± {_fmt(r['rms_deg_std'])}" if "rms_deg_std" in r else ""
+            learned = "train_steps" in r
+            lines.append(
+                f"| {name} | {r['policy']} | {_fmt(r['rms_deg'])}{std} | {_fmt(r['max_deg'], 3)} "
+                f"| {_fmt(r.get('rms_force_N'))} | {_fmt(r.get('saturated_fraction'), 3)} | "
+                f"{r.get('train_steps', '')} | {r.get('train_wall_s', '')} | "
+                f"{_beat(r.get('first_beat_pd')) if learned else ''} |"
+            )
+        if quoted and name in quoted:
+            label, rms, mx = quoted[name]
+            lines.append(
+                f"| {name} | *quoted: {label}* | {_fmt(rms, 2)} | {_fmt(mx, 2)} | | | | | |"
+            )
+    return lines
+
+
+NOTES = [
+    "Per joint (A / B): RMS and max tracking error over all steps of all episodes (the same",
+    "seeds for every policy), RMS tendon force per tendon, fraction of saturated steps.",
+    "`ppo scratch` is plain PPO driving the motors (residual_scale 0); `ppo residual` adds",
+    "its action to the PD command. The row without a seed count is the primary training",
+    "seed (fixed before training); `(N seeds)` is the mean ± std (ddof 0) over training",
+    "seeds, each evaluated on the benchmark seeds, not on the seeds that chose its",
+    "checkpoint. Train wall time: one run on 2 CPU cores. First beat PD: the first",
+    "evaluation during training (on the eval seeds) whose RMS was <= PD's on both joints.",
+]
+
+
+def _bundle_models(name: str) -> list[Path]:
+    meta = bundle_meta(name)
+    return [] if meta is None else [bundled_model(name, s) for s in meta["seeds"]]
+
+
+def benchmark_bundled(episodes: int, out: Path, command: str) -> dict[str, Any]:
+    """The bundled presets with their bundled models -> out/benchmark.md, .json, plots/."""
+    out.mkdir(parents=True, exist_ok=True)
+    seeds = list(range(episodes))
+    rows = []
+    for preset in PRESETS:
+        learned = {label: _bundle_models(preset + suffix) for label, (suffix, _) in LEARNED.items()}
+        rows += compare(preset, {"preset": preset}, learned, seeds, out / "plots")
+    held = held_out()
+    result = {"command": command, "rows": rows, "held_out": held}
+    (out / "benchmark.json").write_text(json.dumps(result, indent=1))
+    bundles = [
+        f"- {n}: seeds {m['seeds']}, trained by `{m['train_command']}`, bundled by `{m['command']}`"
+        for n in sorted(
+            {p + s for p in PRESETS for s, _ in LEARNED.values()} | {"random_reference"}
+        )
+        if (m := bundle_meta(n)) is not None
+    ]
+    lines = [
+        "# Benchmark: PD vs computed torque vs PPO on Tendon2R-v0",
+        "",
+        f"Produced by `{command}`; every figure comes from that run except the rows marked",
+        "*quoted*, which are the lab reports' own figures.",
+        "",
+        *NOTES,
+        "",
+        *table(rows, REPORT_ROWS),
+        "",
+        "Learned rows against PD (RMS <= PD on both joints?) and against computed torque:",
+        "",
+        *verdicts(rows),
+        "",
+        "Bundled models and the commands that made them (tendon2r_gym/data/models/):",
+        "",
+        *bundles,
+        "",
+        "## Held-out references (generalization)",
+        "",
+        "PPO residual trained on random references (configs/ppo.yaml `random_reference`) and",
+        "PD, on fixed references the model never trained on (tendon2r_gym.benchmark.HELD_OUT):",
+        "",
+        "| policy | mean RMS error A / B (deg) |",
+        "|---|---|",
+        *(f"| {r['policy']} | {r.get('missing') or _fmt(r['rms_deg_mean'])} |" for r in held),
+    ]
+    (out / "benchmark.md").write_text("\n".join(lines) + "\n")
+    print("wrote", out / "benchmark.md")
+    return result
+
+
+def held_out() -> list[dict[str, Any]]:
+    """PD and the random-reference PPO on HELD_OUT, with the env the model trained on."""
+    meta = bundle_meta("random_reference")
+    if meta is None:
+        return [{"policy": "ppo", "missing": "no bundled random_reference model"}]
+    model = bundled_model("random_reference")
+    env_kwargs = RunFolder(model.parent).read_json("run.json")["env_kwargs"]
+    rows = []
+    for policy in ("pd", "ppo"):
+        errs = [
+            evaluate(policy, env_kwargs, [i], model if policy == "ppo" else None,
+                     options={"reference": ref})[0]["rms_deg"]
+            for i, ref in enumerate(HELD_OUT)
+        ]  # fmt: skip
+        rows.append(
+            {"policy": policy, "rms_deg_per_reference": errs,
+             "rms_deg_mean": np.mean(errs, axis=0).tolist()}
+        )  # fmt: skip
+        print(f"held-out {policy:4s} mean RMS {_fmt(rows[-1]['rms_deg_mean'])} deg", flush=True)
+    return rows
+
+
+def benchmark_own_arm(
+    env_config: str,
+    train_steps: int | None,
+    seeds: list[int],
+    episodes: int,
+    out: Path,
+    run_dir: Path,
+    command: str,
+) -> dict[str, Any]:
+    """Trains both PPO variants on ``env_config`` (one run per seed), then compares PD, CT and
+    them on the same evaluation seeds -> out/benchmark.md, .json, plots/."""
+    from tqdm.auto import tqdm
+
+    from tendon2r_gym.env_config import EnvConfig
+    from tendon2r_gym.training import check_hyperparams, load_hyperparams, train_seeds
+
+    env_kwargs = {"preset": env_config}
+    config = EnvConfig.make(env_config)  # every error before any training
+    cfgs = {}
+    for label, (_, entry) in LEARNED.items():
+        cfg = load_hyperparams(entry, env_config=env_config)
+        if train_steps is not None:
+            cfg["total_timesteps"] = train_steps
+        check_hyperparams(cfg)
+        cfgs[label] = cfg
+    out.mkdir(parents=True, exist_ok=True)
+    learned: dict[str, list[Path]] = {}
+    with tqdm(total=len(cfgs) * len(seeds) * 2 + 2, desc="benchmark", unit="task") as bar:
+        for label, cfg in cfgs.items():
+            base = run_dir / label.replace(" ", "_")
+            bar.set_postfix_str(f"training {label}")
+            train_seeds(cfg, base, seeds, command, resume=True)
+            learned[label] = [model_files(base / f"seed_{s}" / BEST)[0] for s in seeds]
+            bar.update(len(seeds))
+        bar.set_postfix_str("evaluating")
+        name = Path(env_config).stem
+        rows = compare(name, env_kwargs, learned, list(range(episodes)), out / "plots", bar)
+    result = {
+        "command": command,
+        "env_config": config.to_dict(),
+        "force_need_N": config.force_need,
+        "rows": rows,
+    }
+    (out / "benchmark.json").write_text(json.dumps(result, indent=1))
+    lines = [
+        f"# Benchmark on {env_config}",
+        "",
+        f"Produced by `{command}`.",
+        f"Force limit {config.mechanism.max_tendon_force} N; inverse dynamics of the reference "
+        f"needs {config.force_need:.3g} N.",
+        "",
+        *NOTES,
+        "",
+        *table(rows),
+        "",
+        *verdicts(rows),
+    ]
+    (out / "benchmark.md").write_text("\n".join(lines) + "\n")
+    print("wrote", out / "benchmark.md")
+    return result

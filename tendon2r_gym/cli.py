@@ -1,0 +1,332 @@
+"""Console commands (``[project.scripts]``): each is a typed Args dataclass, parsed one way.
+
+    tendon2r-train      train PPO (one run, or one per seed), resume, bundle
+    tendon2r-evaluate   RMS / max tracking error of PD, CT or PPO, plots and video
+    tendon2r-benchmark  PD vs CT vs PPO table; on your own arm with --env-config
+    tendon2r-view       a picture (or MuJoCo's viewer) of a mechanism
+    tendon2r-export     the MJCF XML of a mechanism
+    tendon2r-bundle     copy finished runs into the bundled models
+
+Ctrl-C during a command exits with code 130 after saving what it was doing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+import types
+import typing
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TypeVar
+
+A = TypeVar("A")
+
+
+def arg(default: Any = None, help: str = "", **kw: Any) -> Any:  # noqa: A002
+    """A dataclass field with its --help text."""
+    if isinstance(default, list):
+        return field(default_factory=lambda: list(default), metadata={"help": help, **kw})
+    return field(default=default, metadata={"help": help, **kw})
+
+
+def parse(cls: type[A], argv: list[str] | None, doc: str | None = None) -> A:
+    """Parses argv into the dataclass ``cls``: one --flag per field, typed by its annotation
+    (bool is a switch, list[int] takes several values, X | None is optional)."""
+    parser = argparse.ArgumentParser(
+        description=doc or cls.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    hints = typing.get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        kind = hints[f.name]
+        args = typing.get_args(kind)
+        if typing.get_origin(kind) in (typing.Union, types.UnionType):
+            kind = next(a for a in args if a is not type(None))
+        flag = "--" + f.name.replace("_", "-")
+        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+        kw: dict[str, Any] = {"help": f.metadata.get("help", ""), "default": default}
+        if "choices" in f.metadata:
+            kw["choices"] = f.metadata["choices"]
+        if kind is bool:
+            parser.add_argument(flag, action="store_true", help=kw["help"])
+        elif typing.get_origin(kind) is list:
+            parser.add_argument(flag, type=typing.get_args(kind)[0], nargs="+", **kw)
+        else:
+            parser.add_argument(flag, type=kind, **kw)
+    return cls(**vars(parser.parse_args(argv)))
+
+
+def run(main: Callable[[list[str] | None], Any]) -> Callable[[], None]:
+    """Wraps a command's main: Ctrl-C exits 130, a ValueError is a one-line error (exit 2)."""
+
+    def entry() -> None:
+        os.environ.setdefault("MUJOCO_GL", "egl")
+        try:
+            main(None)
+        except KeyboardInterrupt:
+            print("interrupted", file=sys.stderr)
+            sys.exit(130)
+        except ValueError as e:
+            print(f"error: {e}", file=sys.stderr)
+            sys.exit(2)
+
+    return entry
+
+
+# -- tendon2r-train ------------------------------------------------------------------------------
+@dataclass
+class TrainArgs:
+    """Train SB3 PPO on Tendon2R-v0 with an entry of configs/ppo.yaml.
+
+    tendon2r-train --hyperparams default --seeds 0 1 2 --bundle default
+    tendon2r-train --env-config my_arm.yaml --hyperparams default_scratch
+    tendon2r-train --run-dir runs/default --seeds 0 1 2 --resume      # after Ctrl-C or a crash
+    """
+
+    hyperparams: str = arg("default", "entry of the hyperparameter file")
+    config: str | None = arg(None, "hyperparameter file (default: configs/ppo.yaml)")
+    env_config: str | None = arg(None, "preset name or experiment file: the env to train on")
+    total_timesteps: int | None = arg(None, "overrides the entry")
+    n_envs: int | None = arg(None, "overrides the entry")
+    vec_env: str | None = arg(None, "overrides the entry", choices=("subproc", "dummy"))
+    seeds: list[int] = arg([0], "one run folder per seed")
+    run_dir: str | None = arg(None, "default runs/<hyperparams>; seeds go in seed_<n>/")
+    resume: bool = arg(False, "continue from the newest readable state of each run")
+    bundle: str | None = arg(None, "copy the best models into the bundled models under NAME")
+    progress_bar: bool = arg(False, "also on whenever stderr is a terminal")
+
+
+def resolve_train(args: TrainArgs) -> dict[str, Any]:
+    """Returns the validated hyperparameters of a train command."""
+    from tendon2r_gym.config import PPO_CONFIG
+    from tendon2r_gym.training import check_hyperparams, load_hyperparams
+
+    cfg = load_hyperparams(args.hyperparams, args.config or PPO_CONFIG, args.env_config)
+    for key in ("total_timesteps", "n_envs", "vec_env"):
+        if getattr(args, key) is not None:
+            cfg[key] = getattr(args, key)
+    check_hyperparams(cfg)
+    return cfg
+
+
+def train_main(argv: list[str] | None = None) -> dict[str, Any]:
+    from tendon2r_gym.bundle import bundle_runs
+    from tendon2r_gym.runs import command_line
+    from tendon2r_gym.training import train_seeds
+
+    args = parse(TrainArgs, argv)
+    cfg = resolve_train(args)
+    base = Path(args.run_dir or f"runs/{args.hyperparams}")
+    command = command_line(argv, "tendon2r-train")
+    agg = train_seeds(
+        cfg, base, args.seeds, command, args.resume, args.progress_bar or sys.stderr.isatty()
+    )
+    print(json.dumps({k: v for k, v in agg.items() if k != "runs"}), flush=True)
+    if args.bundle:
+        runs = [base / f"seed_{s}" for s in args.seeds]
+        print("bundled into", bundle_runs(runs, args.bundle, command), flush=True)
+    return agg
+
+
+# -- tendon2r-evaluate ---------------------------------------------------------------------------
+@dataclass
+class EvaluateArgs:
+    """Evaluate a policy on Tendon2R-v0: RMS / max tracking error, forces and saturation.
+
+    tendon2r-evaluate --policy pd --env-config default --episodes 3 --json out.json
+    tendon2r-evaluate --policy ppo                        # the bundled model of the preset
+    tendon2r-evaluate --policy ct --env-config my_arm.yaml --plots figs --video run.mp4
+    """
+
+    policy: str = arg("pd", "policy to run", choices=("pd", "ct", "ppo"))
+    model: str | None = arg(None, "PPO model zip (default: the bundle named like the preset)")
+    bundle: str | None = arg(None, "bundled PPO to use instead of --model")
+    env_config: str = arg("default", "preset name or experiment file")
+    episodes: int = arg(3, "episodes, seeds seed .. seed + episodes - 1")
+    seed: int = arg(0, "first episode seed")
+    episode_duration: float | None = arg(None, "overrides the env config (s)")
+    json: str | None = arg(None, "write all metrics here")
+    plots: str | None = arg(None, "folder for the PNGs of the first episode")
+    video: str | None = arg(None, "mp4 or gif of the first episode")
+
+
+def evaluate_main(argv: list[str] | None = None) -> dict[str, Any]:
+    import gymnasium as gym
+
+    import tendon2r_gym  # noqa: F401  (registers Tendon2R-v0)
+    from tendon2r_gym.evaluation import evaluate, make_policy, resolve_model
+    from tendon2r_gym.plots import plot_trace, save_video
+    from tendon2r_gym.rollout import rollout
+    from tendon2r_gym.validation import integer
+
+    args = parse(EvaluateArgs, argv)
+    integer("--episodes", args.episodes, 1, 10**6)
+    env_kwargs: dict[str, Any] = {"preset": args.env_config}
+    if args.episode_duration is not None:
+        env_kwargs["episode_duration"] = args.episode_duration
+    model = resolve_model(args.policy, args.model, args.bundle, env_kwargs)
+    seeds = list(range(args.seed, args.seed + args.episodes))
+    metrics, traces = evaluate(args.policy, env_kwargs, seeds, model)
+    metrics["env_kwargs"], metrics["model"] = env_kwargs, None if model is None else str(model)
+    keys = ("policy", "rms_deg", "max_deg", "rms_force_N", "saturated_fraction", "steps")
+    print(json.dumps({k: metrics[k] for k in keys}))
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(metrics, indent=1))
+    title = f"{args.policy.upper()} on {Path(args.env_config).stem}"
+    if args.plots:
+        for path in plot_trace(traces[0], args.plots, title):
+            print("wrote", path)
+    if args.video:
+        env = gym.make("Tendon2R-v0", render_mode="rgb_array", width=480, height=360, **env_kwargs)
+        trace = rollout(make_policy(args.policy, env, model), env, seeds[0], render=True)
+        every = max(1, round(1 / 30 / env.unwrapped.ctrl_dt))  # ~30 fps of real time
+        print("wrote", save_video(trace.frames[::every], args.video, fps=30))
+        env.close()
+    return metrics
+
+
+# -- tendon2r-benchmark --------------------------------------------------------------------------
+@dataclass
+class BenchmarkArgs:
+    """PD vs computed torque vs PPO (from scratch and residual) on the same seeds.
+
+    tendon2r-benchmark                                   # bundled presets -> results/
+    tendon2r-benchmark --env-config my_arm.yaml --train-steps 300000 --seeds 0 1 2 --out DIR
+    """
+
+    env_config: str | None = arg(None, "your arm: train PPO on this file, then compare")
+    train_steps: int | None = arg(None, "PPO steps per run (default: the entries' own)")
+    seeds: list[int] = arg([0], "PPO training seeds (with --env-config)")
+    episodes: int = arg(3, "evaluation episodes per policy (seeds 0 ..)")
+    out: str = arg("results", "folder for benchmark.md, benchmark.json and plots/")
+    run_dir: str | None = arg(None, "training runs (default <out>/runs)")
+
+
+def benchmark_main(argv: list[str] | None = None) -> dict[str, Any]:
+    from tendon2r_gym.benchmark import benchmark_bundled, benchmark_own_arm
+    from tendon2r_gym.runs import command_line
+    from tendon2r_gym.validation import integer
+
+    args = parse(BenchmarkArgs, argv)
+    integer("--episodes", args.episodes, 1, 10**6)
+    if args.train_steps is not None:
+        integer("--train-steps", args.train_steps, 1, 10**10)
+    command = command_line(argv, "tendon2r-benchmark")
+    if args.env_config is None:
+        return benchmark_bundled(args.episodes, Path(args.out), command)
+    return benchmark_own_arm(
+        args.env_config,
+        args.train_steps,
+        args.seeds,
+        args.episodes,
+        Path(args.out),
+        Path(args.run_dir) if args.run_dir else Path(args.out) / "runs",
+        command,
+    )
+
+
+# -- tendon2r-view / tendon2r-export / tendon2r-bundle -------------------------------------------
+@dataclass
+class ViewArgs:
+    """A static view of a mechanism (the reports' task 3): MuJoCo's passive viewer, or a PNG.
+
+    tendon2r-view --env-config default
+    tendon2r-view --save out.png       # headless PNG from the side camera
+    """
+
+    env_config: str = arg("default", "preset name or experiment file")
+    save: str | None = arg(None, "write a PNG instead of opening the viewer")
+    q_deg: list[float] = arg([20.0, -35.0], "pose (deg)")
+    width: int = arg(800, "PNG width (px)")
+    height: int = arg(600, "PNG height (px)")
+
+
+def view_main(argv: list[str] | None = None) -> Path | None:
+    import mujoco
+    import numpy as np
+
+    from tendon2r_gym.env_config import EnvConfig
+    from tendon2r_gym.model import CAMERA, build_model
+
+    args = parse(ViewArgs, argv)
+    model = build_model(EnvConfig.make(args.env_config).mechanism)
+    model.vis.global_.offwidth, model.vis.global_.offheight = args.width, args.height
+    data = mujoco.MjData(model)
+    data.qpos[:] = np.radians(args.q_deg)
+    mujoco.mj_forward(model, data)  # positions only: the mechanism is shown, not simulated
+    if args.save:
+        import imageio.v2 as imageio
+
+        with mujoco.Renderer(model, args.height, args.width) as renderer:
+            renderer.update_scene(data, camera=CAMERA)
+            image = renderer.render()
+        Path(args.save).parent.mkdir(parents=True, exist_ok=True)
+        imageio.imwrite(args.save, image)
+        print("wrote", args.save)
+        return Path(args.save)
+    import mujoco.viewer
+
+    with mujoco.viewer.launch_passive(model, data) as viewer:
+        while viewer.is_running():
+            viewer.sync()
+    return None
+
+
+@dataclass
+class ExportArgs:
+    """Write the MJCF XML of a mechanism (loads with MjModel.from_xml_path and the viewer).
+
+    tendon2r-export --env-config default --out build/default.xml
+    """
+
+    env_config: str = arg("default", "preset name or experiment file")
+    out: str | None = arg(None, "output file (default build/<name>.xml)")
+
+
+def export_main(argv: list[str] | None = None) -> Path:
+    from tendon2r_gym.env_config import EnvConfig
+    from tendon2r_gym.model import to_xml
+
+    args = parse(ExportArgs, argv)
+    mech = EnvConfig.make(args.env_config).mechanism
+    out = Path(args.out or f"build/{Path(args.env_config).stem}.xml")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(to_xml(mech))
+    print("wrote", out)
+    return out
+
+
+@dataclass
+class BundleArgs:
+    """Copy finished training runs into the bundled models (the first run is the primary one).
+
+    tendon2r-bundle --name default --runs runs/default/seed_0 runs/default/seed_1
+    """
+
+    name: str = arg("", "bundle name, e.g. default")
+    runs: list[str] = arg([], "run folders written by tendon2r-train")
+
+
+def bundle_main(argv: list[str] | None = None) -> Path:
+    from tendon2r_gym.bundle import bundle_runs
+    from tendon2r_gym.runs import command_line
+
+    args = parse(BundleArgs, argv)
+    dest = bundle_runs(
+        [Path(r) for r in args.runs], args.name, command_line(argv, "tendon2r-bundle")
+    )
+    print("bundled", len(args.runs), "run(s) into", dest)
+    return dest
+
+
+train = run(train_main)
+evaluate = run(evaluate_main)
+benchmark = run(benchmark_main)
+view = run(view_main)
+export = run(export_main)
+bundle = run(bundle_main)

@@ -1,0 +1,187 @@
+"""EnvConfig: every argument of Tendon2R-v0 except rendering, resolved and validated once.
+
+``EnvConfig.make(preset, **overrides)`` reads the preset or experiment file, applies the
+overrides (:func:`tendon2r_gym.config.merge_env_kwargs`), checks every value, fits the reference
+to the workspace if asked, and sizes ``max_tendon_force: auto``.  Every error is raised here,
+before any MuJoCo model is built.  ``to_dict()`` is what a training run records, and what a
+trained model is checked against when it is loaded.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import warnings
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from functools import lru_cache
+from typing import Any
+
+from tendon2r_gym.actuation import FORCE_HEADROOM, force_need
+from tendon2r_gym.config import SECTIONS, load_preset, merge_env_kwargs
+from tendon2r_gym.mechanism import AUTO, Mechanism
+from tendon2r_gym.model import build_model
+from tendon2r_gym.reference import Reference, ReferenceRanges
+from tendon2r_gym.validation import boolean, check_keys, integer, invalid, mapping, number
+
+#: Reward weights (mujoco_playground style): reward = sum of scale * term, one entry per term.
+REWARD_SCALES: dict[str, float] = {"tracking": 1.0, "ctrl": 0.01, "divergence": 1000.0}
+TRACKING_FORMS = ("quadratic", "log")
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """The resolved arguments of Tendon2R-v0 (see the Tendon2REnv docstring for each one)."""
+
+    mechanism: Mechanism
+    reference: Reference
+    reference_ranges: ReferenceRanges | None = None
+    fit_to_workspace: bool = False
+    ctrl_dt: float = 0.001
+    episode_duration: float = 2.0
+    reward_scales: Mapping[str, float] = field(default_factory=lambda: dict(REWARD_SCALES))
+    tracking_form: str = "quadratic"
+    tracking_sigma_deg: float = 1.0
+    reset_noise_scale: float = 0.001
+    preview_steps: int = 3
+    preview_dt: float = 0.01
+    #: Peak tendon force (N) that inverse dynamics of the reference (or of the worst corner of
+    #: reference_ranges) needs; computed, not an argument.
+    force_need: float = field(default=math.nan, compare=False)
+
+    # -- construction --------------------------------------------------------------------------
+    @classmethod
+    def make(cls, preset: str | os.PathLike = "default", **overrides: Any) -> EnvConfig:
+        """Returns the config of a preset name or experiment-file path with ``overrides``."""
+        allowed = arguments()
+        check_keys("Tendon2R-v0", overrides, allowed)
+        kwargs = merge_env_kwargs(load_preset(preset, allowed), overrides)
+        return cls.from_kwargs(kwargs)
+
+    @classmethod
+    def from_kwargs(cls, kwargs: Mapping[str, Any]) -> EnvConfig:
+        """Validates and resolves merged keyword arguments (sections may be dicts)."""
+        kwargs = dict(kwargs)
+        check_keys("Tendon2R-v0", kwargs, arguments())
+        mech = kwargs.pop("mechanism", None)
+        if not isinstance(mech, Mechanism):
+            mech = Mechanism.from_dict(mapping("mechanism", mech))
+        ref = kwargs.pop("reference", None)
+        if not isinstance(ref, Reference):
+            ref = Reference.from_dict(mapping("reference", ref))
+        ranges = kwargs.pop("reference_ranges", None)
+        if ranges is not None and not isinstance(ranges, ReferenceRanges):
+            ranges = ReferenceRanges.from_dict(mapping("reference_ranges", ranges)) or None
+        return cls(mechanism=mech, reference=ref, reference_ranges=ranges, **kwargs)
+
+    def __post_init__(self) -> None:
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
+        set_("fit_to_workspace", boolean("fit_to_workspace", self.fit_to_workspace))
+        sim_dt = self.mechanism.sim_dt
+        set_("ctrl_dt", number("ctrl_dt", self.ctrl_dt, sim_dt, 0.1))
+        n_sub = round(self.ctrl_dt / sim_dt)
+        if abs(n_sub * sim_dt - self.ctrl_dt) > 1e-9 * self.ctrl_dt:
+            raise invalid("ctrl_dt", self.ctrl_dt, f"an integer multiple of sim_dt = {sim_dt} s")
+        set_("episode_duration", number("episode_duration", self.episode_duration, self.ctrl_dt))
+        scales = mapping("reward_scales", self.reward_scales)
+        check_keys("reward_scales", scales, REWARD_SCALES)
+        set_(
+            "reward_scales",
+            {
+                k: number(f"reward_scales.{k}", scales.get(k, default), 0.0)
+                for k, default in REWARD_SCALES.items()
+            },
+        )
+        if self.tracking_form not in TRACKING_FORMS:
+            raise invalid("tracking_form", self.tracking_form, f"one of {TRACKING_FORMS}")
+        set_(
+            "tracking_sigma_deg",
+            number("tracking_sigma_deg", self.tracking_sigma_deg, 0.0, 90.0, lo_open=True),
+        )
+        set_("reset_noise_scale", number("reset_noise_scale", self.reset_noise_scale, 0.0, 0.5))
+        set_("preview_steps", integer("preview_steps", self.preview_steps, 0, 100))
+        set_("preview_dt", number("preview_dt", self.preview_dt, 0.0, 1.0, lo_open=True))
+        self._check_reference()
+        self._size_force_limit()
+
+    def _check_reference(self) -> None:
+        mech, ref = self.mechanism, self.reference
+        if self.fit_to_workspace:
+            object.__setattr__(self, "reference", ref.fit_to_workspace(mech))
+        elif problems := ref.workspace_violations(mech):
+            raise ValueError(
+                f"reference {ref.to_dict()} leaves the workspace: {'; '.join(problems)} "
+                "(pass fit_to_workspace=True to scale the amplitudes down)"
+            )
+        nyquist = 0.5 / self.ctrl_dt
+        freqs = [max(self.reference.omega) / (2 * math.pi)]
+        if self.reference_ranges is not None:
+            freqs.append(max(hi for _, hi in self.reference_ranges.freq_hz))
+            if problems := self.reference_ranges.corner_violations(mech):
+                raise ValueError(
+                    f"reference_ranges can draw a reference that leaves the workspace: "
+                    f"{'; '.join(problems)}"
+                )
+        if max(freqs) >= 0.1 * nyquist:
+            raise invalid(
+                "reference frequency (Hz)",
+                max(freqs),
+                f"< {0.1 * nyquist:g} Hz, a tenth of the control rate's Nyquist limit "
+                f"0.5 / ctrl_dt = {nyquist:g} Hz (use a smaller ctrl_dt)",
+            )
+
+    def _size_force_limit(self) -> None:
+        refs = [self.reference]
+        if self.reference_ranges is not None:
+            refs += self.reference_ranges.corners()
+        need = _force_need(self.mechanism.replace(max_tendon_force=1.0), tuple(refs))
+        object.__setattr__(self, "force_need", need)
+        limit = self.mechanism.max_tendon_force
+        if limit == AUTO:
+            object.__setattr__(
+                self,
+                "mechanism",
+                self.mechanism.replace(max_tendon_force=float(f"{FORCE_HEADROOM * need:.3g}")),
+            )
+        elif limit < need:
+            warnings.warn(
+                f"max_tendon_force = {limit} N is below the {need:.3g} N that inverse dynamics "
+                f"of the reference needs: the motors will saturate and tracking will fail "
+                f"(use max_tendon_force: auto, which gives {FORCE_HEADROOM:g} x the need)",
+                stacklevel=3,
+            )
+
+    # -- derived quantities ------------------------------------------------------------------
+    @property
+    def n_substeps(self) -> int:
+        """Returns the physics steps per control step."""
+        return round(self.ctrl_dt / self.mechanism.sim_dt)
+
+    @property
+    def max_episode_steps(self) -> int:
+        """Returns the control steps per episode: episode_duration / ctrl_dt."""
+        return round(self.episode_duration / self.ctrl_dt)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Returns the config as plain YAML-friendly env kwargs (an experiment file)."""
+        out: dict[str, Any] = {}
+        for f in dataclasses.fields(self):
+            if f.name == "force_need":
+                continue
+            value = getattr(self, f.name)
+            out[f.name] = value.to_dict() if hasattr(value, "to_dict") else value
+        return out
+
+
+def arguments() -> list[str]:
+    """Returns the keyword arguments an experiment file (or gym.make) may give."""
+    return [f.name for f in dataclasses.fields(EnvConfig) if f.name != "force_need"]
+
+
+@lru_cache(maxsize=64)
+def _force_need(mech: Mechanism, refs: tuple[Reference, ...]) -> float:
+    return force_need(build_model(mech), refs)
+
+
+assert set(SECTIONS) <= set(arguments())

@@ -1,0 +1,58 @@
+"""The observation layout of Tendon2R-v0: named slices, the one place that knows the order.
+
+The env writes the observation in this order, and policies, info and tests read it by name.
+The fixed entries come first, so their slices do not depend on ``preview_steps``.
+"""
+
+from __future__ import annotations
+
+#: (name, size, unit) of each fixed entry, in order.  Two values each: joint A, then joint B
+#: (or x, then z for the effector).
+FIXED: tuple[tuple[str, int, str], ...] = (
+    ("q", 2, "rad"),  # joint angles
+    ("dq", 2, "rad/s"),  # joint velocities
+    ("q_des", 2, "rad"),  # reference q_des(t)
+    ("dq_des", 2, "rad/s"),  # reference velocity
+    ("error", 2, "rad"),  # tracking error q_des - q
+    ("effector_pos", 2, "m"),  # effector x, z
+    ("effector_vel", 2, "m/s"),  # effector velocity
+)
+
+
+def _slices() -> dict[str, slice]:
+    out, start = {}, 0
+    for name, size, _ in FIXED:
+        out[name] = slice(start, start + size)
+        start += size
+    return out
+
+
+#: Slices of the fixed entries, by name.
+SLICES: dict[str, slice] = _slices()
+N_FIXED = sum(size for _, size, _ in FIXED)
+Q, DQ, Q_DES, DQ_DES, ERROR = (SLICES[k] for k in ("q", "dq", "q_des", "dq_des", "error"))
+EFFECTOR_POS, EFFECTOR_VEL = SLICES["effector_pos"], SLICES["effector_vel"]
+
+
+def preview_slice(preview_steps: int) -> slice:
+    """Returns the slice of the previewed references q_des(t + k preview_dt), k = 1..P, stored
+    A then B for each k."""
+    return slice(N_FIXED, N_FIXED + 2 * preview_steps)
+
+
+def size(preview_steps: int) -> int:
+    """Returns the length of the observation."""
+    return N_FIXED + 2 * preview_steps
+
+
+def table(preview_steps_name: str = "P") -> str:
+    """Returns the docstring table of the layout (the env's docstring embeds it)."""
+    rows = ["| index | observation | unit |", "|-------|-------------|------|"]
+    for name, _, unit in FIXED:
+        s = SLICES[name]
+        rows.append(f"| {s.start}-{s.stop - 1} | {name} | {unit} |")
+    rows.append(
+        f"| {N_FIXED} to {N_FIXED - 1} + 2{preview_steps_name} | q_des(t + k preview_dt), "
+        "k = 1..P, A then B | rad |"
+    )
+    return "\n".join(rows)

@@ -1,0 +1,138 @@
+"""The run folder: the one module that knows its file names (like rl_zoo3's ExperimentManager).
+
+A training run writes, in ``runs/<name>/seed_<n>/``::
+
+    run.json                     env config (the exact env kwargs), residual scale, seed
+    config.yaml                  the resolved hyperparameters
+    command.txt                  the original command, then one line per resume
+    best_model.zip               best checkpoint by tracking RMS on the eval seeds
+    best_model_vecnormalize.pkl  its VecNormalize statistics
+    best_metrics.json            its tracking metrics
+    evaluations.json             every evaluation: steps, wall time, RMS
+    last_model.zip (+ pkl)       the state at the end, or at Ctrl-C
+    checkpoints/                 periodic checkpoints (by steps and by time)
+    summary.json                 steps and wall time summed over all segments
+    tb/                          TensorBoard logs
+
+A bundle (tendon2r_gym.bundle) copies the small files of a run: :data:`BUNDLE_FILES`.
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+RUN_META = "run.json"
+BEST = "best_model"
+LAST = "last_model"
+CHECKPOINTS = "checkpoints"
+CHECKPOINT_PREFIX = "rl_model"
+#: The small files a bundle keeps (no checkpoints, no TensorBoard logs).
+BUNDLE_FILES = (
+    f"{BEST}.zip",
+    f"{BEST}_vecnormalize.pkl",
+    RUN_META,
+    "best_metrics.json",
+    "evaluations.json",
+    "summary.json",
+    "config.yaml",
+    "command.txt",
+)
+
+
+def model_files(stem: Path) -> tuple[Path, Path]:
+    """Returns (model zip, VecNormalize pkl) of a saved model ``stem`` (a path without .zip)."""
+    return stem.with_name(stem.name + ".zip"), stem.with_name(stem.name + "_vecnormalize.pkl")
+
+
+def stem_of(model_path: str | Path) -> Path:
+    """Returns the stem of a model path given with or without .zip."""
+    path = Path(model_path)
+    return path.with_suffix("") if path.suffix == ".zip" else path
+
+
+def command_line(argv: list[str] | None = None, program: str | None = None) -> str:
+    """Returns the command that started this process (or ``program argv``), quoted."""
+    if argv is None:
+        return shlex.join([Path(sys.argv[0]).name, *sys.argv[1:]])
+    return shlex.join([program or Path(sys.argv[0]).name, *argv])
+
+
+@dataclass(frozen=True)
+class RunFolder:
+    """One training run's folder and the names of everything in it."""
+
+    path: Path
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "path", Path(self.path))
+
+    # -- names ---------------------------------------------------------------------------------
+    @property
+    def best(self) -> Path:
+        return self.path / BEST
+
+    @property
+    def last(self) -> Path:
+        return self.path / LAST
+
+    @property
+    def checkpoints(self) -> Path:
+        return self.path / CHECKPOINTS
+
+    def file(self, name: str) -> Path:
+        return self.path / name
+
+    # -- records -------------------------------------------------------------------------------
+    def read_json(self, name: str) -> Any:
+        path = self.file(name)
+        return json.loads(path.read_text()) if path.is_file() else None
+
+    def write_json(self, name: str, data: Any) -> None:
+        self.path.mkdir(parents=True, exist_ok=True)
+        tmp = self.file(name + ".tmp")
+        tmp.write_text(json.dumps(data, indent=1) + "\n")
+        tmp.replace(self.file(name))  # atomic: a crash never leaves half a file
+
+    def write_config(self, cfg: dict[str, Any]) -> None:
+        self.path.mkdir(parents=True, exist_ok=True)
+        self.file("config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
+
+    def record_command(self, command: str, resume: bool) -> None:
+        """Starts command.txt with the original command; a resume appends its own line."""
+        self.path.mkdir(parents=True, exist_ok=True)
+        path = self.file("command.txt")
+        if resume and path.is_file():
+            with open(path, "a") as f:
+                f.write(f"# resumed: {command}\n")
+        else:
+            path.write_text(f"{command}\n")
+
+    def train_command(self) -> str:
+        """Returns the command that started the run (the first line of command.txt)."""
+        return self.file("command.txt").read_text().splitlines()[0]
+
+    def append_evaluation(self, row: dict[str, Any]) -> None:
+        rows = self.read_json("evaluations.json") or []
+        self.write_json("evaluations.json", [*rows, row])
+
+    def checkpoint_candidates(self) -> list[tuple[Path, Path]]:
+        """Returns every saved (zip, pkl) pair of the run, newest first: last_model (written on
+        Ctrl-C and at the end) and the checkpoints."""
+        pairs = [model_files(self.last)]
+        for zip_path in self.checkpoints.glob(f"{CHECKPOINT_PREFIX}_*_steps.zip"):
+            steps = zip_path.stem.removeprefix(f"{CHECKPOINT_PREFIX}_").removesuffix("_steps")
+            pairs.append(
+                (
+                    zip_path,
+                    zip_path.with_name(f"{CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.pkl"),
+                )
+            )
+        pairs = [p for p in pairs if p[0].is_file() and p[1].is_file()]
+        return sorted(pairs, key=lambda p: p[0].stat().st_mtime_ns, reverse=True)
