@@ -31,6 +31,10 @@ _DIVERGENCE_WARNINGS = (
 DIVERGED_PAST_LIMIT = 0.5  # rad past a joint limit that counts as diverged
 
 
+def _log_error(e: float) -> float:
+    return math.copysign(math.log1p(abs(e) / obs_layout.ERROR_LOG_SCALE), e)
+
+
 def make_env(preset: str | os.PathLike = "default", **kwargs: Any) -> gym.Env:
     """The registered entry point: Tendon2REnv under a TimeLimit of episode_duration / ctrl_dt
     steps, so ``gym.make(..., episode_duration=X, ctrl_dt=Y)`` gives X / Y steps (the TimeLimit
@@ -55,7 +59,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     to [-1, 1]; a wrong shape or a non-finite action raises ValueError.
 
     ## Observation Space
-    ``Box(-inf, inf, (14 + 2 * preview_steps,), float64)``, named slices in
+    ``Box(-inf, inf, (16 + 2 * preview_steps,), float64)``, named slices in
     ``tendon2r_gym.observation``:
 
     {obs_table}
@@ -94,8 +98,8 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     | `fit_to_workspace` | `False` | scale the amplitudes down (with a warning) instead of raising |
     | `ctrl_dt` | `0.001` | control period (s), an integer multiple of the mechanism's sim_dt |
     | `episode_duration` | `2.0` | seconds per episode |
-    | `reward_scales` | `{{'tracking': 1, 'ctrl': 0.01, 'divergence': 1000}}` | term weights |
-    | `tracking_form` | `"quadratic"` | "quadratic" or "log" (bounded) tracking reward |
+    | `reward_scales` | `{{'tracking': 1, 'ctrl': 0.001, 'divergence': 10}}` | term weights |
+    | `tracking_form` | `"log"` | "log" (bounded) or "quadratic" tracking reward |
     | `tracking_sigma_deg` | `1.0` | error scale of the "log" tracking reward (deg) |
     | `reset_noise_scale` | `0.001` | initial-state noise (rad, rad/s) |
     | `preview_steps` | `3` | number of future reference samples observed |
@@ -274,6 +278,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
             q1, q2, w1, w2,
             qd1, qd2, amp1 * om1 * math.cos(arg1), amp2 * om2 * math.cos(arg2),
             qd1 - q1, qd2 - q2,
+            _log_error(qd1 - q1), _log_error(qd2 - q2),
             a + c * c1 + b * c12, c * s1 + b * s12,  # effector x, z
             -c * s1 * w1 - b * s12 * w12, c * c1 * w1 + b * c12 * w12,  # effector velocity
         ]  # fmt: skip
@@ -286,7 +291,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         self, obs: np.ndarray, action: tuple[float, float], diverged: bool
     ) -> tuple[float, dict[str, float]]:
         """Returns (reward, scaled terms); the reward is the sum of the terms."""
-        e1, e2 = math.degrees(obs[8]), math.degrees(obs[9])  # observation.ERROR
+        e1, e2 = (math.degrees(e) for e in obs[obs_layout.ERROR].tolist())
         if self._log_form:
             sig = self._sigma
             tracking = 1.0 - (math.log1p((e1 / sig) ** 2) + math.log1p((e2 / sig) ** 2)) / (

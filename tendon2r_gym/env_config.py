@@ -26,7 +26,7 @@ from tendon2r_gym.reference import Reference, ReferenceRanges
 from tendon2r_gym.validation import boolean, check_keys, integer, invalid, mapping, number
 
 #: Reward weights (mujoco_playground style): reward = sum of scale * term, one entry per term.
-REWARD_SCALES: dict[str, float] = {"tracking": 1.0, "ctrl": 0.01, "divergence": 1000.0}
+REWARD_SCALES: dict[str, float] = {"tracking": 1.0, "ctrl": 0.001, "divergence": 10.0}
 TRACKING_FORMS = ("quadratic", "log")
 
 
@@ -41,7 +41,7 @@ class EnvConfig:
     ctrl_dt: float = 0.001
     episode_duration: float = 2.0
     reward_scales: Mapping[str, float] = field(default_factory=lambda: dict(REWARD_SCALES))
-    tracking_form: str = "quadratic"
+    tracking_form: str = "log"
     tracking_sigma_deg: float = 1.0
     reset_noise_scale: float = 0.001
     preview_steps: int = 3

@@ -26,6 +26,7 @@ from tendon2r_gym.validation import number
 
 #: Env config fields a trained model depends on: what it observes and what it must track.
 MODEL_ENV_FIELDS = (
+    "observation",
     "mechanism",
     "reference",
     "reference_ranges",
@@ -76,7 +77,7 @@ def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
     """Raises if ``env`` differs from the env config a model was trained with in any field of
     MODEL_ENV_FIELDS (for a model trained on reference_ranges, the nominal reference does not
     matter)."""
-    current = env.unwrapped.config.to_dict()
+    current = {**env.unwrapped.config.to_dict(), "observation": observation_layout(env)}
     fields = [
         f for f in MODEL_ENV_FIELDS if not (f == "reference" and recorded.get("reference_ranges"))
     ]
@@ -87,6 +88,14 @@ def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
                 f"{current.get(name)!r} in this env; allowed: the env it was trained on "
                 "(make the env from the run's run.json env_config)"
             )
+
+
+def observation_layout(env: gym.Env | None = None, preview_steps: int | None = None) -> list:
+    """Returns the observation layout as [[name, size], ...] with the preview last."""
+    from tendon2r_gym import observation
+
+    steps = env.unwrapped.config.preview_steps if env is not None else preview_steps
+    return [[name, n] for name, n, _ in observation.FIXED] + [["preview", 2 * steps]]
 
 
 def _plain(value: Any) -> Any:

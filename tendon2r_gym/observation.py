@@ -13,10 +13,17 @@ FIXED: tuple[tuple[str, int, str], ...] = (
     ("dq", 2, "rad/s"),  # joint velocities
     ("q_des", 2, "rad"),  # reference q_des(t)
     ("dq_des", 2, "rad/s"),  # reference velocity
-    ("error", 2, "rad"),  # tracking error q_des - q
+    ("error", 2, "rad"),  # tracking error e = q_des - q
+    ("error_log", 2, "1"),  # sign(e) log(1 + |e| / ERROR_LOG_SCALE): fine near 0, bounded far
     ("effector_pos", 2, "m"),  # effector x, z
     ("effector_vel", 2, "m/s"),  # effector velocity
 )
+
+
+#: The error below which ``error_log`` is linear (rad): 1e-4 rad = 0.006 deg.  Observation
+#: normalizers (VecNormalize) keep running statistics from the start of training, when errors
+#: are large; a raw error would then stay a tiny input long after the policy tracks to 0.1 deg.
+ERROR_LOG_SCALE = 1e-4
 
 
 def _slices() -> dict[str, slice]:
@@ -30,7 +37,9 @@ def _slices() -> dict[str, slice]:
 #: Slices of the fixed entries, by name.
 SLICES: dict[str, slice] = _slices()
 N_FIXED = sum(size for _, size, _ in FIXED)
-Q, DQ, Q_DES, DQ_DES, ERROR = (SLICES[k] for k in ("q", "dq", "q_des", "dq_des", "error"))
+Q, DQ, Q_DES, DQ_DES, ERROR, ERROR_LOG = (
+    SLICES[k] for k in ("q", "dq", "q_des", "dq_des", "error", "error_log")
+)
 EFFECTOR_POS, EFFECTOR_VEL = SLICES["effector_pos"], SLICES["effector_vel"]
 
 

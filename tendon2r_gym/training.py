@@ -30,7 +30,7 @@ from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 
 from tendon2r_gym.config import PPO_CONFIG, load_yaml
 from tendon2r_gym.env_config import EnvConfig
-from tendon2r_gym.learned import PPOPolicy, make_training_env
+from tendon2r_gym.learned import PPOPolicy, make_training_env, observation_layout
 from tendon2r_gym.metrics import tracking_metrics
 from tendon2r_gym.policies import PDPolicy
 from tendon2r_gym.rollout import rollouts
@@ -292,7 +292,10 @@ def train(spec: TrainSpec) -> dict[str, Any]:
             "residual_scale": float(cfg["residual_scale"]),
             "seed": spec.seed,
             "env_kwargs": cfg["env_kwargs"],
-            "env_config": env_config.to_dict(),
+            "env_config": {
+                **env_config.to_dict(),
+                "observation": observation_layout(preview_steps=env_config.preview_steps),
+            },
         },
     )
     torch.set_num_threads(cfg["torch_threads"])
