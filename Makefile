@@ -4,8 +4,9 @@ VENV := .venv
 BIN := $(VENV)/bin
 export MUJOCO_GL ?= egl
 
-.PHONY: venv test lint benchmark speed view clean
+.PHONY: venv test lint wheel-smoke benchmark speed learnability view clean
 
+# The venv is rebuilt only when pyproject.toml changes (torch is a large download).
 $(BIN)/activate: pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
@@ -17,19 +18,28 @@ venv: $(BIN)/activate
 test: venv
 	$(BIN)/ruff check tendon2r_gym scripts tests
 	$(BIN)/python -m pytest -q
+	$(MAKE) wheel-smoke
 
 lint: venv
 	$(BIN)/ruff check tendon2r_gym scripts tests
 
+# Non-editable install: build the wheel, install it into a fresh venv that borrows the test
+# venv's dependencies (no download), and use it from outside the checkout.
+wheel-smoke: venv
+	bash .ci/wheel_smoke.sh
+
 benchmark: venv
-	$(BIN)/python scripts/benchmark.py
+	$(BIN)/tendon2r-benchmark
 
 speed: venv
 	$(BIN)/python scripts/bench_speed.py
 	$(BIN)/python scripts/timestep_study.py
 
+learnability: venv
+	$(BIN)/python scripts/learnability.py
+
 view: venv
-	$(BIN)/python scripts/view.py --save results/default.png
+	$(BIN)/tendon2r-view --save results/default.png
 
 clean:
-	rm -rf $(VENV) runs
+	rm -rf $(VENV) runs build dist

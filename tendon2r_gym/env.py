@@ -29,6 +29,9 @@ _DIVERGENCE_WARNINGS = (
 
 
 DIVERGED_PAST_LIMIT = 0.5  # rad past a joint limit that counts as diverged
+#: A joint speed that counts as diverged (rad/s): bang-bang commands at 10x the default force
+#: limit reach about 500 rad/s.
+DIVERGED_SPEED = 1e4
 
 
 def _log_error(e: float) -> float:
@@ -82,10 +85,12 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     ## Episode End
     - Truncation: after ``episode_duration / ctrl_dt`` steps, by the ``TimeLimit`` wrapper that
       ``gym.make`` applies (``env.spec.max_episode_steps``).
-    - Termination: if the physics diverges (non-finite state, a MuJoCo instability warning, or a
-      joint more than 0.5 rad past its limit).  That step returns the last good observation and
-      a reward of at most the tracking term of that state minus the divergence scale, and
-      ``info["diverged"]`` is True.
+    - Termination: if the physics diverges (a MuJoCo instability warning, a joint more than
+      0.5 rad past its limit, a joint faster than 1e4 rad/s, or a non-finite state).  That step
+      returns the last good observation (never larger than the observations before it) and the
+      reward of that state minus ``reward_scales["divergence"]``, so it is bounded: in [-1 -
+      divergence, 1] for the "log" form.  ``info["diverged"]`` is True.  Construction refuses
+      parameters the integrator cannot integrate (tendon2r_gym.stability).
 
     ## Arguments
 
@@ -130,13 +135,15 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     ) -> None:
         EzPickle.__init__(self, preset, render_mode, width, height, camera_name, **kwargs)
         # Every argument is checked before the model is built.
-        self.config = cfg = EnvConfig.make(preset, **kwargs)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise invalid(
                 "render_mode", render_mode, f"None or one of {self.metadata['render_modes']}"
             )
         integer("width", width, 1, 16384)
         integer("height", height, 1, 16384)
+        if camera_name not in (None, CAMERA):
+            raise invalid("camera_name", camera_name, f"None (free camera) or {CAMERA!r}")
+        self.config = cfg = EnvConfig.make(preset, **kwargs)
         self.mechanism = cfg.mechanism
         self.nominal_reference = self.reference = cfg.reference
         self.reference_ranges = cfg.reference_ranges
@@ -160,8 +167,6 @@ class Tendon2REnv(MujocoEnv, EzPickle):
             height=height,
             camera_name=camera_name,
         )
-        if camera_name is not None and self.model.camera(camera_name) is None:
-            raise invalid("camera_name", camera_name, f"None or {CAMERA!r}")
         self._resolve_ids()
 
     # -- set-up ----------------------------------------------------------------------------------
@@ -254,7 +259,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         diverged = (
             n_warn > self._warning_count
             or not (lo < q1 < hi and lo < q2 < hi)  # also catches NaN
-            or not (math.isfinite(w1) and math.isfinite(w2))
+            or not (abs(w1) < DIVERGED_SPEED and abs(w2) < DIVERGED_SPEED)  # NaN too
         )
         self._warning_count = n_warn
         if diverged:  # MuJoCo already reset the state on a bad QACC; make sure it is finite.

@@ -23,6 +23,7 @@ from tendon2r_gym.config import SECTIONS, load_preset, merge_env_kwargs
 from tendon2r_gym.mechanism import AUTO, Mechanism
 from tendon2r_gym.model import build_model
 from tendon2r_gym.reference import Reference, ReferenceRanges
+from tendon2r_gym.stability import check_stability
 from tendon2r_gym.validation import boolean, check_keys, integer, invalid, mapping, number
 
 #: Reward weights (mujoco_playground style): reward = sum of scale * term, one entry per term.
@@ -81,8 +82,10 @@ class EnvConfig:
         sim_dt = self.mechanism.sim_dt
         set_("ctrl_dt", number("ctrl_dt", self.ctrl_dt, sim_dt, 0.1))
         n_sub = round(self.ctrl_dt / sim_dt)
-        if abs(n_sub * sim_dt - self.ctrl_dt) > 1e-9 * self.ctrl_dt:
+        # Relative 1e-6: a float32 ctrl_dt (np.float32(0.002)) is still a multiple.
+        if abs(n_sub * sim_dt - self.ctrl_dt) > 1e-6 * self.ctrl_dt:
             raise invalid("ctrl_dt", self.ctrl_dt, f"an integer multiple of sim_dt = {sim_dt} s")
+        set_("ctrl_dt", n_sub * sim_dt)
         set_("episode_duration", number("episode_duration", self.episode_duration, self.ctrl_dt))
         scales = mapping("reward_scales", self.reward_scales)
         check_keys("reward_scales", scales, REWARD_SCALES)
@@ -110,32 +113,36 @@ class EnvConfig:
         if self.fit_to_workspace:
             object.__setattr__(self, "reference", ref.fit_to_workspace(mech))
         elif problems := ref.workspace_violations(mech):
-            raise ValueError(
-                f"reference {ref.to_dict()} leaves the workspace: {'; '.join(problems)} "
-                "(pass fit_to_workspace=True to scale the amplitudes down)"
+            raise invalid(
+                "reference",
+                ref.to_dict(),
+                f"a reference inside the workspace, but it leaves it: {'; '.join(problems)} "
+                "(or pass fit_to_workspace=True to scale the amplitudes down)",
             )
         nyquist = 0.5 / self.ctrl_dt
         freqs = [max(self.reference.omega) / (2 * math.pi)]
         if self.reference_ranges is not None:
             freqs.append(max(hi for _, hi in self.reference_ranges.freq_hz))
             if problems := self.reference_ranges.corner_violations(mech):
-                raise ValueError(
-                    f"reference_ranges can draw a reference that leaves the workspace: "
-                    f"{'; '.join(problems)}"
+                raise invalid(
+                    "reference_ranges.bias_deg",
+                    self.reference_ranges.bias_deg,
+                    "biases that fit the workspace, but a draw could leave it: "
+                    + "; ".join(problems),
                 )
-        if max(freqs) >= 0.1 * nyquist:
+        if max(freqs) * self.ctrl_dt > 0.1:
             raise invalid(
                 "reference frequency (Hz)",
                 max(freqs),
-                f"< {0.1 * nyquist:g} Hz, a tenth of the control rate's Nyquist limit "
-                f"0.5 / ctrl_dt = {nyquist:g} Hz (use a smaller ctrl_dt)",
+                f"<= {0.1 / self.ctrl_dt:g} Hz: at least 10 control steps per period, a fifth "
+                f"of the Nyquist limit 0.5 / ctrl_dt = {nyquist:g} Hz (use a smaller ctrl_dt)",
             )
 
     def _size_force_limit(self) -> None:
         refs = [self.reference]
         if self.reference_ranges is not None:
             refs += self.reference_ranges.corners()
-        need = _force_need(self.mechanism.replace(max_tendon_force=1.0), tuple(refs))
+        need = _physics(self.mechanism.replace(max_tendon_force=1.0), tuple(refs))
         object.__setattr__(self, "force_need", need)
         limit = self.mechanism.max_tendon_force
         if limit == AUTO:
@@ -180,8 +187,11 @@ def arguments() -> list[str]:
 
 
 @lru_cache(maxsize=64)
-def _force_need(mech: Mechanism, refs: tuple[Reference, ...]) -> float:
-    return force_need(build_model(mech), refs)
+def _physics(mech: Mechanism, refs: tuple[Reference, ...]) -> float:
+    """Checks that the integrator can integrate ``mech``; returns the force need (N)."""
+    model = build_model(mech)
+    check_stability(model, mech)
+    return force_need(model, refs)
 
 
 assert set(SECTIONS) <= set(arguments())

@@ -37,9 +37,10 @@ class Reference:
 
     def __post_init__(self) -> None:
         if (self.freq_hz is None) == (self.omega_rad_s is None):
-            raise ValueError(
-                "reference needs exactly one of freq_hz (Hz, sin(2 pi f t)) and omega_rad_s "
-                f"(rad/s, sin(w t)); got freq_hz={self.freq_hz!r}, omega_rad_s={self.omega_rad_s!r}"
+            raise invalid(
+                "reference frequency",
+                {"freq_hz": self.freq_hz, "omega_rad_s": self.omega_rad_s},
+                "exactly one of freq_hz (Hz, sin(2 pi f t)) and omega_rad_s (rad/s, sin(w t))",
             )
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
         set_("amp_deg", _pair("amp_deg", self.amp_deg, 0.0, 180.0))
@@ -124,9 +125,11 @@ class Reference:
             return self
         at_bias = dataclasses.replace(self, amp_deg=(0.0, 0.0))
         if at_bias.workspace_violations(mech):
-            raise ValueError(
-                f"reference bias_deg = {self.bias_deg} does not fit even with zero amplitude: "
-                + "; ".join(at_bias.workspace_violations(mech))
+            raise invalid(
+                "reference.bias_deg",
+                self.bias_deg,
+                "a bias that fits the workspace at zero amplitude, but: "
+                + "; ".join(at_bias.workspace_violations(mech)),
             )
         lo_k, hi_k = 0.0, 1.0
         for _ in range(40):

@@ -53,9 +53,7 @@ def test_episode_length_is_duration_over_ctrl_dt(duration, ctrl_dt):
     env = gym.make("Tendon2R-v0", episode_duration=duration, ctrl_dt=ctrl_dt)
     assert env.spec.max_episode_steps == steps
     assert _episode_length(env) == steps
-    envs = gym.make_vec(
-        "Tendon2R-v0", num_envs=2, episode_duration=duration, ctrl_dt=ctrl_dt
-    )
+    envs = gym.make_vec("Tendon2R-v0", num_envs=2, episode_duration=duration, ctrl_dt=ctrl_dt)
     envs.reset(seed=0)
     for i in range(steps):
         *_, trunc, _ = envs.step(np.zeros((2, 2)))

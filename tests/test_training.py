@@ -1,134 +1,182 @@
-"""Smoke tests of PPO training (tiny budgets) and of the benchmark on bundled models."""
+"""PPO training (tiny budgets): the run folder, resume, interruption, bundles, model/env checks."""
 
 import json
-import pickle
+import os
+import signal
+import subprocess
+import sys
+import time
 
+import gymnasium as gym
 import numpy as np
 import pytest
-import train_ppo  # scripts/ is on sys.path via tests/conftest.py
 import yaml
 
+from tendon2r_gym.bundle import bundle_meta, bundle_runs, bundled_model
+from tendon2r_gym.cli import resolve_train, train_main
+from tendon2r_gym.config import PPO_CONFIG
+from tendon2r_gym.learned import PPOPolicy
+from tendon2r_gym.runs import RunFolder
+from tendon2r_gym.training import load_hyperparams
 
-@pytest.fixture
-def tiny_config(tmp_path):
-    table = yaml.safe_load(open(train_ppo.Args.config))
-    cfg = table["default"]
+
+def _tiny(tmp_path, residual=0.5, steps=256, **extra):
+    cfg = load_hyperparams("default")
     cfg["env_kwargs"] = {"preset": "default", "episode_duration": 0.1}
     cfg["ppo"].update(n_steps=64, batch_size=64, n_epochs=1)
-    cfg.update(eval_freq=128, checkpoint_freq=128, eval_seeds=[0])
+    cfg.update(
+        residual_scale=residual,
+        total_timesteps=steps,
+        n_envs=2,
+        eval_freq=128,
+        checkpoint_freq=128,
+        eval_seeds=[0],
+        **extra,
+    )
     path = tmp_path / "ppo.yaml"
-    path.write_text(yaml.safe_dump({"default": cfg}))
+    path.write_text(yaml.safe_dump({"tiny": cfg}))
     return path
 
 
-def test_smoke_train_then_resume(tmp_path, tiny_config):
-    from stable_baselines3 import PPO
+def _train(config, run, *more):
+    return train_main(
+        ["--config", str(config), "--hyperparams", "tiny", "--run-dir", str(run), *more]
+    )
 
-    run = tmp_path / "run"
-    first = train_ppo.train(
-        train_ppo.parse_args(
-            [
-                "--config",
-                str(tiny_config),
-                "--total-timesteps",
-                "256",
-                "--n-envs",
-                "2",
-                "--run-dir",
-                str(run),
-            ]
-        )
-    )
+
+def test_smoke_train_then_resume(tmp_path):
+    config, run = _tiny(tmp_path), tmp_path / "run"
+    first = _train(config, run)["runs"][0]
+    folder = RunFolder(run / "seed_0")
     assert first["timesteps"] >= 256
-    for name in (
-        "best_model.zip",
-        "best_model_vecnormalize.pkl",
-        "last_model.zip",
-        "config.yaml",
-        "command.txt",
-        "policy.json",
-    ):
-        assert (run / name).is_file(), name
-    assert list((run / "checkpoints").glob("*vecnormalize*.pkl"))
-    PPO.load(run / "best_model.zip", device="cpu")
-    with open(run / "best_model_vecnormalize.pkl", "rb") as f:
-        assert pickle.load(f).obs_rms.mean.shape == (20,)
-    best_before = np.mean(json.loads((run / "best_metrics.json").read_text())["rms_deg"])
-    resumed = train_ppo.train(
-        train_ppo.parse_args(
-            [
-                "--config",
-                str(tiny_config),
-                "--total-timesteps",
-                "512",
-                "--n-envs",
-                "2",
-                "--run-dir",
-                str(run),
-                "--resume",
-            ]
-        )
-    )
-    assert resumed["timesteps"] > first["timesteps"]
-    best_after = np.mean(json.loads((run / "best_metrics.json").read_text())["rms_deg"])
-    assert best_after <= best_before, "a resumed run must not replace a better best model"
-    assert yaml.safe_load((run / "config.yaml").read_text())["total_timesteps"] == 512
-    # A crash that never wrote last_model: --resume falls back to the newest checkpoint.
-    for f in run.glob("last_model*"):
+    for name in ("best_model.zip", "best_model_vecnormalize.pkl", "last_model.zip", "run.json",
+                 "config.yaml", "command.txt", "evaluations.json", "summary.json"):  # fmt: skip
+        assert folder.file(name).is_file(), name
+    meta = folder.read_json("run.json")
+    assert meta["env_config"]["mechanism"]["R1"] == 0.014 and meta["residual_scale"] == 0.5
+    best_before = np.mean(folder.read_json("best_metrics.json")["rms_deg"])
+    resumed = _train(config, run, "--total-timesteps", "512", "--resume")["runs"][0]
+    assert resumed["timesteps"] >= 512
+    assert folder.read_json("summary.json")["wall_time_s"] >= first["wall_time_s"]
+    assert len(resumed["segments"]) == 2, "summary.json adds up every segment"
+    lines = folder.file("command.txt").read_text().splitlines()
+    assert "--resume" not in lines[0] and "--resume" in lines[1], lines
+    assert np.mean(folder.read_json("best_metrics.json")["rms_deg"]) <= best_before
+    # A crash that never wrote last_model, and a corrupt newest checkpoint: resume falls back.
+    for f in run.glob("seed_0/last_model*"):
         f.unlink()
-    state, stats = train_ppo.latest_state(run)
-    assert state.parent.name == "checkpoints" and stats.is_file()
-    assert PPO.load(state, device="cpu").num_timesteps == resumed["timesteps"]
-    again = train_ppo.train(
-        train_ppo.parse_args(
-            ["--config", str(tiny_config), "--total-timesteps", "768", "--n-envs", "2"]
-            + ["--run-dir", str(run), "--resume"]
-        )
-    )
+    newest = folder.checkpoint_candidates()[0][0]
+    newest.write_bytes(b"truncated")
+    with pytest.warns(UserWarning, match="skipping unreadable"):
+        again = _train(config, run, "--total-timesteps", "768", "--resume")["runs"][0]
     assert again["timesteps"] >= 768
-    _check_bundle(run, tmp_path / "models")
+    _check_bundle(run / "seed_0", tmp_path / "models")
 
 
 def _check_bundle(run, root):
-    """A finished run bundles into root/<preset>/seed_<n>/ and loads through the lookup."""
-    import gymnasium as gym
-
-    from tendon2r_gym.bundle import bundle_meta, bundle_runs, bundled_model
-    from tendon2r_gym.learned import PPOPolicy
-
-    with pytest.raises(FileNotFoundError, match="no bundled PPO model"):
-        bundled_model("default", root=root)
-    bundle_runs([run], "default", "python scripts/train_ppo.py --bundle", root=root)
-    meta = bundle_meta("default", root=root)
+    with pytest.raises(ValueError, match="bundle"):
+        bundled_model("tiny", root=root)
+    bundle_runs([run], "tiny", "tendon2r-train --bundle tiny", root=root)
+    meta = bundle_meta("tiny", root=root)
     assert meta["seeds"] == [0] and meta["primary_seed"] == 0
-    path = bundled_model("default", root=root)
-    assert path == root / "default" / "seed_0" / "best_model.zip"
+    assert "--resume" not in meta["train_command"]
+    path = bundled_model("tiny", root=root)
     assert not (path.parent / "checkpoints").exists(), "only the small files are bundled"
     env = gym.make("Tendon2R-v0")
     obs, _ = env.reset(seed=0)
     action, _ = PPOPolicy.load(path, env).predict(obs)
     assert action.shape == (2,) and env.action_space.contains(action)
-    with pytest.raises(ValueError, match="seed = 7"):
-        bundled_model("default", seed=7, root=root)
+    # A model meets only its own env.
+    for other in ({"preset": "report_002"}, {"preview_steps": 2}, {"ctrl_dt": 0.002}):
+        with pytest.raises(ValueError, match="trained for another env"):
+            PPOPolicy.load(path, gym.make("Tendon2R-v0", **other))
+    with pytest.raises(ValueError, match="seed"):
+        bundled_model("tiny", seed=7, root=root)
     with pytest.raises(FileNotFoundError, match="lacks"):
         bundle_runs([root / "nothing"], "x", "cmd", root=root)
 
 
-def test_bad_override_is_rejected(tiny_config):
-    with pytest.raises(ValueError, match="n_envs"):
-        train_ppo.resolve_config(
-            train_ppo.parse_args(["--config", str(tiny_config), "--n-envs", "0"])
+def test_from_scratch_smoke_train(tmp_path):
+    config = _tiny(tmp_path, residual=0.0)
+    out = _train(config, tmp_path / "run")
+    assert out["finished"] == [0]
+    assert RunFolder(tmp_path / "run" / "seed_0").read_json("run.json")["residual_scale"] == 0
+
+
+def test_train_on_an_experiment_file(tmp_path):
+    arm = tmp_path / "arm.yaml"
+    arm.write_text(
+        "mechanism: {R1: 0.02, R2: 0.03, a: 0.06, b: 0.06, c: 0.09}\n"
+        "reference: {amp_deg: [10, 10], freq_hz: [1, 1], bias_deg: [0, 0]}\n"
+        "episode_duration: 0.1\n"
+    )
+    args_cfg = resolve_train(
+        __import__("tendon2r_gym.cli", fromlist=["TrainArgs"]).TrainArgs(
+            hyperparams="default", env_config=str(arm)
         )
+    )
+    assert args_cfg["env_kwargs"]["preset"] == str(arm)
+    config = _tiny(tmp_path)
+    run = tmp_path / "run"
+    train_main(["--config", str(config), "--hyperparams", "tiny", "--env-config", str(arm),
+                "--run-dir", str(run)])  # fmt: skip
+    recorded = RunFolder(run / "seed_0").read_json("run.json")["env_config"]
+    assert recorded["mechanism"]["R1"] == 0.02
+    assert recorded["mechanism"]["max_tendon_force"] > 0, "auto is resolved before recording"
 
 
-def test_benchmark_runs_on_bundled_models(tmp_path):
-    import benchmark
+@pytest.mark.parametrize(
+    ("override", "match"),
+    [
+        (["--n-envs", "0"], "n_envs"),
+        (["--hyperparams", "nope"], "hyperparams"),
+        (["--env-config", "nope"], "unknown preset"),
+    ],
+)
+def test_bad_train_arguments_are_rejected(override, match):
+    from tendon2r_gym.cli import TrainArgs, parse
 
-    result = benchmark.main(["--episodes", "1", "--out", str(tmp_path)])
-    md = (tmp_path / "benchmark.md").read_text()
-    assert "| default | pd |" in md and "quoted" in md
-    rows = json.loads((tmp_path / "benchmark.json").read_text())["presets"]
-    assert {"pd", "ct", "ppo"} <= {r["policy"] for r in rows}
-    ppo = [r for r in result["presets"] if r["policy"] == "ppo" and r["preset"] == "default"]
-    assert ppo and "rms_deg" in ppo[0], "the bundled default PPO model must load and run"
-    assert "Target (PPO RMS <= PD RMS on both joints)" in md
+    with pytest.raises(ValueError, match=match):
+        resolve_train(parse(TrainArgs, ["--config", str(PPO_CONFIG), *override]))
+
+
+def _start_training(tmp_path, seeds, steps):
+    config = _tiny(tmp_path, steps=steps, checkpoint_minutes=0.005)
+    cmd = [sys.executable, "-c", "from tendon2r_gym.cli import train; train()", "--config",
+           str(config), "--hyperparams", "tiny", "--run-dir", str(tmp_path / "run"), "--seeds",
+           *map(str, seeds)]  # fmt: skip
+    env = {**os.environ, "MUJOCO_GL": "egl"}
+    return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+
+
+def _wait_for(path, proc, timeout=120):
+    start = time.monotonic()
+    while not list(path.parent.glob(path.name)):
+        assert proc.poll() is None, proc.stdout.read().decode()[-2000:]
+        assert time.monotonic() - start < timeout
+        time.sleep(0.1)
+
+
+def test_ctrl_c_stops_every_seed_and_saves(tmp_path):
+    """SIGINT during seed 0 of two: exit 130, last_model and summary saved, seed 1 never
+    starts, seeds_summary.json written."""
+    proc = _start_training(tmp_path, [0, 1], steps=10**7)
+    _wait_for(tmp_path / "run" / "seed_0" / "evaluations.json", proc)
+    proc.send_signal(signal.SIGINT)
+    out = proc.communicate(timeout=120)[0].decode()
+    assert proc.returncode == 130, out[-2000:]
+    run = RunFolder(tmp_path / "run" / "seed_0")
+    assert run.file("last_model.zip").is_file()
+    assert run.read_json("summary.json")["interrupted"] is True
+    assert not (tmp_path / "run" / "seed_1").exists()
+    agg = json.loads((tmp_path / "run" / "seeds_summary.json").read_text())
+    assert agg["finished"] == []
+
+
+def test_sigkill_loses_little_thanks_to_timed_checkpoints(tmp_path):
+    """Checkpoints are also taken by time: after SIGKILL, --resume has a state to continue."""
+    proc = _start_training(tmp_path, [0], steps=10**7)
+    _wait_for(tmp_path / "run" / "seed_0" / "checkpoints" / "rl_model_*_steps.zip", proc)
+    proc.kill()
+    proc.wait()
+    assert RunFolder(tmp_path / "run" / "seed_0").checkpoint_candidates()

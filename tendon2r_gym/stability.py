@@ -1,0 +1,89 @@
+"""Numerical stability: can the chosen integrator and sim_dt integrate this mechanism?
+
+The criterion linearizes the unactuated arm about configurations over the joint range: with
+M(q) the joint inertia and J(q) the tendon moment arms,
+
+- damping rate   lambda = max eig(M^-1 D), D = joint_damping I + tendon_damping J^T J,
+  counting only the terms the integrator treats explicitly (MuJoCo's Euler integrates joint
+  damping implicitly; implicit and implicitfast integrate all damping implicitly);
+- stiffness rate omega  = sqrt(max eig(M^-1 tendon_stiffness J^T J)).
+
+A run is accepted if lambda * sim_dt and omega * sim_dt stay below the integrator's limits in
+:data:`LIMITS`.  Those were measured on the compiled default mechanism at sim_dt = 1 ms
+(bisection on each parameter until a 2 s episode diverged) and set 20% below that: for RK4
+divergence started at lambda dt = 4.8-5.1 and omega dt = 3.4; for Euler at 4.4 (tendon
+damping) and 1.9; for implicitfast at omega dt = 1.9; for implicit at 1.0.
+"""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+
+from tendon2r_gym.mechanism import Mechanism
+from tendon2r_gym.validation import invalid
+
+#: integrator -> (max damping rate * sim_dt, max stiffness rate * sim_dt, damping terms that
+#: the integrator treats explicitly).
+LIMITS: dict[str, tuple[float, float, tuple[str, ...]]] = {
+    "RK4": (4.0, 2.7, ("joint_damping", "tendon_damping")),
+    "Euler": (3.5, 1.5, ("tendon_damping",)),
+    "implicitfast": (math.inf, 1.5, ()),
+    "implicit": (math.inf, 0.8, ()),
+}
+
+
+def rates(model: mujoco.MjModel, mech: Mechanism, grid: int = 7) -> dict[str, float]:
+    """Returns, over a grid of the joint range, the largest rate (1/s) that each of
+    joint_damping, tendon_damping and tendon_stiffness alone gives."""
+    data = mujoco.MjData(model)
+    M = np.zeros((model.nv, model.nv))
+    out = {"joint_damping": 0.0, "tendon_damping": 0.0, "tendon_stiffness": 0.0}
+    lo, hi = mech.joint_range_rad
+    for q1 in np.linspace(lo, hi, grid):
+        for q2 in np.linspace(lo, hi, grid):
+            data.qpos[:] = (q1, q2)
+            mujoco.mj_fwdPosition(model, data)
+            mujoco.mj_fullM(model, data, M)
+            Minv = np.linalg.inv(M)
+            J = data.ten_J.reshape(model.ntendon, model.nv)
+            tendon = float(np.max(np.abs(np.linalg.eigvals(Minv @ J.T @ J))))
+            joint = float(np.max(np.abs(np.linalg.eigvals(Minv))))
+            out["joint_damping"] = max(out["joint_damping"], mech.joint_damping * joint)
+            out["tendon_damping"] = max(out["tendon_damping"], mech.tendon_damping * tendon)
+            out["tendon_stiffness"] = max(
+                out["tendon_stiffness"], math.sqrt(mech.tendon_stiffness * tendon)
+            )
+    return out
+
+
+def check_stability(model: mujoco.MjModel, mech: Mechanism) -> None:
+    """Raises a ValueError naming the field, its limit and the fix if the integrator cannot
+    integrate ``mech`` at its sim_dt (see the module docstring for the criterion)."""
+    damp_max, stiff_max, explicit = LIMITS[mech.integrator]
+    r = rates(model, mech)
+    dt = mech.sim_dt
+    fix = "a smaller sim_dt, or integrator: implicitfast (damping is then implicit)"
+    damping = sum(r[k] for k in explicit)
+    if damping * dt > damp_max:
+        field = max(explicit, key=lambda k: r[k])
+        value = getattr(mech, field)
+        limit = value * damp_max / (damping * dt)
+        raise invalid(
+            f"Mechanism.{field}",
+            value,
+            f"<= {limit:.3g} for {mech.integrator} at sim_dt = {dt} s (damping rate "
+            f"{damping:.3g}/s x sim_dt must stay <= {damp_max}; fix: {fix})",
+        )
+    if r["tendon_stiffness"] * dt > stiff_max:
+        value = mech.tendon_stiffness
+        limit = value * (stiff_max / (r["tendon_stiffness"] * dt)) ** 2
+        raise invalid(
+            "Mechanism.tendon_stiffness",
+            value,
+            f"<= {limit:.3g} N/m for {mech.integrator} at sim_dt = {dt} s (stiffness rate "
+            f"{r['tendon_stiffness']:.3g} rad/s x sim_dt must stay <= {stiff_max}; fix: a "
+            "smaller sim_dt)",
+        )

@@ -1,0 +1,95 @@
+"""The console commands: evaluate's outputs and errors, the benchmark on bundled models and on
+your own arm."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from tendon2r_gym.cli import benchmark_main, evaluate_main
+
+ARM = """\
+mechanism: {R1: 0.025, R2: 0.049, a: 0.068, b: 0.056, c: 0.091}
+reference: {amp_deg: [51.86, 29.54], freq_hz: [3.47, 1.02], bias_deg: [19.6, 9.9]}
+episode_duration: 0.2
+"""
+
+
+def test_evaluate_writes_json_plots_and_video(tmp_path):
+    config = tmp_path / "my_arm.yaml"
+    config.write_text(
+        "mechanism: {R1: 0.012, R2: 0.02, a: 0.05, b: 0.07, c: 0.09}\n"
+        "reference: {amp_deg: [10, 10], omega_rad_s: [6.0, 9.0], bias_deg: [0, -5]}\n"
+    )
+    out = tmp_path / "m.json"
+    evaluate_main(
+        ["--policy", "pd", "--env-config", str(config), "--episodes", "2", "--episode-duration",
+         "0.1", "--json", str(out), "--plots", str(tmp_path / "p"), "--video",
+         str(tmp_path / "v.gif")]
+    )  # fmt: skip
+    metrics = json.loads(out.read_text())
+    for key in ("rms_deg", "max_deg", "rms_force_N", "saturated_fraction"):
+        assert len(metrics[key]) == 2
+    assert metrics["episodes"] == 2 and metrics["seeds"] == [0, 1]
+    assert metrics["steps"] == 2 * 100, "episode_duration / ctrl_dt steps per episode"
+    for name in ("tracking.png", "forces.png", "effector_path.png"):
+        assert (tmp_path / "p" / name).stat().st_size > 1000
+    assert (tmp_path / "v.gif").stat().st_size > 1000
+
+
+@pytest.mark.parametrize(
+    ("argv", "match"),
+    [
+        (["--policy", "ppo", "--model", "/nonexistent/model.zip"], r"'/nonexistent/model.zip'"),
+        (["--policy", "ppo", "--model", "{tmp}"], "an existing SB3 model file"),
+        (["--policy", "pd", "--model", "/x/model.zip"], "uses no model"),
+        (["--policy", "ct", "--bundle", "default"], "uses no model"),
+        (["--policy", "pd", "--episodes", "0"], r"--episodes = 0 is invalid"),
+        (["--policy", "ppo", "--bundle", "nope"], r"bundle = 'nope' is invalid"),
+    ],
+)
+def test_evaluate_argument_errors_are_clear(tmp_path, argv, match):
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    with pytest.raises(ValueError, match=match) as err:
+        evaluate_main(argv)
+    assert ".zip.zip" not in str(err.value)
+
+
+def test_a_bad_argument_is_a_one_line_error_with_exit_code_2():
+    proc = subprocess.run(
+        [sys.executable, "-c", "from tendon2r_gym.cli import evaluate; evaluate()", "--policy",
+         "pd", "--episodes", "0"],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert proc.returncode == 2
+    assert proc.stderr.strip().startswith("error: --episodes = 0 is invalid")
+
+
+def test_benchmark_on_bundled_models(tmp_path):
+    result = benchmark_main(["--episodes", "1", "--out", str(tmp_path)])
+    md = (tmp_path / "benchmark.md").read_text()
+    assert "| default | pd |" in md and "quoted" in md
+    labels = {(r["env"], r["policy"]) for r in result["rows"]}
+    for env in ("default", "report_002"):
+        for policy in ("pd", "ct", "ppo scratch", "ppo residual"):
+            assert (env, policy) in labels
+    assert all("rms_deg" in r for r in result["rows"]), "every bundled model loads and runs"
+    assert json.loads((tmp_path / "benchmark.json").read_text())["rows"]
+
+
+def test_benchmark_on_your_own_arm(tmp_path):
+    arm = tmp_path / "my_arm.yaml"
+    arm.write_text(ARM)
+    out = tmp_path / "out"
+    result = benchmark_main(
+        ["--env-config", str(arm), "--train-steps", "256", "--seeds", "0", "--episodes", "1",
+         "--out", str(out)]
+    )  # fmt: skip
+    policies = [r["policy"] for r in result["rows"]]
+    assert policies == ["pd", "ct", "ppo scratch", "ppo residual"]
+    assert result["force_need_N"] > 0.5, "the course arm needs more than the old 0.5 N"
+    md = (out / "benchmark.md").read_text()
+    assert "| my_arm | pd |" in md and "needs" in md
+    assert (out / "plots" / "my_arm" / "pd" / "tracking.png").is_file()
+    assert (out / "runs" / "ppo_scratch" / "seed_0" / "run.json").is_file()

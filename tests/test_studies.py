@@ -1,0 +1,54 @@
+"""The studies behind results/ run end to end (tiny budgets; outputs, never timings), and the
+defaults follow their results."""
+
+import json
+from pathlib import Path
+
+from tendon2r_gym.mechanism import Mechanism
+from tendon2r_gym.studies import learnability, speed
+
+RESULTS = Path(__file__).resolve().parent.parent / "results"
+
+
+def test_bench_speed_writes_every_figure(tmp_path):
+    result = speed.main(
+        ["--steps", "200", "--ppo-timesteps", "512", "--vector-seconds", "0.1", "--out",
+         str(tmp_path)]
+    )  # fmt: skip
+    saved = json.loads((tmp_path / "speed.json").read_text())
+    assert saved["overhead_ratio"] == result["overhead_ratio"] > 0
+    for env_id in ("Tendon2R-v0", "Reacher-v5"):
+        assert saved[env_id]["raw_physics_us"] > 0 and saved[env_id]["env_step_us"] > 0
+    assert saved["ppo"]["timesteps"] >= 512 and saved["ppo"]["peak_pss_mb_all_processes"] > 0
+    assert "--out" in (tmp_path / "speed.md").read_text()
+
+
+def test_learnability_study_end_to_end(tmp_path):
+    result = learnability.main(
+        ["--steps", "256", "--seeds", "0", "1", "--rows", "defaults", "landed_reward",
+         "--jobs", "1", "--out", str(tmp_path)]
+    )  # fmt: skip
+    assert [r["row"] for r in result["rows"]] == ["defaults", "landed_reward"]
+    for row in result["rows"]:
+        assert len(row["rms_deg_per_seed"]) == 2 and len(row["rms_deg_mean"]) == 2
+    md = (tmp_path / "learnability.md").read_text()
+    assert "| defaults |" in md and "--steps 256" in md
+
+
+def test_learnability_rows_change_what_they_say():
+    landed = learnability.row_config("landed_reward", 1000)
+    assert landed["env_kwargs"]["tracking_form"] == "quadratic"
+    assert landed["normalize"]["norm_reward"] is True
+    assert learnability.row_config("net_256", 1000)["policy_kwargs"]["net_arch"] == [256, 256]
+    assert learnability.row_config("defaults", 1000)["total_timesteps"] == 1000
+
+
+def test_default_time_step_is_the_study_recommendation():
+    """Mechanism's default integrator and sim_dt are what results/timestep_study.json chose
+    (re-run scripts/timestep_study.py after changing the model, then update the default)."""
+    chosen = json.loads((RESULTS / "timestep_study.json").read_text())["recommended"]
+    mech = Mechanism()
+    assert (mech.integrator.lower(), mech.sim_dt) == (
+        chosen["integrator"].lower(),
+        chosen["sim_dt"],
+    )
