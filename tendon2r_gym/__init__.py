@@ -27,7 +27,11 @@ __all__ = [
 ]
 __version__ = "0.1.0"
 
-if "Tendon2R-v0" not in gym.registry:
-    # No max_episode_steps here: the entry point wraps the env in a TimeLimit of
-    # episode_duration / ctrl_dt steps, so episode length has one source of truth.
-    gym.register(id="Tendon2R-v0", entry_point="tendon2r_gym.env:make_env")
+# No max_episode_steps here: the entry point wraps the env in a TimeLimit of
+# episode_duration / ctrl_dt steps, so episode length has one source of truth.
+# Tendon2RResidual-v0 is the same env under a second id, only so that rl_zoo3's hyperparameter
+# file (keyed by env id) can hold a residual entry; that entry's env_wrapper adds
+# tendon2r_gym.learned.ResidualPDWrapper (configs/rl_zoo3/ppo.yml).
+for _id in ("Tendon2R-v0", "Tendon2RResidual-v0"):
+    if _id not in gym.registry:
+        gym.register(id=_id, entry_point="tendon2r_gym.env:make_env")

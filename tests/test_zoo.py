@@ -1,0 +1,29 @@
+"""rl_zoo3, as a user runs it: README's command with our hyperparameter file, a few hundred
+steps, from scratch and residual."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+CONF = Path(__file__).resolve().parent.parent / "configs" / "rl_zoo3" / "ppo.yml"
+
+
+@pytest.mark.parametrize("env_id", ["Tendon2R-v0", "Tendon2RResidual-v0"])
+def test_rl_zoo3_trains_with_our_hyperparameter_file(tmp_path, env_id):
+    cmd = [sys.executable, "-m", "rl_zoo3.train", "--algo", "ppo", "--env", env_id,
+           "--gym-packages", "tendon2r_gym", "--conf-file", str(CONF), "-n", "256",
+           "--log-folder", str(tmp_path), "--eval-freq", "-1", "--hyperparams", "n_envs:2",
+           "n_steps:64", "batch_size:64"]  # fmt: skip
+    proc = subprocess.run(
+        cmd, capture_output=True, text=True, env={**os.environ, "MUJOCO_GL": "egl"}, timeout=600
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert (tmp_path / "ppo" / f"{env_id}_1" / f"{env_id}.zip").is_file()
+    if env_id == "Tendon2RResidual-v0":
+        assert (
+            "ResidualPDWrapper"
+            in (tmp_path / "ppo" / f"{env_id}_1" / env_id / "config.yml").read_text()
+        )
