@@ -5,7 +5,7 @@ Data flows one way: Mechanism -> build_model -> Tendon2REnv -> policy -> rollout
 
 import gymnasium as gym
 
-from tendon2r_gym.actuation import ActuationAnalysis, cond2
+from tendon2r_gym.actuation import ActuationAnalysis, cond, positive_span
 from tendon2r_gym.env import Tendon2REnv
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.mechanism import ROUTINGS, Mechanism
@@ -22,7 +22,8 @@ __all__ = [
     "Tendon2REnv",
     "build_model",
     "build_spec",
-    "cond2",
+    "cond",
+    "positive_span",
     "to_xml",
 ]
 __version__ = "0.1.0"
@@ -34,4 +35,8 @@ __version__ = "0.1.0"
 # tendon2r_gym.learned.ResidualPDWrapper (configs/rl_zoo3/ppo.yml).
 for _id in ("Tendon2R-v0", "Tendon2RResidual-v0"):
     if _id not in gym.registry:
-        gym.register(id=_id, entry_point="tendon2r_gym.env:make_env")
+        gym.register(
+            id=_id,
+            entry_point="tendon2r_gym.env:make_env",
+            vector_entry_point="tendon2r_gym.vector_env:Tendon2RVectorEnv",
+        )

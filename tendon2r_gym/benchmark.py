@@ -177,34 +177,37 @@ def _beat(value: Any) -> str:
 def table(rows: list[dict[str, Any]], quoted: dict[str, tuple] | None = None) -> list[str]:
     """Returns the markdown table of benchmark rows."""
     lines = [
-        "| env | policy | RMS error A / B (deg) | max error (deg) | RMS force (N) | saturated | "
-        "train steps | train wall (s) | first beat PD (steps / wall) |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| env | policy | RMS error A / B (deg) | max error (deg) | RMS tension (N) | peak "
+        "tension (N) | steps pushing | saturated | train steps | train wall (s) | first beat PD "
+        "(steps / wall) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name in dict.fromkeys(r["env"] for r in rows):
         for r in (r for r in rows if r["env"] == name):
             if "missing" in r:
-                lines.append(f"| {name} | {r['policy']} | {r['missing']} | | | | | | |")
+                lines.append(f"| {name} | {r['policy']} | {r['missing']} |" + " |" * 8)
                 continue
             std = f" ± {_fmt(r['rms_deg_std'])}" if "rms_deg_std" in r else ""
             learned = "train_steps" in r
             lines.append(
                 f"| {name} | {r['policy']} | {_fmt(r['rms_deg'])}{std} | {_fmt(r['max_deg'], 3)} "
-                f"| {_fmt(r.get('rms_force_N'))} | {_fmt(r.get('saturated_fraction'), 3)} | "
+                f"| {_fmt(r.get('rms_tension_N'))} | {_fmt(r.get('max_tension_N'))} | "
+                f"{r.get('negative_tension_steps', '')} | {_fmt(r.get('saturated_fraction'), 3)} | "
                 f"{r.get('train_steps', '')} | {r.get('train_wall_s', '')} | "
                 f"{_beat(r.get('first_beat_pd')) if learned else ''} |"
             )
         if quoted and name in quoted:
             label, rms, mx = quoted[name]
             lines.append(
-                f"| {name} | *quoted: {label}* | {_fmt(rms, 2)} | {_fmt(mx, 2)} | | | | | |"
+                f"| {name} | *quoted: {label}* | {_fmt(rms, 2)} | {_fmt(mx, 2)} |" + " |" * 7
             )
     return lines
 
 
 NOTES = [
     "Per joint (A / B): RMS and max tracking error over all steps of all episodes (the same",
-    "seeds for every policy), RMS tendon force per tendon, fraction of saturated steps.",
+    "seeds for every policy). Per tendon: RMS and peak tension (N, positive pulling), and the",
+    "steps where some tendon pushed (negative tension); then the fraction of saturated steps.",
     "`ppo scratch` is plain PPO driving the motors (residual_scale 0); `ppo residual` adds",
     "its action to the PD command. The row without a seed count is the primary training",
     "seed (fixed before training); `(N seeds)` is the mean ± std (ddof 0) over training",

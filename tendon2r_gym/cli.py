@@ -92,7 +92,7 @@ class TrainArgs:
     env_config: str | None = arg(None, "preset name or experiment file: the env to train on")
     total_timesteps: int | None = arg(None, "overrides the entry")
     n_envs: int | None = arg(None, "overrides the entry")
-    vec_env: str | None = arg(None, "overrides the entry", choices=("subproc", "dummy"))
+    vec_env: str | None = arg(None, "overrides the entry", choices=("native", "subproc", "dummy"))
     seeds: list[int] = arg([0], "one run folder per seed")
     run_dir: str | None = arg(None, "default runs/<hyperparams>; seeds go in seed_<n>/")
     resume: bool = arg(False, "continue from the newest readable state of each run")
@@ -172,7 +172,7 @@ def evaluate_main(argv: list[str] | None = None) -> dict[str, Any]:
     seeds = list(range(args.seed, args.seed + args.episodes))
     metrics, traces = evaluate(args.policy, env_kwargs, seeds, model)
     metrics["env_kwargs"], metrics["model"] = env_kwargs, None if model is None else str(model)
-    keys = ("policy", "rms_deg", "max_deg", "rms_force_N", "saturated_fraction", "steps")
+    keys = ("policy", "rms_deg", "max_deg", "rms_tension_N", "saturated_fraction", "steps")
     print(json.dumps({k: metrics[k] for k in keys}))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)

@@ -14,10 +14,10 @@ from gymnasium.envs.mujoco.mujoco_env import DEFAULT_SIZE, MujocoEnv
 from gymnasium.utils import EzPickle
 
 from tendon2r_gym import observation as obs_layout
-from tendon2r_gym.actuation import cond2, moment_arms_from_data
+from tendon2r_gym.actuation import MomentArms, cond
 from tendon2r_gym.config import merge_reference
 from tendon2r_gym.env_config import EnvConfig
-from tendon2r_gym.model import CAMERA, build_model
+from tendon2r_gym.model import CAMERA, build_model, tendon_name
 from tendon2r_gym.reference import Reference
 from tendon2r_gym.validation import integer, invalid
 
@@ -29,6 +29,9 @@ _DIVERGENCE_WARNINGS = (
 
 
 DIVERGED_PAST_LIMIT = 0.5  # rad past a joint limit that counts as diverged
+#: Degrees from radians as e / RAD_PER_DEG, in the single and the vector env alike (numpy's
+#: np.degrees rounds differently from this in the last bit).
+RAD_PER_DEG = math.pi / 180.0
 #: A joint speed that counts as diverged (rad/s): bang-bang commands at 10x the default force
 #: limit reach about 500 rad/s.
 DIVERGED_SPEED = 1e4
@@ -51,15 +54,19 @@ class Tendon2REnv(MujocoEnv, EzPickle):
 
     ## Description
     A fixed base link ``a`` (wall to joint A), link ``c`` (joint A to joint B) and link ``b``
-    (joint B to the effector) move in the x-z plane without gravity.  Two spatial tendons run
-    from the wall over pulleys on both joints (diameters ``R1``, ``R2``) to the effector; two
-    motors push or pull on them.  The mechanism, the reference and any other argument below
+    (joint B to the effector) move in the x-z plane without gravity.  Spatial tendons (two by
+    default, or any routing of 2 or more) run from the wall over pulleys on both joints
+    (diameters ``R1``, ``R2``) to the effector, or to link c; one motor pulls (and, unless
+    ``pull_only``, pushes) on each.  The mechanism, the reference and any other argument below
     come from a preset or an experiment file (``preset``), with keyword overrides.
 
     ## Action Space
-    ``Box(-1, 1, (2,), float32)``: the normalized commands of ``motor1`` and ``motor2``; an
-    action of +-1 is +-``max_tendon_force`` N on the tendon.  Out-of-range actions are clipped
-    to [-1, 1]; a wrong shape or a non-finite action raises ValueError.
+    ``Box(-1, 1, (n_tendons,), float32)``: the normalized command of each motor.  Push-pull
+    (default): an action of +-1 is +-``max_tendon_force`` N along the tendon.  Pull-only
+    (``mechanism.pull_only``): an action in [-1, 1] maps affinely to a tension in
+    [0, ``max_tendon_force``] N (-1 slack, +1 full pull).  Out-of-range actions are clipped
+    to [-1, 1]; a wrong shape or a non-finite action raises ValueError.  ``info["tendon_tension"]``
+    is each tendon's pulling force in N (positive when it pulls) for every routing.
 
     ## Observation Space
     ``Box(-inf, inf, (16 + 2 * preview_steps,), float64)``, named slices in
@@ -75,7 +82,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
       **degrees**; with ``"log"``, ``1 - sum(log(1 + (e / sigma)^2)) / (2 log(1 + (180 /
       sigma)^2))`` with sigma = ``tracking_sigma_deg``: in [0, 1] for |e| <= 180 deg, 1 on
       the reference, and quadratic near it.
-    - ``ctrl``: ``-sum(action^2)``, on the clipped action;
+    - ``ctrl``: ``-sum(action^2)``, on the clipped action (for pull-only, -1 is slack);
     - ``divergence``: -1 on the step where the physics diverges, else 0.
 
     ## Starting State
@@ -190,10 +197,12 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         # Views into MjData stay valid for its lifetime; fetching them once saves a binding call
         # per access on every step.
         self._qpos, self._qvel, self._ctrl = d.qpos, d.qvel, d.ctrl
-        self._actuator_force = d.actuator_force
-        self._gear = self.model.actuator_gear[:, 0].copy()
+        self._n = self.mechanism.n_tendons
+        # Named sensor reads: each tendon's motor force (N, positive lengthens), contiguous.
+        first = self.model.sensor(f"force_{tendon_name(0)}").adr[0]
+        self._motor_force = d.sensordata[first : first + self._n]
         self._warnings = [d.warning[w] for w in _DIVERGENCE_WARNINGS]
-        self._ten_J = moment_arms_from_data(self.model, d)
+        self._arms = MomentArms(self.model, d)
         self._offsets = [k * self.preview_dt for k in range(1, self.preview_steps + 1)]
         cfg = self.config
         self._w_track, self._w_ctrl, self._w_div = (
@@ -216,10 +225,10 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         self._phase1, self._phase2 = ref._phase.tolist()
 
     # -- named quantities ------------------------------------------------------------------------
-    def tendon_forces(self) -> np.ndarray:
-        """Returns the tendon motor forces (N): gear times MuJoCo's actuator force, which is in
-        actuator units (the clipped command) for a motor with a gear."""
-        return self._actuator_force * self._gear
+    def tendon_tensions(self) -> np.ndarray:
+        """Returns each tendon's tension (N, positive when it pulls) in the last step: minus the
+        motor force along the tendon that the model's force sensors read."""
+        return -self._motor_force
 
     def force_need(self) -> float:
         """Returns the peak tendon force (N) that inverse dynamics of the reference needs (of
@@ -229,21 +238,21 @@ class Tendon2REnv(MujocoEnv, EzPickle):
 
     # -- gymnasium API -----------------------------------------------------------------------------
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        if type(action) is not np.ndarray or action.shape != (2,):
+        n = self._n
+        if type(action) is not np.ndarray or action.shape != (n,):
             action = np.asarray(action, dtype=np.float64)
-            if action.shape != (2,):
-                raise ValueError(f"action has shape {action.shape}; allowed: (2,) in [-1, 1]")
-        a1, a2 = action.tolist()
-        if not (math.isfinite(a1) and math.isfinite(a2)):
-            raise ValueError(f"action = {[a1, a2]} is not finite; allowed: 2 values in [-1, 1]")
-        a1, a2 = min(max(a1, -1.0), 1.0), min(max(a2, -1.0), 1.0)
-        ctrl = self._ctrl
-        ctrl[0], ctrl[1] = a1, a2
+            if action.shape != (n,):
+                raise ValueError(f"action has shape {action.shape}; allowed: ({n},) in [-1, 1]")
+        a = action.tolist()
+        if not all(math.isfinite(x) for x in a):
+            raise ValueError(f"action = {a} is not finite; allowed: {n} values in [-1, 1]")
+        a = [min(max(x, -1.0), 1.0) for x in a]
+        self._ctrl[:] = a
         mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
         diverged = self._check_divergence()
         # A diverged step reports the last good state: nothing enormous reaches a learner.
         obs = self._last_obs.copy() if diverged else self._get_obs()
-        reward, terms = self._get_rew(obs, (a1, a2), diverged)
+        reward, terms = self._get_rew(obs, a, diverged)
         info = self._get_info(obs, terms, diverged)
         self._last_obs = obs
         if self.render_mode == "human":
@@ -293,21 +302,18 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         return np.array(obs, dtype=np.float64)
 
     def _get_rew(
-        self, obs: np.ndarray, action: tuple[float, float], diverged: bool
+        self, obs: np.ndarray, action: list[float], diverged: bool
     ) -> tuple[float, dict[str, float]]:
         """Returns (reward, scaled terms); the reward is the sum of the terms."""
-        e1, e2 = (math.degrees(e) for e in obs[obs_layout.ERROR].tolist())
+        e1, e2 = (e / RAD_PER_DEG for e in obs[obs_layout.ERROR].tolist())
         if self._log_form:
-            sig = self._sigma
-            tracking = 1.0 - (math.log1p((e1 / sig) ** 2) + math.log1p((e2 / sig) ** 2)) / (
-                self._log_norm
-            )
+            u1, u2 = e1 / self._sigma, e2 / self._sigma
+            tracking = 1.0 - (math.log1p(u1 * u1) + math.log1p(u2 * u2)) / self._log_norm
         else:
             tracking = -(e1 * e1 + e2 * e2)
-        a1, a2 = action
         terms = {
             "tracking": self._w_track * tracking,
-            "ctrl": -self._w_ctrl * (a1 * a1 + a2 * a2),
+            "ctrl": -self._w_ctrl * sum(x * x for x in action),
             "divergence": -self._w_div if diverged else 0.0,
         }
         return sum(terms.values()), terms
@@ -317,9 +323,9 @@ class Tendon2REnv(MujocoEnv, EzPickle):
             **{f"reward_{k}": v for k, v in terms.items()},
             "q": obs[obs_layout.Q],
             "q_des": obs[obs_layout.Q_DES],
-            "tracking_error_deg": np.degrees(obs[obs_layout.ERROR]),
-            "tendon_force": self.tendon_forces(),
-            "moment_arm_cond": cond2(self._ten_J),
+            "tracking_error_deg": obs[obs_layout.ERROR] / RAD_PER_DEG,
+            "tendon_tension": self.tendon_tensions(),
+            "moment_arm_cond": cond(self._arms.dense()),
             "effector_pos": obs[obs_layout.EFFECTOR_POS],
             "time": self.data.time,
             "diverged": diverged,

@@ -143,6 +143,8 @@ class EnvConfig:
         if self.reference_ranges is not None:
             refs += self.reference_ranges.corners()
         need = _physics(self.mechanism.replace(max_tendon_force=1.0), tuple(refs))
+        if self.mechanism.pull_only:
+            need = max(need, self.mechanism.pretension)
         object.__setattr__(self, "force_need", need)
         limit = self.mechanism.max_tendon_force
         if limit == AUTO:
@@ -191,7 +193,7 @@ def _physics(mech: Mechanism, refs: tuple[Reference, ...]) -> float:
     """Checks that the integrator can integrate ``mech``; returns the force need (N)."""
     model = build_model(mech)
     check_stability(model, mech)
-    return force_need(model, refs)
+    return force_need(model, refs, mech.pull_only, mech.pretension)
 
 
 assert set(SECTIONS) <= set(arguments())

@@ -20,7 +20,9 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.policies import PDPolicy
+from tendon2r_gym.reference import Reference, ReferenceRanges
 from tendon2r_gym.runs import RUN_META, model_files, stem_of
 from tendon2r_gym.validation import number
 
@@ -67,27 +69,54 @@ def residual_command(base: np.ndarray, action: np.ndarray, scale: float) -> np.n
     return np.clip(base + scale * np.clip(a, -1.0, 1.0), -1.0, 1.0)
 
 
-def make_training_env(env_kwargs: dict[str, Any], residual_scale: float) -> gym.Env:
-    """Returns Tendon2R-v0 with the given kwargs, wrapped for residual learning if asked."""
+def make_training_env(
+    env_kwargs: dict[str, Any], residual_scale: float, zero_obs: tuple[str, ...] = ()
+) -> gym.Env:
+    """Returns Tendon2R-v0 with the given kwargs, wrapped for residual learning if asked.
+    ``zero_obs`` names observation entries (tendon2r_gym.observation) to blank out, for
+    ablations: a constant zero carries no information."""
     env = gym.make("Tendon2R-v0", **env_kwargs)
+    if zero_obs:
+        from tendon2r_gym.observation import SLICES
+
+        mask = np.ones(env.observation_space.shape)
+        for name in zero_obs:
+            mask[SLICES[name]] = 0.0
+        env = gym.wrappers.TransformObservation(env, lambda o: o * mask, env.observation_space)
     return ResidualPDWrapper(env, residual_scale) if residual_scale > 0 else env
 
 
 def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
     """Raises if ``env`` differs from the env config a model was trained with in any field of
-    MODEL_ENV_FIELDS (for a model trained on reference_ranges, the nominal reference does not
-    matter)."""
-    current = {**env.unwrapped.config.to_dict(), "observation": observation_layout(env)}
-    fields = [
-        f for f in MODEL_ENV_FIELDS if not (f == "reference" and recorded.get("reference_ranges"))
-    ]
-    for name in fields:
-        if _plain(recorded.get(name)) != _plain(current.get(name)):
+    MODEL_ENV_FIELDS.  The recorded config is read back through the same constructors, so a
+    field added later takes its default (for a model trained on reference_ranges, the nominal
+    reference does not matter)."""
+    config = env.unwrapped.config
+    ranges = recorded.get("reference_ranges")
+    theirs = {
+        **{k: recorded.get(k) for k in ("observation", "ctrl_dt", "preview_steps", "preview_dt")},
+        "mechanism": Mechanism.from_dict(recorded["mechanism"]),
+        "reference": None if ranges else Reference.from_dict(recorded["reference"]),
+        "reference_ranges": ReferenceRanges.from_dict(ranges) if ranges else None,
+    }
+    ours = {
+        **{k: getattr(config, k) for k in ("ctrl_dt", "preview_steps", "preview_dt")},
+        "observation": observation_layout(env),
+        "mechanism": config.mechanism,
+        "reference": None if ranges else config.reference,
+        "reference_ranges": config.reference_ranges,
+    }
+    for name in MODEL_ENV_FIELDS:
+        if _plain(theirs[name]) != _plain(ours[name]):
             raise ValueError(
-                f"{where} was trained for another env: {name} = {recorded.get(name)!r} there, "
-                f"{current.get(name)!r} in this env; allowed: the env it was trained on "
+                f"{where} was trained for another env: {name} = {_shown(theirs[name])} there, "
+                f"{_shown(ours[name])} in this env; allowed: the env it was trained on "
                 "(make the env from the run's run.json env_config)"
             )
+
+
+def _shown(value: Any) -> Any:
+    return value.to_dict() if hasattr(value, "to_dict") else value
 
 
 def observation_layout(env: gym.Env | None = None, preview_steps: int | None = None) -> list:
@@ -99,8 +128,8 @@ def observation_layout(env: gym.Env | None = None, preview_steps: int | None = N
 
 
 def _plain(value: Any) -> Any:
-    """Returns value with tuples as lists (YAML and JSON round trips give lists)."""
-    return json.loads(json.dumps(value))
+    """Returns value as plain JSON data (objects by their to_dict, tuples as lists)."""
+    return json.loads(json.dumps(_shown(value)))
 
 
 class PPOPolicy:

@@ -7,6 +7,11 @@ Geometry conventions (see README):
 - The arm moves in the x-z plane.  Both hinges turn about -y, so a positive joint angle lifts the
   arm (+z):  x = a + c cos q1 + b cos(q1 + q2),  z = c sin q1 + b sin(q1 + q2).
 - A tendon passes each pulley on side +1 (over the top, +z in the link frame) or -1 (under).
+  Side 0 on pulley 2 means the tendon does not reach pulley 2: it ends on link c and spans
+  joint A only.  Its moment arms are dL/dq = (-s1 r1, -s2 r2).
+- ``pull_only``: the motors only pull, as real tendons do (a pushed tendon goes slack).  Two
+  pull-only tendons cannot reverse a joint torque; n + 1 tendons whose moment arms positively
+  span the torque plane can (tendon2r_gym.actuation.positive_span).
 """
 
 from __future__ import annotations
@@ -19,11 +24,12 @@ from typing import Any
 
 import numpy as np
 
-from tendon2r_gym.validation import check_keys, invalid, is_number, mapping, number
+from tendon2r_gym.validation import boolean, check_keys, invalid, is_number, mapping, number
 
-Sides = tuple[tuple[int, int], tuple[int, int]]
+Sides = tuple[tuple[int, int], ...]
 
-#: Named routings: the side (+1 over, -1 under) each tendon takes on (pulley 1, pulley 2).
+#: Named routings: the side (+1 over, -1 under, 0 not reached) each tendon takes on
+#: (pulley 1, pulley 2).
 ROUTINGS: dict[str, Sides] = {
     # Not mirror images: the moment-arm matrix is full rank, both joints are actuated.
     "asymmetric": ((+1, +1), (-1, +1)),
@@ -31,6 +37,12 @@ ROUTINGS: dict[str, Sides] = {
     "parallel": ((+1, +1), (-1, -1)),
     # The course XML template: tendon 1 under pulley 1 and over pulley 2, tendon 2 the reverse.
     "crossed": ((-1, +1), (+1, -1)),
+    # Three tendons for pull-only motors: moment arms (-r1, -r2), (-r1, +r2) and (+r1, 0), whose
+    # null vector (1, 1, 2) is strictly positive, so a pretension keeps every tendon taut.  The
+    # third tendon ends on link c: with three tendons that all wrap both pulleys, the rows are
+    # corners (+-r1, +-r2) and the origin lies on an edge of their triangle (no strictly
+    # positive pretension exists).
+    "n_plus_1": ((+1, +1), (+1, -1), (-1, 0)),
 }
 
 INTEGRATORS = ("Euler", "RK4", "implicit", "implicitfast")
@@ -52,12 +64,16 @@ class Mechanism:
     a: float = 0.052  # base link, wall to joint A (m)
     b: float = 0.073  # link from joint B to the effector (m)
     c: float = 0.094  # link from joint A to joint B (m)
-    # Routing: a name from ROUTINGS or explicit sides ((s11, s12), (s21, s22)).
+    # Routing: a name from ROUTINGS or explicit sides ((s11, s12), (s21, s22), ...), 2 or more.
     routing: str | Sides = "asymmetric"
-    # Actuation: an action of +-1 is +-max_tendon_force on the tendon (push or pull).  "auto":
-    # the env sets it from the peak force that inverse dynamics of its reference needs, times
+    # Actuation: push-pull, an action of +-1 is +-max_tendon_force on the tendon; pull-only,
+    # an action in [-1, 1] is a tension in [0, max_tendon_force].  "auto": the env sets the
+    # limit from the peak force that inverse dynamics of its reference needs, times
     # FORCE_HEADROOM (tendon2r_gym.actuation.force_need).
     max_tendon_force: float | str = AUTO  # (N)
+    pull_only: bool = False
+    # The least tension that model-based controllers keep in every pull-only tendon (N).
+    pretension: float = 0.02
     # Mass and joints.
     density: float = 1000.0  # of links and pulleys (kg/m^3)
     link_radius: float = 0.002  # capsule radius of the links (m)
@@ -81,7 +97,8 @@ class Mechanism:
                 "max_tendon_force",
                 _positive_or_auto("max_tendon_force", self.max_tendon_force),
             )
-        for name in ("joint_damping", "tendon_stiffness", "tendon_damping"):
+        set_("pull_only", boolean("Mechanism.pull_only", self.pull_only))
+        for name in ("joint_damping", "tendon_stiffness", "tendon_damping", "pretension"):
             set_(name, number(f"Mechanism.{name}", getattr(self, name), 0.0))
         set_("sim_dt", number("Mechanism.sim_dt", self.sim_dt, 0.0, 0.01, lo_open=True))
         r1, r2 = self.R1 / 2, self.R2 / 2
@@ -111,6 +128,16 @@ class Mechanism:
             raise _fail("joint_range_deg", rng, allowed)
         set_("joint_range_deg", (lo, hi))
         set_("routing", _normalize_routing(self.routing))
+        if self.pull_only:
+            from tendon2r_gym.actuation import positive_span_of_sides
+
+            spans, why = positive_span_of_sides(self.tendon_sides, self.r1, self.r2)
+            if not spans:
+                raise _fail(
+                    "pull_only",
+                    True,
+                    f"False with routing {self.routing!r}: {why} (use routing 'n_plus_1')",
+                )
 
     # -- construction ------------------------------------------------------------------------
     @classmethod
@@ -145,8 +172,13 @@ class Mechanism:
 
     @property
     def tendon_sides(self) -> Sides:
-        """Returns ((s11, s12), (s21, s22)): the side each tendon takes on each pulley."""
+        """Returns ((s11, s12), (s21, s22), ...): the side each tendon takes on each pulley."""
         return ROUTINGS[self.routing] if isinstance(self.routing, str) else self.routing
+
+    @property
+    def n_tendons(self) -> int:
+        """Returns the number of tendons (and motors)."""
+        return len(self.tendon_sides)
 
     @property
     def joint_range_rad(self) -> tuple[float, float]:
@@ -180,15 +212,20 @@ def _normalize_routing(routing: Any) -> str | Sides:
                 "routing", routing, f"one of {sorted(ROUTINGS)} or ((s11, s12), (s21, s22))"
             )
         return routing
-    allowed = "a routing name or ((s11, s12), (s21, s22)) with each s the integer -1 or +1"
+    allowed = (
+        f"one of {sorted(ROUTINGS)}, or 2 or more (s1, s2) pairs: s1 in {{-1, +1}} on pulley 1, "
+        "s2 in {-1, 0, +1} on pulley 2 (0: the tendon ends on link c)"
+    )
     try:
         rows = [list(tendon) for tendon in routing]
     except TypeError:
         raise _fail("routing", routing, allowed) from None
-    if len(rows) != 2 or any(len(t) != 2 for t in rows):
+    if len(rows) < 2 or any(len(t) != 2 for t in rows):
         raise _fail("routing", routing, allowed)
     # Exact integers only: 1.5 must not be truncated to 1.
-    if not all(is_number(s) and s in (-1, 1) for t in rows for s in t):
+    if not all(is_number(s) and s in (-1, 0, 1) for t in rows for s in t):
+        raise _fail("routing", routing, allowed)
+    if any(t[0] == 0 for t in rows):  # it would end on the wall and span no joint
         raise _fail("routing", routing, allowed)
     return tuple(tuple(int(s) for s in t) for t in rows)  # type: ignore[return-value]
 

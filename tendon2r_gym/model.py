@@ -23,8 +23,6 @@ import numpy as np
 from tendon2r_gym.mechanism import Mechanism
 
 JOINTS = ("A", "B")
-TENDONS = ("tendon1", "tendon2")
-MOTORS = ("motor1", "motor2")
 CAMERA = "side"
 #: Fairleads (eyelets) sit on the straight tendon line this many pulley radii before pulley 1 and
 #: after pulley 2.  MuJoCo decides wrap contact from the straight line between the neighbouring
@@ -56,8 +54,7 @@ _RGBA = {
     "link_b": (0.15, 0.75, 0.35, 1.0),
     "pulley1": (0.95, 0.75, 0.1, 0.9),
     "pulley2": (0.95, 0.45, 0.1, 0.9),
-    "tendon1": (0.85, 0.1, 0.1, 1.0),
-    "tendon2": (0.6, 0.1, 0.8, 1.0),
+    "tendons": ((0.85, 0.1, 0.1, 1.0), (0.6, 0.1, 0.8, 1.0), (0.1, 0.45, 0.9, 1.0)),
     "site": (0.1, 0.1, 0.1, 1.0),
 }
 
@@ -144,9 +141,9 @@ def build_spec(mech: Mechanism) -> mujoco.MjSpec:
         _RGBA["link_a"],
         fromto=[0, 0, 0, a, 0, 0],
     )
-    for i in range(2):
-        site(world, f"anchor{i + 1}", (0.0, sides[i][0] * r1))
-        site(world, f"fairlead1_t{i + 1}", (a - FAIRLEAD_GAP * r1, sides[i][0] * r1), size=0.0008)
+    for i, (s1, _) in enumerate(sides):
+        site(world, f"anchor{i + 1}", (0.0, s1 * r1))
+        site(world, f"fairlead1_t{i + 1}", (a - FAIRLEAD_GAP * r1, s1 * r1), size=0.0008)
     # The camera frames the disc of radius b + c about joint A, and the wall.
     width = a + reach
     dist = 1.15 * max(width / 2 / 0.75, half_h) / math.tan(math.radians(_CAMERA_FOVY / 2))
@@ -162,63 +159,66 @@ def build_spec(mech: Mechanism) -> mujoco.MjSpec:
     # Sidesites pick the side each tendon passes a pulley on.  Both sit on link c, which carries
     # pulley 1 and is the proximal link of pulley 2 (measured: on the world or on link b, the
     # choice fails for large wraps, and the moment-arm matrix loses rank).
-    for i in range(2):
-        site(link_c, f"side1_t{i + 1}", (0.0, sides[i][0] * 2.0 * r1), size=0.0005)
-        site(link_c, f"side2_t{i + 1}", (c, sides[i][1] * 2.0 * r2), size=0.0005)
+    for i, (s1, s2) in enumerate(sides):
+        site(link_c, f"side1_t{i + 1}", (0.0, s1 * 2.0 * r1), size=0.0005)
+        if s2:
+            site(link_c, f"side2_t{i + 1}", (c, s2 * 2.0 * r2), size=0.0005)
 
     # Link b, hinge B, pulley 2, the effector and the tendon ends.
     link_b = link(link_c, "link_b", c, "B", b, "pulley2", r2)
     site(link_b, "effector", (b, 0.0), size=0.003, rgba=(0.9, 0.9, 0.9, 1.0))
-    for i in range(2):
-        site(link_b, f"fairlead2_t{i + 1}", (FAIRLEAD_GAP * r2, sides[i][1] * r2), size=0.0008)
-        site(link_b, f"end{i + 1}", (b, sides[i][1] * r2))
+    for i, (_, s2) in enumerate(sides):
+        if s2:
+            site(link_b, f"fairlead2_t{i + 1}", (FAIRLEAD_GAP * r2, s2 * r2), size=0.0008)
+            site(link_b, f"end{i + 1}", (b, s2 * r2))
 
-    # Tendons and their motors: ctrl in [-1, 1], gear = max force, so ctrl 1 is the full force.
-    # An unresolved "auto" limit (the env sizes it from the reference) builds with 1 N.
-    gear = mech.max_tendon_force if isinstance(mech.max_tendon_force, float) else 1.0
-    for i, (name, motor) in enumerate(zip(TENDONS, MOTORS, strict=True)):
+    # Tendons, their motors and one tension sensor each.  Motors are general actuators with
+    # gear 1, so MuJoCo's actuator force is the force along the tendon in N (positive
+    # lengthens).  Push-pull: force = F * ctrl.  Pull-only: force = -F (ctrl + 1) / 2, a
+    # tension in [0, F] for ctrl in [-1, 1].  An unresolved "auto" limit builds with F = 1 N.
+    force = mech.max_tendon_force if isinstance(mech.max_tendon_force, float) else 1.0
+    gain, bias = (-force / 2, -force / 2) if mech.pull_only else (force, 0.0)
+    for i, (_, s2) in enumerate(sides):
+        name = tendon_name(i)
         t = spec.add_tendon(
             name=name,
             width=0.0006,
-            rgba=_RGBA[name],
+            rgba=_RGBA["tendons"][i % len(_RGBA["tendons"])],
             stiffness=mech.tendon_stiffness,
             damping=mech.tendon_damping,
         )
-        for kind, point, side in PATH:
+        # A tendon with side 0 on pulley 2 ends at its guide site on link c.
+        path = PATH if s2 else PATH[:4]
+        for kind, point, side in path:
             if kind == "site":
-                t.wrap_site(
-                    f"{point}{i + 1}"
-                    if point in ("anchor", "guide", "end")
-                    else f"{point}_t{i + 1}"
-                )
+                shared = point in ("anchor", "guide", "end")
+                t.wrap_site(f"{point}{i + 1}" if shared else f"{point}_t{i + 1}")
             else:
                 t.wrap_geom(point, f"{side}_t{i + 1}")
-        act = spec.add_actuator(name=motor, trntype=mujoco.mjtTrn.mjTRN_TENDON, target=name)
-        act.gear = [gear, 0, 0, 0, 0, 0]
+        act = spec.add_actuator(name=motor_name(i), trntype=mujoco.mjtTrn.mjTRN_TENDON, target=name)
+        act.gaintype = mujoco.mjtGain.mjGAIN_FIXED
+        act.biastype = mujoco.mjtBias.mjBIAS_AFFINE
+        act.gainprm[0] = gain
+        act.biasprm[:3] = [bias, 0.0, 0.0]
         act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
         act.ctrlrange = [-1.0, 1.0]
-
-    # Sensors.  actuatorfrc reads in actuator units (the command); times the gear it is N.
-    S = mujoco.mjtSensor
-    obj = mujoco.mjtObj
-    for j in JOINTS:
         spec.add_sensor(
-            name=f"qpos_{j}", type=S.mjSENS_JOINTPOS, objtype=obj.mjOBJ_JOINT, objname=j
-        )
-        spec.add_sensor(
-            name=f"qvel_{j}", type=S.mjSENS_JOINTVEL, objtype=obj.mjOBJ_JOINT, objname=j
-        )
-    spec.add_sensor(
-        name="effector_pos", type=S.mjSENS_FRAMEPOS, objtype=obj.mjOBJ_SITE, objname="effector"
-    )
-    for t, m in zip(TENDONS, MOTORS, strict=True):
-        spec.add_sensor(
-            name=f"length_{t}", type=S.mjSENS_TENDONPOS, objtype=obj.mjOBJ_TENDON, objname=t
-        )
-        spec.add_sensor(
-            name=f"force_{m}", type=S.mjSENS_ACTUATORFRC, objtype=obj.mjOBJ_ACTUATOR, objname=m
+            name=f"force_{name}",
+            type=mujoco.mjtSensor.mjSENS_ACTUATORFRC,
+            objtype=mujoco.mjtObj.mjOBJ_ACTUATOR,
+            objname=motor_name(i),
         )
     return spec
+
+
+def tendon_name(i: int) -> str:
+    """Returns the name of tendon i (0-based): tendon1, tendon2, ..."""
+    return f"tendon{i + 1}"
+
+
+def motor_name(i: int) -> str:
+    """Returns the name of the motor of tendon i (0-based): motor1, motor2, ..."""
+    return f"motor{i + 1}"
 
 
 def build_model(mech: Mechanism) -> mujoco.MjModel:

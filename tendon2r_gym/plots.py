@@ -41,9 +41,10 @@ def plot_trace(trace: Trace, out_dir: str | Path, title: str) -> list[Path]:
     plt.close(fig)
 
     fig, ax = plt.subplots(figsize=(8, 3.5))
-    for i in range(2):
-        ax.plot(t, trace.tendon_force[:, i], lw=0.9, label=f"tendon {i + 1}")
-    ax.set(xlabel="time (s)", ylabel="tendon force (N)", title=f"{title}: tendon forces")
+    for i in range(trace.tendon_tension.shape[1]):
+        ax.plot(t, trace.tendon_tension[:, i], lw=0.9, label=f"tendon {i + 1}")
+    ax.axhline(0.0, color="k", lw=0.5)
+    ax.set(xlabel="time (s)", ylabel="tension (N, > 0 pulls)", title=f"{title}: tendon tensions")
     ax.legend()
     fig.tight_layout()
     paths.append(out / "forces.png")

@@ -1,10 +1,18 @@
 """Model-based baselines with the SB3 ``predict`` interface: a joint PD and computed torque.
 
 Both see only the observation and the mechanism's parameters: they build their own copy of the
-model to compute moment arms and inertia, and never read the environment's MjData.  Joint
-torques tau become tendon forces f through J^T f = tau (J = dL/dq), solved with a damped inverse
-so that f stays finite near singular configurations, then normalized by the force limit and
-clipped to the action box.
+model to compute moment arms and inertia, and never read the environment's MjData.
+
+Tension distribution.  Joint torques tau become tendon tensions t (positive pulling) through
+-J^T t = tau (J = dL/dq, one row per tendon), for any number of tendons:
+- the minimum-norm tensions t0 = -J (J^T J + lam^2 I)^-1 tau, with a small damping lam^2 so that
+  t stays finite near singular configurations;
+- pull-only tendons: t = t0 + alpha n, where n is a strictly positive null vector of J^T
+  (it exists when the moment arms positively span the torque plane, as the ``n_plus_1``
+  routing's do) and alpha is the smallest value that keeps every tension >= the mechanism's
+  pretension.  Adding alpha n changes no joint torque.
+The tensions are then normalized by the force limit (push-pull: -t / F; pull-only: 2 t / F - 1)
+and clipped to the action box, so the force limit clips them.
 """
 
 from __future__ import annotations
@@ -17,6 +25,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from tendon2r_gym.actuation import MomentArms, distribute
 from tendon2r_gym.config import PD_CONFIG, load_yaml
 from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.model import build_model
@@ -54,7 +63,9 @@ class Gains:
 
 
 class _TendonController:
-    """Shared machinery: a private model, joint torque -> normalized tendon command."""
+    """Shared machinery: a private model, joint torque -> normalized tendon command, for one
+    observation or a batch of them (numpy over the batch; the kinematics of a batch come from
+    one ``mujoco.batch`` call, of a single observation from an MjData)."""
 
     def __init__(self, mechanism: Mechanism, ctrl_dt: float, gains: Gains | None = None) -> None:
         self.mechanism = mechanism
@@ -63,9 +74,11 @@ class _TendonController:
         self.kp, self.kd = w * w, 2.0 * self.gains.damping_ratio * w
         self.model = build_model(mechanism)
         self.data = mujoco.MjData(self.model)
+        self._arms = MomentArms(self.model, self.data)
         self._M = np.zeros((self.model.nv, self.model.nv))
-        self._J = self.data.ten_J.reshape(self.model.ntendon, self.model.nv)
+        self._batches: dict[int, Any] = {}
         self._max_force = mechanism.max_tendon_force
+        self._pull_only, self._pretension = mechanism.pull_only, mechanism.pretension
 
     @classmethod
     def from_env(cls, env: Any, **kwargs: Any) -> _TendonController:
@@ -73,25 +86,45 @@ class _TendonController:
         env = env.unwrapped
         return cls(env.mechanism, env.ctrl_dt, **kwargs)
 
-    def tendon_command(self, tau: np.ndarray | tuple[float, float]) -> np.ndarray:
-        """Returns the clipped normalized command whose tendon forces give joint torques tau,
-        with J (at the last computed configuration) from the private model:
-        f = J (J^T J + lam^2 I)^-1 tau, lam^2 = force_damping |J|_F^2 (closed form for 2x2)."""
-        (j11, j12), (j21, j22) = self._J.tolist()
-        t1, t2 = float(tau[0]), float(tau[1])
-        lam2 = self.gains.force_damping * (j11 * j11 + j12 * j12 + j21 * j21 + j22 * j22)
-        a11 = j11 * j11 + j21 * j21 + lam2  # A = J^T J + lam^2 I, symmetric
-        a12 = j11 * j12 + j21 * j22
-        a22 = j12 * j12 + j22 * j22 + lam2
-        det = a11 * a22 - a12 * a12
-        if not det > 0.0:  # J = 0 (no tendon touches a pulley) or non-finite
-            return np.zeros(2, dtype=np.float32)
-        x1, x2 = (a22 * t1 - a12 * t2) / det, (a11 * t2 - a12 * t1) / det
-        f_max = self._max_force
-        u1, u2 = (j11 * x1 + j12 * x2) / f_max, (j21 * x1 + j22 * x2) / f_max
-        return np.array((min(max(u1, -1.0), 1.0), min(max(u2, -1.0), 1.0)), dtype=np.float32)
+    def kinematics(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Returns the moment arms J (N, n_tendons, 2) and the inertia M (N, 2, 2) at the joint
+        angles q (N, 2), from the private model."""
+        if len(q) == 1:
+            self.data.qpos[:] = q[0]
+            mujoco.mj_fwdPosition(self.model, self.data)
+            mujoco.mj_fullM(self.model, self.data, self._M)
+            return self._arms.dense()[None].copy(), self._M[None].copy()
+        batch = self._batches.get(len(q))
+        if batch is None:
+            batch = self._batches[len(q)] = _Kinematics(self.model, len(q))
+        return batch(q)
 
-    def _torque(self, obs: np.ndarray) -> np.ndarray | tuple[float, float]:
+    def tendon_command(self, J: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """Returns the clipped normalized commands (N, n_tendons) whose tensions give the joint
+        torques tau (N, 2) through the moment arms J (N, n_tendons, 2).
+
+        The tensions are t0 = -J (J^T J + lam^2 I)^-1 tau, lam^2 = force_damping |J|_F^2 (the
+        2 x 2 Gram matrix in closed form); pull-only tendons add the pretension along a
+        positive null vector of J^T (tendon2r_gym.actuation.distribute does the same for one
+        configuration).  Push-pull: command = -t / F; pull-only: 2 t / F - 1."""
+        gram = np.einsum("nki,nkj->nij", J, J)
+        lam2 = self.gains.force_damping * (gram[:, 0, 0] + gram[:, 1, 1])
+        a11, a22, a12 = gram[:, 0, 0] + lam2, gram[:, 1, 1] + lam2, gram[:, 0, 1]
+        det = a11 * a22 - a12 * a12
+        ok = det > 0.0  # J = 0 (no tendon touches a pulley) or non-finite: no force
+        det = np.where(ok, det, 1.0)
+        x = np.stack([(a22 * tau[:, 0] - a12 * tau[:, 1]), (a11 * tau[:, 1] - a12 * tau[:, 0])], 1)
+        tension = -np.einsum("nki,ni->nk", J, x / det[:, None])
+        tension[~ok] = 0.0
+        f_max = self._max_force
+        if self._pull_only:
+            tension = _pretension_shift(J, tension, self._pretension)
+            u = 2.0 * tension / f_max - 1.0
+        else:
+            u = -tension / f_max
+        return np.clip(u, -1.0, 1.0).astype(np.float32)
+
+    def _torque(self, obs: np.ndarray, M: np.ndarray) -> np.ndarray:
         raise NotImplementedError
 
     def predict(
@@ -103,26 +136,67 @@ class _TendonController:
     ) -> tuple[np.ndarray, Any]:
         """SB3-style: returns (action, state) for one observation or a batch of them."""
         obs = np.asarray(observation, dtype=np.float64)
-        if obs.ndim == 1:
-            return self.tendon_command(self._torque(obs)), state
-        return np.stack([self.tendon_command(self._torque(o)) for o in obs]), state
+        batch = np.atleast_2d(obs)
+        J, M = self.kinematics(batch[:, Q])
+        action = self.tendon_command(J, self._torque(batch, M))
+        return (action[0] if obs.ndim == 1 else action), state
+
+
+def _pretension_shift(J: np.ndarray, tension: np.ndarray, pretension: float) -> np.ndarray:
+    """Adds to each row of tensions the multiple of the positive null vector of J^T (three
+    tendons: the cross product of J's columns) that lifts the least tension to the
+    pretension; rows without a positive null vector are only floored at it."""
+    if J.shape[1] != 3:
+        rows = zip(J, tension, strict=True)
+        return np.array([distribute(j, -j.T @ t, True, pretension) for j, t in rows])
+    n = np.cross(J[:, :, 0], J[:, :, 1])
+    n *= np.sign(n[:, :1])
+    spans = np.all(n > 0, axis=1)
+    safe = np.where(spans[:, None], n, 1.0)
+    shift = np.max((pretension - tension) / safe, axis=1, keepdims=True)
+    return np.where(spans[:, None], tension + shift * n, np.maximum(tension, pretension))
+
+
+class _Kinematics:
+    """M(q) and J(q) of N configurations in one mujoco.batch forward call (position stage)."""
+
+    def __init__(self, model: mujoco.MjModel, n: int) -> None:
+        from mujoco import batch as mj_batch
+
+        self.batch = mj_batch.Batch(model, n, nthread=1)
+        self.qpos = self.batch.bind("qpos")
+        self.M, self.J = self.batch.bind("M"), self.batch.bind("ten_J")  # bound before calls
+        self.m_idx = _sparse_index(model.M_rownnz, model.M_rowadr, model.M_colind)
+        self.j_idx = _sparse_index(model.ten_J_rownnz, model.ten_J_rowadr, model.ten_J_colind)
+        self.shapes = (model.nv, model.nv), (model.ntendon, model.nv)
+
+    def __call__(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        self.qpos[:] = q
+        self.batch.forward(stage=mujoco.mjtStage.mjSTAGE_POS.value)
+        n = len(q)
+        M, J = np.zeros((n, *self.shapes[0])), np.zeros((n, *self.shapes[1]))
+        (mr, mc), (jr, jc) = self.m_idx, self.j_idx
+        M[:, mr, mc] = self.M
+        M[:, mc, mr] = self.M  # the lower triangle is stored: mirror it
+        J[:, jr, jc] = self.J
+        return J, M
+
+
+def _sparse_index(rownnz: np.ndarray, rowadr: np.ndarray, colind: np.ndarray):
+    """Returns (rows, cols) of each stored entry of a MuJoCo sparse matrix."""
+    rows = np.concatenate([np.full(nnz, r) for r, nnz in enumerate(rownnz)]).astype(int)
+    pairs = zip(rowadr, rownnz, strict=True)
+    cols = np.concatenate([colind[a : a + nnz] for a, nnz in pairs]).astype(int)
+    return rows, cols
 
 
 class PDPolicy(_TendonController):
     """Joint-space PD with reference-velocity feed-forward, scaled by the joint inertia:
     tau = M(q) (kp (q_des - q) + kd (dq_des - dq))."""
 
-    def _torque(self, obs: np.ndarray) -> tuple[float, float]:
-        d = self.data
-        d.qpos[:] = obs[Q]
-        mujoco.mj_fwdPosition(self.model, d)
-        mujoco.mj_fullM(self.model, d, self._M)
-        (q1, q2), (w1, w2) = obs[Q].tolist(), obs[DQ].tolist()
-        (qd1, qd2), (wd1, wd2) = obs[Q_DES].tolist(), obs[DQ_DES].tolist()
-        acc1 = self.kp * (qd1 - q1) + self.kd * (wd1 - w1)
-        acc2 = self.kp * (qd2 - q2) + self.kd * (wd2 - w2)
-        (m11, m12), (m21, m22) = self._M.tolist()
-        return (m11 * acc1 + m12 * acc2, m21 * acc1 + m22 * acc2)
+    def _torque(self, obs: np.ndarray, M: np.ndarray) -> np.ndarray:
+        acc = self.kp * (obs[:, Q_DES] - obs[:, Q]) + self.kd * (obs[:, DQ_DES] - obs[:, DQ])
+        return np.einsum("nij,nj->ni", M, acc)
 
 
 class ComputedTorquePolicy(_TendonController):
@@ -148,11 +222,18 @@ class ComputedTorquePolicy(_TendonController):
         env = env.unwrapped
         return cls(env.mechanism, env.ctrl_dt, env.reference, **kwargs)
 
-    def _torque(self, obs: np.ndarray) -> np.ndarray:
-        d = self.data
-        d.qpos[:] = obs[Q]
-        d.qvel[:] = obs[DQ]
-        ddq_des = -self._w2 * (obs[Q_DES] - self._bias)
-        d.qacc[:] = ddq_des + self.kp * (obs[Q_DES] - obs[Q]) + self.kd * (obs[DQ_DES] - obs[DQ])
-        mujoco.mj_inverse(self.model, d)
-        return d.qfrc_inverse.copy()
+    def _torque(self, obs: np.ndarray, M: np.ndarray) -> np.ndarray:
+        """Joint torques from mj_inverse, one configuration at a time (CT is an evaluation
+        bound, not a training-time controller)."""
+        ddq_des = -self._w2 * (obs[:, Q_DES] - self._bias)
+        qacc = (
+            ddq_des
+            + self.kp * (obs[:, Q_DES] - obs[:, Q])
+            + self.kd * (obs[:, DQ_DES] - obs[:, DQ])
+        )
+        d, out = self.data, np.zeros((len(obs), self.model.nv))
+        for i, (o, a) in enumerate(zip(obs, qacc, strict=True)):
+            d.qpos[:], d.qvel[:], d.qacc[:] = o[Q], o[DQ], a
+            mujoco.mj_inverse(self.model, d)
+            out[i] = d.qfrc_inverse
+        return out

@@ -29,8 +29,8 @@ class Trace:
     q: np.ndarray  # (T, 2) rad
     q_des: np.ndarray  # (T, 2) rad
     error_deg: np.ndarray  # (T, 2) q_des - q, deg
-    tendon_force: np.ndarray  # (T, 2) N
-    action: np.ndarray  # (T, 2) normalized command (clipped)
+    tendon_tension: np.ndarray  # (T, n_tendons) N, positive pulling
+    action: np.ndarray  # (T, n_tendons) normalized command (clipped)
     effector_pos: np.ndarray  # (T, 2) m
     reward: np.ndarray  # (T,)
     diverged: bool
@@ -53,7 +53,7 @@ def rollout(
             "q",
             "q_des",
             "error_deg",
-            "tendon_force",
+            "tendon_tension",
             "action",
             "effector_pos",
             "reward",
@@ -70,7 +70,7 @@ def rollout(
         rows["q"].append(info["q"])
         rows["q_des"].append(info["q_des"])
         rows["error_deg"].append(info["tracking_error_deg"])
-        rows["tendon_force"].append(info["tendon_force"])
+        rows["tendon_tension"].append(info["tendon_tension"])
         rows["action"].append(np.clip(action, -1, 1))
         rows["effector_pos"].append(info["effector_pos"])
         rows["reward"].append(reward)

@@ -22,6 +22,7 @@ import math
 import mujoco
 import numpy as np
 
+from tendon2r_gym.actuation import MomentArms
 from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.validation import invalid
 
@@ -39,6 +40,7 @@ def rates(model: mujoco.MjModel, mech: Mechanism, grid: int = 7) -> dict[str, fl
     """Returns, over a grid of the joint range, the largest rate (1/s) that each of
     joint_damping, tendon_damping and tendon_stiffness alone gives."""
     data = mujoco.MjData(model)
+    arms = MomentArms(model, data)
     M = np.zeros((model.nv, model.nv))
     out = {"joint_damping": 0.0, "tendon_damping": 0.0, "tendon_stiffness": 0.0}
     lo, hi = mech.joint_range_rad
@@ -48,7 +50,7 @@ def rates(model: mujoco.MjModel, mech: Mechanism, grid: int = 7) -> dict[str, fl
             mujoco.mj_fwdPosition(model, data)
             mujoco.mj_fullM(model, data, M)
             Minv = np.linalg.inv(M)
-            J = data.ten_J.reshape(model.ntendon, model.nv)
+            J = arms.dense()
             tendon = float(np.max(np.abs(np.linalg.eigvals(Minv @ J.T @ J))))
             joint = float(np.max(np.abs(np.linalg.eigvals(Minv))))
             out["joint_damping"] = max(out["joint_damping"], mech.joint_damping * joint)

@@ -27,10 +27,16 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
+from stable_baselines3.common.vec_env import VecEnv
 
 from tendon2r_gym.config import PPO_CONFIG, load_yaml
 from tendon2r_gym.env_config import EnvConfig
-from tendon2r_gym.learned import PPOPolicy, make_training_env, observation_layout
+from tendon2r_gym.learned import (
+    PPOPolicy,
+    make_training_env,
+    observation_layout,
+    residual_command,
+)
 from tendon2r_gym.metrics import tracking_metrics
 from tendon2r_gym.policies import PDPolicy
 from tendon2r_gym.rollout import rollouts
@@ -52,8 +58,9 @@ HYPERPARAM_KEYS = (
     "eval_freq",
     "checkpoint_freq",
     "checkpoint_minutes",
+    "zero_obs",  # observation entries to blank out (ablations)
 )
-VEC_ENVS = ("subproc", "dummy")
+VEC_ENVS = ("native", "subproc", "dummy")
 
 
 def load_hyperparams(
@@ -84,6 +91,9 @@ def check_hyperparams(cfg: dict[str, Any]) -> None:
     integer("eval_freq", cfg["eval_freq"], 1, 10**10)
     integer("checkpoint_freq", cfg["checkpoint_freq"], 1, 10**10)
     number("checkpoint_minutes", cfg["checkpoint_minutes"], 0.0, lo_open=True)
+    from tendon2r_gym.observation import SLICES
+
+    check_keys("zero_obs", cfg.get("zero_obs", ()), SLICES)
     if cfg["vec_env"] not in VEC_ENVS:
         raise invalid("vec_env", cfg["vec_env"], f"one of {VEC_ENVS}")
     EnvConfig.make(**cfg["env_kwargs"])  # the env kwargs, before any worker starts
@@ -258,17 +268,95 @@ def _load_newest(run: RunFolder, venv: Any) -> tuple[Any, Any]:
     raise FileNotFoundError(f"resume: every saved state in {run.path} is unreadable")
 
 
-def make_vec_env(cfg: dict[str, Any], seed: int) -> Any:
-    """Returns the training VecEnv (SB3 make_vec_env) of a resolved entry."""
-    from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
-    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+class SB3VecEnv(VecEnv):
+    """Stable-Baselines3's VecEnv API over the native vector env (tendon2r_gym.vector_env) in
+    Gymnasium's SAME_STEP autoreset mode: ``terminal_observation`` and ``TimeLimit.truncated``
+    go in each env's info, as SB3's own VecEnvs put them.  With ``residual_scale > 0`` it
+    also adds the agent's action to a batched PD command (one numpy call for all arms)."""
 
+    def __init__(
+        self, venv: Any, residual_scale: float = 0.0, zero_obs: tuple[str, ...] = ()
+    ) -> None:
+        from gymnasium.vector import AutoresetMode
+
+        if venv.autoreset_mode != AutoresetMode.SAME_STEP:
+            raise invalid("autoreset_mode", venv.autoreset_mode, "SAME_STEP for SB3")
+        super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
+        self.venv, self.residual_scale = venv, residual_scale
+        self.pd = PDPolicy(venv.mechanism, venv.ctrl_dt) if residual_scale > 0 else None
+        self._mask = np.ones(venv.single_observation_space.shape)
+        from tendon2r_gym.observation import SLICES
+
+        for name in zero_obs:
+            self._mask[SLICES[name]] = 0.0
+        self._raw: np.ndarray | None = None
+        self._actions: np.ndarray | None = None
+
+    def reset(self) -> np.ndarray:
+        seeds = [s if s is not None else None for s in self._seeds]
+        seed = seeds if any(s is not None for s in seeds) else None
+        self._raw, _ = self.venv.reset(seed=seed)
+        self._reset_seeds()
+        self._reset_options()
+        return self._raw * self._mask
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = np.asarray(actions)
+
+    def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
+        actions = self._actions
+        if self.pd is not None:
+            base, _ = self.pd.predict(self._raw)
+            actions = residual_command(base, actions, self.residual_scale)
+        obs, rewards, terminated, truncated, info = self.venv.step(actions)
+        dones = terminated | truncated
+        keys = [k for k in info if not k.startswith("_") and k != "final_obs"]
+        infos: list[dict[str, Any]] = [{k: info[k][i] for k in keys} for i in range(self.num_envs)]
+        for i in np.flatnonzero(dones):
+            infos[i]["terminal_observation"] = info["final_obs"][i] * self._mask
+            infos[i]["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
+        self._raw = obs
+        return obs * self._mask, rewards.astype(np.float32), dones, infos
+
+    def close(self) -> None:
+        self.venv.close()
+
+    def get_attr(self, attr_name: str, indices: Any = None) -> list[Any]:
+        return [getattr(self.venv, attr_name)] * len(self._get_indices(indices))
+
+    def set_attr(self, attr_name: str, value: Any, indices: Any = None) -> None:
+        setattr(self.venv, attr_name, value)
+
+    def env_method(self, method_name: str, *args: Any, indices: Any = None, **kw: Any) -> list:
+        return [getattr(self.venv, method_name)(*args, **kw)] * len(self._get_indices(indices))
+
+    def env_is_wrapped(self, wrapper_class: type, indices: Any = None) -> list[bool]:
+        return [False] * len(self._get_indices(indices))
+
+
+def make_vec_env(cfg: dict[str, Any], seed: int) -> Any:
+    """Returns the training VecEnv of a resolved entry: the native vector env (one process,
+    batched physics and PD) with SB3's VecMonitor, or SB3's make_vec_env with Subproc/Dummy."""
+    from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
+
+    if cfg["vec_env"] == "native":
+        from tendon2r_gym.vector_env import Tendon2RVectorEnv
+
+        native = Tendon2RVectorEnv(cfg["n_envs"], autoreset_mode="SameStep", **cfg["env_kwargs"])
+        venv = SB3VecEnv(native, cfg["residual_scale"], tuple(cfg.get("zero_obs", ())))
+        venv.seed(seed)
+        return VecMonitor(venv)
     subproc = cfg["vec_env"] == "subproc" and cfg["n_envs"] > 1
     return sb3_make_vec_env(
         make_training_env,
         n_envs=cfg["n_envs"],
         seed=seed,
-        env_kwargs={"env_kwargs": cfg["env_kwargs"], "residual_scale": cfg["residual_scale"]},
+        env_kwargs={
+            "env_kwargs": cfg["env_kwargs"],
+            "residual_scale": cfg["residual_scale"],
+            "zero_obs": tuple(cfg.get("zero_obs", ())),
+        },
         vec_env_cls=SubprocVecEnv if subproc else DummyVecEnv,
     )
 

@@ -29,7 +29,7 @@ def test_evaluate_writes_json_plots_and_video(tmp_path):
          str(tmp_path / "v.gif")]
     )  # fmt: skip
     metrics = json.loads(out.read_text())
-    for key in ("rms_deg", "max_deg", "rms_force_N", "saturated_fraction"):
+    for key in ("rms_deg", "max_deg", "rms_tension_N", "saturated_fraction"):
         assert len(metrics[key]) == 2
     assert metrics["episodes"] == 2 and metrics["seeds"] == [0, 1]
     assert metrics["steps"] == 2 * 100, "episode_duration / ctrl_dt steps per episode"

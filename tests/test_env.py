@@ -91,7 +91,7 @@ def test_reward_equals_sum_of_terms_and_info_keys():
         np.testing.assert_allclose(
             info["tracking_error_deg"], np.degrees(info["q_des"] - info["q"])
         )
-    for key in ("q", "q_des", "tendon_force", "moment_arm_cond", "effector_pos", "time"):
+    for key in ("q", "q_des", "tendon_tension", "moment_arm_cond", "effector_pos", "time"):
         assert key in info
 
 
@@ -115,7 +115,8 @@ def test_observation_entries_match_the_physics():
     preview = ref.q(d.time + np.array([1, 2, 3]) * 0.01).ravel()
     np.testing.assert_allclose(obs[L.preview_slice(3)], preview)
     assert obs.shape == (L.size(3),)
-    assert env.unwrapped.tendon_forces() == pytest.approx(np.array([0.3, -0.2]) * 0.5)
+    # Push-pull: motor force = action * limit along the tendon; tension is minus that.
+    assert env.unwrapped.tendon_tensions() == pytest.approx(-np.array([0.3, -0.2]) * 0.5)
 
 
 def test_same_seed_same_episode_bit_for_bit():

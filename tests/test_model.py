@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from tendon2r_gym import ActuationAnalysis, Mechanism, build_model
-from tendon2r_gym.model import JOINTS, MOTORS, TENDONS
+from tendon2r_gym.model import JOINTS, motor_name, tendon_name
 
 
 def _forward(model, q):
@@ -23,11 +23,17 @@ def test_structure_has_no_welds_and_no_floating_bodies(mech):
     assert m.nq == m.nv == 2
     assert [m.joint(j).type for j in JOINTS] == [mujoco.mjtJoint.mjJNT_HINGE] * 2
     assert np.all(m.opt.gravity == 0)
-    assert [m.tendon(t).name for t in TENDONS] == list(TENDONS)
-    for motor in MOTORS:
-        assert m.actuator(motor).trntype == mujoco.mjtTrn.mjTRN_TENDON
-        assert m.actuator(motor).gear[0] == pytest.approx(mech.max_tendon_force)
-        np.testing.assert_array_equal(m.actuator(motor).ctrlrange, [-1, 1])
+    assert m.ntendon == m.nu == mech.n_tendons
+    for i in range(mech.n_tendons):
+        assert m.tendon(tendon_name(i)).id == i
+        act = m.actuator(motor_name(i))
+        assert act.trntype == mujoco.mjtTrn.mjTRN_TENDON
+        np.testing.assert_array_equal(act.ctrlrange, [-1, 1])
+        # Force along the tendon at ctrl = +1 and -1 (N, positive lengthens).
+        at = lambda u, act=act: act.gainprm[0] * u + act.biasprm[0]  # noqa: E731
+        force = mech.max_tendon_force
+        expected = (0.0, -force) if mech.pull_only else (-force, force)
+        assert (at(-1.0), at(1.0)) == pytest.approx(expected)
 
 
 def test_anchors_effector_and_pulley_radii(mech):
@@ -86,13 +92,15 @@ def test_tendon_length_changes_by_radius_times_angle_where_it_wraps(mech):
     rng = np.random.default_rng(1)
     checked = 0
     for q in rng.uniform(*mech.joint_range_rad, size=(40, 2)):
-        wraps = [_wrapped_geoms(m, _forward(m, q), i) for i in range(2)]
+        wraps = [_wrapped_geoms(m, _forward(m, q), i) for i in range(mech.n_tendons)]
         for k in range(2):
             dq = np.zeros(2)
             dq[k] = 1e-6
             dl = (_forward(m, q + dq).ten_length - _forward(m, q - dq).ten_length) / 2e-6
-            for i in range(2):
-                if pulleys[k] in wraps[i]:
+            for i in range(mech.n_tendons):
+                if mech.tendon_sides[i][k] == 0:  # ends on link c: no arm on joint B
+                    assert dl[i] == pytest.approx(0.0, abs=1e-9)
+                elif pulleys[k] in wraps[i]:
                     expected = -mech.tendon_sides[i][k] * radii[k]
                     assert dl[i] == pytest.approx(expected, rel=1e-5), (q, i, k)
                     checked += 1
@@ -101,14 +109,14 @@ def test_tendon_length_changes_by_radius_times_angle_where_it_wraps(mech):
 
 @pytest.mark.parametrize("routing", ["parallel", "crossed"])
 def test_mirror_image_routings_are_rank_one_at_zero(mech, routing):
-    analysis = ActuationAnalysis(build_model(mech.replace(routing=routing)))
+    analysis = ActuationAnalysis(build_model(mech.replace(routing=routing, pull_only=False)))
     assert analysis.condition_number(np.zeros(2)) > 1e6
 
 
 def test_asymmetric_routing_is_full_rank_over_the_joint_range(mech):
     analysis = ActuationAnalysis(build_model(mech))
     grid = np.linspace(*mech.joint_range_rad, 19)
-    cond = analysis.condition_map(grid, grid)
+    cond = analysis.grid(grid, grid, analysis.condition_number)
     assert np.all(np.isfinite(cond))
     assert cond.max() < 10, cond.max()
     np.testing.assert_allclose(

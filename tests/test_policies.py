@@ -108,7 +108,7 @@ def test_evaluate_script_writes_json_plots_and_video(tmp_path):
         ]
     )
     metrics = json.loads(out.read_text())
-    for key in ("rms_deg", "max_deg", "rms_force_N", "saturated_fraction"):
+    for key in ("rms_deg", "max_deg", "rms_tension_N", "saturated_fraction"):
         assert len(metrics[key]) == 2
     assert metrics["episodes"] == 2 and metrics["seeds"] == [0, 1]
     for name in ("tracking.png", "forces.png", "effector_path.png"):
@@ -139,14 +139,14 @@ def test_tendon_command_is_the_damped_inverse_of_the_moment_arms():
     for _ in range(20):
         pd.data.qpos[:] = rng.uniform(0.8 * lo, 0.8 * hi, 2)
         mujoco.mj_fwdPosition(pd.model, pd.data)
-        J = pd.data.ten_J.reshape(2, 2).copy()
+        J = pd._arms.dense().copy()
         tau = rng.uniform(-1, 1, 2) * 1e-3  # small: no saturation
         lam2 = pd.gains.force_damping * np.sum(J * J)
         f = J @ np.linalg.solve(J.T @ J + lam2 * np.eye(2), tau)
         u = pd.tendon_command(tau)
         np.testing.assert_allclose(u, f / env.mechanism.max_tendon_force, rtol=1e-5, atol=1e-7)
         np.testing.assert_allclose(J.T @ f, tau, rtol=0.05, atol=1e-9)
-    pd._J[:] = 0.0  # no tendon touches a pulley: no force rather than a division by zero
+    pd._arms.dense()[:] = 0.0  # no tendon touches a pulley: no force, not a division by zero
     np.testing.assert_array_equal(pd.tendon_command(np.ones(2)), np.zeros(2))
 
 

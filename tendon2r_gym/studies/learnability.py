@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import copy
 import json
+import multiprocessing
 import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -21,9 +22,19 @@ from typing import Any
 
 import numpy as np
 
-#: Row name -> (what changes, env kwargs, hyperparameter changes).
+#: Row name -> (what changes, env kwargs, hyperparameter changes).  Rows start from
+#: ``default_scratch`` unless their hyperparameter changes name another ``entry``.
 ROWS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
     "defaults": ("the new defaults (registered env, default_scratch)", {}, {}),
+    "landed_all": (
+        "all landed choices: quadratic normalized reward, log_std -1.5, reset noise 0.001, no "
+        "log-scaled error",
+        {"tracking_form": "quadratic", "reset_noise_scale": 0.001,
+         "reward_scales": {"tracking": 1.0, "ctrl": 0.01, "divergence": 1000.0}},
+        {"normalize": {"norm_reward": True}, "log_std_init": -1.5, "zero_obs": ["error_log"]},
+    ),
+    "no_error_log": ("observation without the log-scaled error (zeroed)", {},
+                     {"zero_obs": ["error_log"]}),
     "landed_reward": (
         "landed reward: quadratic in deg^2, scales 1 / 0.01 / 1000, VecNormalize rewards",
         {
@@ -38,6 +49,10 @@ ROWS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
     "ctrl_dt_2ms": ("control period 2 ms (the prototype's)", {"ctrl_dt": 0.002}, {}),
     "gamma_0.99": ("gamma 0.99", {}, {"gamma": 0.99}),
     "net_256": ("network 256 x 256", {}, {"net_arch": [256, 256]}),
+    "residual_quadratic": ("residual PPO (entry `default`): quadratic reward, normalized", {},
+                           {"entry": "default"}),
+    "residual_log": ("residual PPO with the bounded log reward of the env's defaults",
+                     {"tracking_form": "log", "reward_scales": {}}, {"entry": "default"}),
 }  # fmt: skip
 
 
@@ -46,15 +61,19 @@ def row_config(name: str, steps: int) -> dict[str, Any]:
     from tendon2r_gym.training import load_hyperparams
 
     _, env_kwargs, hp = ROWS[name]
-    cfg = copy.deepcopy(load_hyperparams("default_scratch"))
+    hp = dict(hp)
+    cfg = copy.deepcopy(load_hyperparams(hp.pop("entry", "default_scratch")))
     cfg["env_kwargs"].update(env_kwargs)
     cfg["total_timesteps"] = steps
-    cfg["eval_freq"] = max(steps // 10, 1)
+    rollout = cfg["n_envs"] * cfg["ppo"]["n_steps"]
+    cfg["eval_freq"] = max(steps // 10, rollout)  # ten evaluations, at most one per rollout
     for key, value in hp.items():
         if key in ("log_std_init", "net_arch"):
             cfg["policy_kwargs"][key] = value
         elif key == "normalize":
             cfg["normalize"].update(value)
+        elif key == "zero_obs":
+            cfg["zero_obs"] = value
         else:
             cfg["ppo"][key] = value
     return cfg
@@ -84,7 +103,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as tmp:
         root = args.run_dir or tmp
         jobs = [(r, s) for r in args.rows for s in args.seeds]
-        with ProcessPoolExecutor(args.jobs) as pool:
+        # spawn: a forked child of a process that already loaded torch can hang in OpenMP.
+        with ProcessPoolExecutor(
+            args.jobs, mp_context=multiprocessing.get_context("spawn")
+        ) as pool:
             futures = [pool.submit(_run, r, s, args.steps, root) for r, s in jobs]
             runs = [f.result() for f in futures]
     rows = []
