@@ -209,7 +209,8 @@ class Tendon2RVectorEnv(VectorEnv):
         rewards[resetting] = 0.0
         self._steps[active] += 1
         terminated[active] = diverged[active]
-        truncated[active] = (self._steps[active] >= self.max_episode_steps) & ~diverged[active]
+        # As Gymnasium's TimeLimit: truncated at the step limit, terminated or not.
+        truncated[active] = self._steps[active] >= self.max_episode_steps
         info = self._step_info(obs, terms, diverged, ~resetting)
         done = terminated | truncated
         self._last_obs[:] = obs
@@ -228,7 +229,7 @@ class Tendon2RVectorEnv(VectorEnv):
         return obs.copy(), rewards, terminated, truncated, info
 
     def _warnings(self) -> np.ndarray:
-        return self.batch.warning[:, self._warn_ids, 0].sum(axis=1)
+        return self.batch.warning[:, self._warn_ids, 1].sum(axis=1)  # (lastinfo, number)
 
     def _check_divergence(self, active: np.ndarray, failed: np.ndarray) -> np.ndarray:
         """Per arm: a new MuJoCo instability warning, a failed call, a joint far past its limit
