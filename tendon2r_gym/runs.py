@@ -61,7 +61,7 @@ def command_line(argv: list[str] | None = None, program: str | None = None) -> s
     """Returns the command that started this process (or ``program argv``), quoted."""
     if argv is None:
         return shlex.join([Path(sys.argv[0]).name, *sys.argv[1:]])
-    return shlex.join([program or Path(sys.argv[0]).name, *argv])
+    return " ".join([program or Path(sys.argv[0]).name, shlex.join(argv)]).strip()
 
 
 @dataclass(frozen=True)

@@ -12,15 +12,22 @@ RESULTS = Path(__file__).resolve().parent.parent / "results"
 
 def test_bench_speed_writes_every_figure(tmp_path):
     result = speed.main(
-        ["--steps", "200", "--ppo-timesteps", "512", "--vector-seconds", "0.1", "--out",
-         str(tmp_path)]
+        ["--steps", "200", "--ppo-timesteps", "512", "--eval-freq", "4096", "--vector-seconds",
+         "0.05", "--num-envs", "1", "2", "--max-processes", "1", "--out", str(tmp_path)]
     )  # fmt: skip
     saved = json.loads((tmp_path / "speed.json").read_text())
     assert saved["overhead_ratio"] == result["overhead_ratio"] > 0
     for env_id in ("Tendon2R-v0", "Reacher-v5"):
         assert saved[env_id]["raw_physics_us"] > 0 and saved[env_id]["env_step_us"] > 0
-    assert saved["ppo"]["timesteps"] >= 512 and saved["ppo"]["peak_pss_mb_all_processes"] > 0
-    assert "--out" in (tmp_path / "speed.md").read_text()
+    assert {f"{b}_{n}" for b in speed.BACKENDS for n in (1, 2)} - set(saved["vector"]) == {
+        "async_2",
+        "sb3_subproc_2",
+    }, "process backends stop at --max-processes"
+    assert set(saved["ppo"]) == set(speed.PPO_SETUPS)
+    for run in saved["ppo"].values():
+        assert run["timesteps"] >= 512 and run["peak_pss_mb"] > 0
+    md = (tmp_path / "speed.md").read_text()
+    assert "--out" in md and "target >= 4x" in md and "600 MB" in md
 
 
 def test_learnability_study_end_to_end(tmp_path):

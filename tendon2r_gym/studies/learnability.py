@@ -15,6 +15,7 @@ import argparse
 import copy
 import json
 import multiprocessing
+import shlex
 import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -96,10 +97,17 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--jobs", type=int, default=2, help="runs in parallel (one per core)")
     p.add_argument("--out", default="results")
     p.add_argument("--run-dir", default=None, help="keep the runs here (default: a temp dir)")
+    p.add_argument("--render", default=None, help="only re-render the tables of this JSON")
     args = p.parse_args(argv)
     from tendon2r_gym.runs import command_line
 
     command = command_line(argv, "python scripts/learnability.py")
+    if args.render:  # re-render the tables of an earlier run's JSON (no training)
+        old = json.loads(Path(args.render).read_text())
+        program, *rest = shlex.split(old["command"])  # its program name, unquoted
+        old["command"] = command_line(rest, program)
+        write(old, Path(args.out))
+        return old
     with tempfile.TemporaryDirectory() as tmp:
         root = args.run_dir or tmp
         jobs = [(r, s) for r in args.rows for s in args.seeds]
@@ -109,8 +117,17 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         ) as pool:
             futures = [pool.submit(_run, r, s, args.steps, root) for r, s in jobs]
             runs = [f.result() for f in futures]
+    result = summarize(runs, args.rows, args.seeds, args.steps, command)
+    write(result, Path(args.out))
+    return result
+
+
+def summarize(
+    runs: list[dict[str, Any]], names: list[str], seeds: list[int], steps: int, command: str
+) -> dict[str, Any]:
+    """Returns the study's result: per row, mean +- std over seeds and the wins over PD."""
     rows = []
-    for name in args.rows:
+    for name in names:
         mine = [r for r in runs if r["row"] == name]
         rms = np.array([r["best_rms_deg"] for r in mine], dtype=float)
         beat = [r["first_beat_pd"] for r in mine]
@@ -127,31 +144,35 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 "pd_rms_deg": mine[0]["pd_eval_rms_deg"],
             }
         )
-    result = {"command": command, "steps": args.steps, "seeds": args.seeds, "rows": rows}
-    out = Path(args.out)
+    return {"command": command, "steps": steps, "seeds": seeds, "rows": rows, "runs": runs}
+
+
+def write(result: dict[str, Any], out: Path) -> None:
+    """Writes learnability.json and learnability.md."""
+    rows, seeds = result["rows"], result["seeds"]
     out.mkdir(parents=True, exist_ok=True)
     (out / "learnability.json").write_text(json.dumps(result, indent=1))
     fmt = lambda v: " / ".join(f"{x:.3f}" for x in v)  # noqa: E731
     lines = [
         "# Learnability study: plain PPO from scratch",
         "",
-        f"Produced by `{command}`: {args.steps} PPO steps per run, seeds {args.seeds}, the",
-        "`default` preset. Best tracking RMS on the eval seeds (mean ± std over seeds, ddof",
-        f"0); PD on the same seeds: {fmt(rows[0]['pd_rms_deg'])} deg. Each row changes one",
-        "choice of `default_scratch` back to its landed value (or to an alternative).",
+        f"Produced by `{result['command']}`: {result['steps']} PPO steps per run, seeds "
+        f"{seeds}, the `default` preset. Best tracking RMS on the eval seeds (mean ± std over "
+        f"seeds, ddof 0); PD on the same seeds: {fmt(rows[0]['pd_rms_deg'])} deg. Each row "
+        "changes one choice of `default_scratch` back to its landed value (or to an "
+        "alternative); the residual rows start from the `default` entry instead.",
         "",
         "| row | change | best RMS A / B (deg) | ± std | seeds that beat PD | wall (s) |",
         "|---|---|---|---|---|---|",
         *(
             f"| {r['row']} | {r['change']} | {fmt(r['rms_deg_mean'])} | "
-            f"{fmt(r['rms_deg_std'])} | {r['beat_pd_seeds']} / {len(args.seeds)} | "
+            f"{fmt(r['rms_deg_std'])} | {r['beat_pd_seeds']} / {len(seeds)} | "
             f"{r['wall_time_s_mean']:.0f} |"
             for r in rows
         ),
     ]
     (out / "learnability.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
-    return result
 
 
 if __name__ == "__main__":
