@@ -71,9 +71,8 @@ def evaluate(
     options: dict[str, Any] | None = None,
 ) -> tuple[dict[str, Any], list[Trace]]:
     """Rolls policy ``name`` out on ``seeds``; returns (metrics, traces)."""
-    make = lambda: gym.make("Tendon2R-v0", **env_kwargs)  # noqa: E731
-    probe = make()
+    probe = gym.make("Tendon2R-v0", **env_kwargs)
     policy = make_policy(name, probe, model)
     probe.close()
-    traces = rollouts(policy, make, seeds, options)
+    traces = rollouts(policy, env_kwargs, seeds, options)
     return {"policy": name, **tracking_metrics(traces)}, traces

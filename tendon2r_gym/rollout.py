@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -86,13 +86,48 @@ def rollout(
 
 def rollouts(
     policy: Policy,
-    make_env: Callable[[], gym.Env],
+    env_kwargs: dict[str, Any],
     seeds: Sequence[int],
     options: dict[str, Any] | None = None,
 ) -> list[Trace]:
-    """Runs one episode per seed, each on the same env (same seeds for every policy)."""
-    env = make_env()
+    """Runs one deterministic episode per seed, all at once on the native vector env (one arm
+    per seed, the policy called on the batch of observations).  Each episode equals
+    ``rollout`` on ``gym.make("Tendon2R-v0", **env_kwargs)`` with that seed, bit for bit."""
+    from tendon2r_gym import observation as L
+    from tendon2r_gym.vector_env import Tendon2RVectorEnv
+
+    n = len(seeds)
+    envs = Tendon2RVectorEnv(n, **env_kwargs)
     try:
-        return [rollout(policy, env, s, options) for s in seeds]
+        obs, _ = envs.reset(seed=list(seeds), options=options)
+        rows: dict[str, list] = {k: [] for k in _FIELDS}
+        live = np.ones(n, dtype=bool)  # the arm's episode is still running
+        length = np.zeros(n, dtype=int)
+        diverged = np.zeros(n, dtype=bool)
+        while live.any():
+            action, _ = policy.predict(obs, deterministic=True)
+            action = np.asarray(action, dtype=np.float64).reshape(n, -1)
+            obs, reward, terminated, truncated, info = envs.step(action)
+            rows["time"].append(info["time"])
+            rows["q"].append(obs[:, L.Q])
+            rows["q_des"].append(obs[:, L.Q_DES])
+            rows["error_deg"].append(info["tracking_error_deg"])
+            rows["tendon_tension"].append(info["tendon_tension"])
+            rows["action"].append(np.clip(action, -1, 1))
+            rows["effector_pos"].append(obs[:, L.EFFECTOR_POS])
+            rows["reward"].append(reward)
+            diverged |= live & info["diverged"]
+            length += live
+            live &= ~(terminated | truncated)
     finally:
-        env.close()
+        envs.close()
+    stacked = {k: np.asarray(v, dtype=float) for k, v in rows.items()}
+    return [
+        Trace(
+            seed=s, diverged=bool(diverged[i]), **{k: v[: length[i], i] for k, v in stacked.items()}
+        )
+        for i, s in enumerate(seeds)
+    ]
+
+
+_FIELDS = ("time", "q", "q_des", "error_deg", "tendon_tension", "action", "effector_pos", "reward")

@@ -175,7 +175,7 @@ class TrackingEvalCallback(BaseCallback):
         self.pd_rms = run.read_json("pd_eval.json")
         if self.pd_rms is None:
             pd_metrics = tracking_metrics(
-                rollouts(PDPolicy.from_env(self._make()), self._make, seeds)
+                rollouts(PDPolicy.from_env(self._make()), self.env_kwargs, seeds)
             )
             self.pd_rms = pd_metrics["rms_deg"]
             run.write_json("pd_eval.json", self.pd_rms)
@@ -196,7 +196,7 @@ class TrackingEvalCallback(BaseCallback):
     def evaluate(self) -> dict[str, Any]:
         env = self._make()
         policy = PPOPolicy(self.model, self.model.get_vec_normalize_env(), self.residual_scale, env)
-        metrics = tracking_metrics(rollouts(policy, self._make, self.seeds))
+        metrics = tracking_metrics(rollouts(policy, self.env_kwargs, self.seeds))
         rms = float(np.mean(metrics["rms_deg"]))
         self.logger.record("eval/rms_deg_A", metrics["rms_deg"][0])
         self.logger.record("eval/rms_deg_B", metrics["rms_deg"][1])
@@ -343,7 +343,9 @@ def make_vec_env(cfg: dict[str, Any], seed: int) -> Any:
     if cfg["vec_env"] == "native":
         from tendon2r_gym.vector_env import Tendon2RVectorEnv
 
-        native = Tendon2RVectorEnv(cfg["n_envs"], autoreset_mode="SameStep", **cfg["env_kwargs"])
+        native = Tendon2RVectorEnv(
+            cfg["n_envs"], autoreset_mode="SameStep", stagger=True, **cfg["env_kwargs"]
+        )
         venv = SB3VecEnv(native, cfg["residual_scale"], tuple(cfg.get("zero_obs", ())))
         venv.seed(seed)
         return VecMonitor(venv)

@@ -41,8 +41,10 @@ from tendon2r_gym.validation import integer, invalid
 
 class Tendon2RVectorEnv(VectorEnv):
     """N Tendon2R-v0 arms in one process (see the module docstring).  Takes the arguments of
-    Tendon2R-v0 (preset, mechanism, reference, ...) plus ``num_envs``, ``autoreset_mode`` and
-    ``nthread`` (MuJoCo batch threads; 0: one per CPU)."""
+    Tendon2R-v0 (preset, mechanism, reference, ...) plus ``num_envs``, ``autoreset_mode``,
+    ``nthread`` (MuJoCo batch threads; 0: one per CPU) and ``stagger`` (training: after each
+    full reset, arm i's episode is already i / N of the way to its step limit, so the arms
+    desynchronize; off by default, as it breaks the equality with single envs)."""
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
 
@@ -53,6 +55,7 @@ class Tendon2RVectorEnv(VectorEnv):
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
         nthread: int = 1,
         max_episode_steps: int | None = None,
+        stagger: bool = False,
         **kwargs: Any,
     ) -> None:
         self.num_envs = integer("num_envs", num_envs, 1, 1_000_000)
@@ -101,6 +104,9 @@ class Tendon2RVectorEnv(VectorEnv):
         self._steps = np.zeros(n, dtype=np.int64)
         self._warn_count = np.zeros(n, dtype=np.int64)
         self._needs_reset = np.zeros(n, dtype=bool)
+        # Training: the arms' first episodes end at staggered steps, so that every rollout
+        # samples all phases of the reference instead of N copies of the same window.
+        self._stagger = bool(stagger)
         self._last_obs = np.zeros((n, self.single_observation_space.shape[0]))
 
     # -- references --------------------------------------------------------------------------
@@ -137,6 +143,8 @@ class Tendon2RVectorEnv(VectorEnv):
             if problems := fixed.workspace_violations(self.mechanism):
                 raise ValueError(f"options['reference'] leaves the workspace: {problems}")
         self._reset_ids(ids, fixed)
+        if self._stagger:
+            self._steps[ids] = (ids * self.max_episode_steps) // n
         obs = self._observe()
         self._last_obs[ids] = obs[ids]
         info = self._reset_info(ids)
