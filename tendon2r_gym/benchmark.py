@@ -28,7 +28,7 @@ LEARNED = {
     "ppo scratch": ("_scratch", "default_scratch"),
     "ppo residual": ("", "default"),
 }
-PRESETS = ("default", "report_002")
+PRESETS = ("default", "report_002", "pull_only")
 #: Figures quoted from the lab reports (their own measurements), shown for comparison only.
 REPORT_ROWS = {
     "default": ("report 001 (position actuators on the joints)", [0.92, 1.15], [1.85, 2.34]),
@@ -232,6 +232,7 @@ def benchmark_bundled(episodes: int, out: Path, command: str) -> dict[str, Any]:
         rows += compare(preset, {"preset": preset}, learned, seeds, out / "plots")
     held = held_out()
     result = {"command": command, "rows": rows, "held_out": held}
+    tension = tension_comparison(rows)
     (out / "benchmark.json").write_text(json.dumps(result, indent=1))
     bundles = [
         f"- {n}: seeds {m['seeds']}, trained by `{m['train_command']}`, bundled by `{m['command']}`"
@@ -254,6 +255,10 @@ def benchmark_bundled(episodes: int, out: Path, command: str) -> dict[str, Any]:
         "",
         *verdicts(rows),
         "",
+        "## Pull-only tendons (preset `pull_only`, routing n_plus_1) against push-pull `default`",
+        "",
+        *tension,
+        "",
         "Bundled models and the commands that made them (tendon2r_gym/data/models/):",
         "",
         *bundles,
@@ -270,6 +275,32 @@ def benchmark_bundled(episodes: int, out: Path, command: str) -> dict[str, Any]:
     (out / "benchmark.md").write_text("\n".join(lines) + "\n")
     print("wrote", out / "benchmark.md")
     return result
+
+
+def tension_comparison(rows: list[dict[str, Any]]) -> list[str]:
+    """Returns lines comparing the pull-only preset's tensions and steps with a pushing tendon
+    with the push-pull default's, per policy, and the pull-only targets."""
+    by = {(r["env"], r["policy"]): r for r in rows if "rms_deg" in r and "rms_tension_N" in r}
+    lines = []
+    for (env, policy), r in by.items():
+        if env != "pull_only" or (base := by.get(("default", policy))) is None:
+            continue
+        lines.append(
+            f"- {policy}: RMS tension {_fmt(r['rms_tension_N'], 3)} N (peak "
+            f"{max(r['max_tension_N']):.3f} N, least {min(r['min_tension_N']):.3f} N, "
+            f"{r['negative_tension_steps']} steps with a pushing tendon) against push-pull "
+            f"{_fmt(base['rms_tension_N'], 3)} N (peak {max(base['max_tension_N']):.3f} N, "
+            f"{base['negative_tension_steps']} of {base['steps']} steps pushing)."
+        )
+    limits = {"pd": 0.3, "ct": 0.02}
+    for policy, limit in limits.items():
+        if (r := by.get(("pull_only", policy))) is not None:
+            ok = max(r["rms_deg"]) <= limit and r["negative_tension_steps"] == 0
+            lines.append(
+                f"- Target {policy.upper()} <= {limit} deg RMS per joint with no pushing "
+                f"tendon: **{'met' if ok else 'MISSED'}** ({_fmt(r['rms_deg'])} deg)."
+            )
+    return lines
 
 
 def held_out() -> list[dict[str, Any]]:

@@ -312,9 +312,10 @@ class SB3VecEnv(VecEnv):
         dones = terminated | truncated
         keys = [k for k in info if not k.startswith("_") and k != "final_obs"]
         infos: list[dict[str, Any]] = [{k: info[k][i] for k in keys} for i in range(self.num_envs)]
+        for i in range(self.num_envs):  # as SB3's DummyVecEnv: on every step
+            infos[i]["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
         for i in np.flatnonzero(dones):
             infos[i]["terminal_observation"] = info["final_obs"][i] * self._mask
-            infos[i]["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
         self._raw = obs
         return obs * self._mask, rewards.astype(np.float32), dones, infos
 

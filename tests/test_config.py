@@ -86,7 +86,7 @@ def test_auto_force_limit_fits_the_reference(tmp_path):
     assert u.mechanism.max_tendon_force == pytest.approx(FORCE_HEADROOM * need, rel=1e-2)
     _, info = env.reset(seed=0)
     assert info["force_need_N"] == need
-    assert env.unwrapped.model.actuator_gear[0, 0] == u.mechanism.max_tendon_force
+    assert env.unwrapped.model.actuator_gainprm[0, 0] == u.mechanism.max_tendon_force
 
 
 def test_a_fixed_limit_below_the_need_warns_with_both_figures(tmp_path):
@@ -101,7 +101,7 @@ def test_force_need_matches_the_peak_force_of_computed_torque():
     default preset (from the reference, no error to correct) never asks much more."""
     cfg = EnvConfig.make("default")
     metrics, _ = evaluate("ct", {"preset": "default"}, [0])
-    assert max(metrics["max_force_N"]) == pytest.approx(cfg.force_need, rel=0.1)
+    assert max(metrics["max_tension_N"]) == pytest.approx(cfg.force_need, rel=0.1)
 
 
 def test_reference_ranges_use_their_worst_corner():

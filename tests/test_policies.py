@@ -143,11 +143,11 @@ def test_tendon_command_is_the_damped_inverse_of_the_moment_arms():
         tau = rng.uniform(-1, 1, 2) * 1e-3  # small: no saturation
         lam2 = pd.gains.force_damping * np.sum(J * J)
         f = J @ np.linalg.solve(J.T @ J + lam2 * np.eye(2), tau)
-        u = pd.tendon_command(tau)
+        u = pd.tendon_command(J[None], tau[None])[0]
         np.testing.assert_allclose(u, f / env.mechanism.max_tendon_force, rtol=1e-5, atol=1e-7)
         np.testing.assert_allclose(J.T @ f, tau, rtol=0.05, atol=1e-9)
-    pd._arms.dense()[:] = 0.0  # no tendon touches a pulley: no force, not a division by zero
-    np.testing.assert_array_equal(pd.tendon_command(np.ones(2)), np.zeros(2))
+    # No tendon touches a pulley: no force rather than a division by zero.
+    np.testing.assert_array_equal(pd.tendon_command(np.zeros((1, 2, 2)), np.ones((1, 2))), [[0, 0]])
 
 
 def test_residual_wrapper_with_zero_residual_is_pd():

@@ -3,7 +3,6 @@
 import gymnasium as gym
 import numpy as np
 import pytest
-import yaml
 
 from tendon2r_gym.policies import PDPolicy
 from tendon2r_gym.vector_env import Tendon2RVectorEnv
@@ -90,23 +89,41 @@ def test_batched_pd_equals_single_pd():
     np.testing.assert_allclose(batch, single, rtol=1e-12, atol=1e-12)
 
 
-def test_sb3_training_on_native_equals_dummy(tmp_path):
-    """SB3 PPO (residual, tiny budget) learns exactly the same on the native vector env as on
-    DummyVecEnv: the adapter changes speed, not data."""
-    from tendon2r_gym.cli import train_main
-    from tendon2r_gym.runs import RunFolder
-    from tendon2r_gym.training import load_hyperparams
+def test_sb3_adapter_steps_like_dummy_vec_env():
+    """SB3's VecEnv API over the native env (SAME_STEP autoreset, terminal_observation,
+    TimeLimit.truncated) gives what SB3's DummyVecEnv of single envs gives, residual PD
+    included; training adds only the staggered first episodes."""
+    from stable_baselines3.common.env_util import make_vec_env
 
-    cfg = load_hyperparams("default")
-    cfg["env_kwargs"]["episode_duration"] = 0.1
-    cfg["ppo"].update(n_steps=64, batch_size=64, n_epochs=1)
-    cfg.update(total_timesteps=256, n_envs=2, eval_freq=128, checkpoint_freq=128, eval_seeds=[0])
-    path = tmp_path / "ppo.yaml"
-    path.write_text(yaml.safe_dump({"tiny": cfg}))
-    results = {}
-    for vec in ("native", "dummy"):
-        run = tmp_path / vec
-        train_main(["--config", str(path), "--hyperparams", "tiny", "--vec-env", vec,
-                    "--run-dir", str(run)])  # fmt: skip
-        results[vec] = RunFolder(run / "seed_0").read_json("evaluations.json")
-    assert [r["rms_deg"] for r in results["native"]] == [r["rms_deg"] for r in results["dummy"]]
+    from tendon2r_gym.learned import make_training_env
+    from tendon2r_gym.training import SB3VecEnv
+
+    kwargs = {"preset": "default", "episode_duration": 0.01}
+    native = SB3VecEnv(Tendon2RVectorEnv(3, autoreset_mode="SameStep", **kwargs), 0.5)
+    dummy = make_vec_env(make_training_env, n_envs=3,
+                         env_kwargs={"env_kwargs": kwargs, "residual_scale": 0.5})  # fmt: skip
+    native.seed(5)
+    dummy.seed(5)
+    np.testing.assert_array_equal(native.reset(), dummy.reset())
+    rng = np.random.default_rng(0)
+    for _ in range(25):
+        action = rng.uniform(-1, 1, (3, 2)).astype(np.float32)
+        (o1, r1, d1, i1), (o2, r2, d2, i2) = native.step(action), dummy.step(action)
+        np.testing.assert_array_equal(o1, o2)
+        np.testing.assert_array_equal(r1, r2)
+        np.testing.assert_array_equal(d1, d2)
+        for a, b in zip(i1, i2, strict=True):
+            assert a.get("TimeLimit.truncated") == b.get("TimeLimit.truncated")
+            if "terminal_observation" in b:
+                np.testing.assert_array_equal(a["terminal_observation"], b["terminal_observation"])
+            np.testing.assert_array_equal(a["tracking_error_deg"], b["tracking_error_deg"])
+
+
+def test_training_staggers_the_first_episodes():
+    envs = Tendon2RVectorEnv(4, stagger=True, episode_duration=0.008)
+    envs.reset(seed=0)
+    lengths = np.zeros(4, dtype=int)
+    for step in range(1, 9):
+        *_, trunc, _ = envs.step(np.zeros((4, 2)))
+        lengths[trunc & (lengths == 0)] = step
+    assert sorted(lengths.tolist()) == [2, 4, 6, 8]
