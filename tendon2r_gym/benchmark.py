@@ -92,7 +92,7 @@ def _row(
 ) -> dict[str, Any]:
     start = time.perf_counter()
     metrics, traces = evaluate(policy, env_kwargs, seeds, model)
-    row = {"env": name, "policy": label, **metrics, "eval_s": round(time.perf_counter() - start, 1)}
+    row = {**metrics, "env": name, "policy": label, "eval_s": round(time.perf_counter() - start, 1)}
     if model is not None:
         s = training_summary(model)
         row.update(
