@@ -114,21 +114,41 @@ def distribute(
     damping: float = 0.0,
 ) -> np.ndarray:
     """Returns the tendon tensions t (N, positive pulling) with -J^T t = tau (see the module
-    docstring); pull-only tensions are >= pretension where J positively spans."""
-    J = np.asarray(J, dtype=np.float64)
-    gram = J.T @ J
-    lam2 = damping * float(np.sum(J * J))
-    try:
-        x = np.linalg.solve(gram + lam2 * np.eye(2), np.asarray(tau, dtype=np.float64))
-    except np.linalg.LinAlgError:
-        return np.full(len(J), pretension if pull_only else 0.0)
-    t = -(J @ x)
+    docstring), for one configuration (J (n, 2), tau (2,)) or a batch (J (B, n, 2), tau
+    (B, 2)).  Pull-only tensions are >= pretension where J positively spans; where J is zero
+    or singular there is no force (pull-only: the pretension)."""
+    J, tau = np.asarray(J, dtype=np.float64), np.asarray(tau, dtype=np.float64)
+    single = J.ndim == 2
+    if single:
+        J, tau = J[None], tau[None]
+    gram = np.einsum("bki,bkj->bij", J, J)
+    lam2 = damping * (gram[:, 0, 0] + gram[:, 1, 1])  # damping |J|_F^2
+    a11, a22, a12 = gram[:, 0, 0] + lam2, gram[:, 1, 1] + lam2, gram[:, 0, 1]
+    det = a11 * a22 - a12 * a12
+    ok = det > 1e-300 * np.maximum(a11 * a22, 1e-300)  # closed-form 2 x 2 solve where regular
+    det = np.where(ok, det, 1.0)
+    x = np.stack([a22 * tau[:, 0] - a12 * tau[:, 1], a11 * tau[:, 1] - a12 * tau[:, 0]], 1)
+    t = np.where(ok[:, None], -np.einsum("bki,bi->bk", J, x / det[:, None]), 0.0)
     if pull_only:
-        n = null_direction(J)
-        if n is None:  # cannot span here: the best pull-only approximation
-            return np.maximum(t, pretension)
-        t = t + np.max((pretension - t) / n) * n
-    return t
+        t = _pretension_shift(J, t, pretension)
+    return t[0] if single else t
+
+
+def _pretension_shift(J: np.ndarray, t: np.ndarray, pretension: float) -> np.ndarray:
+    """Adds to each row of tensions the multiple of the positive null vector of J^T that lifts
+    the least tension to the pretension; rows without one are only floored at it."""
+    if J.shape[1] == 3:  # the null vector is the cross product of J's columns
+        n = np.cross(J[:, :, 0], J[:, :, 1])
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        n *= np.where(n[:, :1] < 0, -1.0, 1.0)
+        spans = np.all(n > 0, axis=1)
+    else:
+        null = [null_direction(j) for j in J]
+        spans = np.array([v is not None for v in null])
+        n = np.array([v if v is not None else np.ones(J.shape[1]) for v in null])
+    safe = np.where(spans[:, None], n, 1.0)
+    shift = np.max((pretension - t) / safe, axis=1, keepdims=True)
+    return np.where(spans[:, None], t + shift * n, np.maximum(t, pretension))
 
 
 class MomentArms:

@@ -101,27 +101,11 @@ class _TendonController:
 
     def tendon_command(self, J: np.ndarray, tau: np.ndarray) -> np.ndarray:
         """Returns the clipped normalized commands (N, n_tendons) whose tensions give the joint
-        torques tau (N, 2) through the moment arms J (N, n_tendons, 2).
-
-        The tensions are t0 = -J (J^T J + lam^2 I)^-1 tau, lam^2 = force_damping |J|_F^2 (the
-        2 x 2 Gram matrix in closed form); pull-only tendons add the pretension along a
-        positive null vector of J^T (tendon2r_gym.actuation.distribute does the same for one
-        configuration).  Push-pull: command = -t / F; pull-only: 2 t / F - 1."""
-        gram = np.einsum("nki,nkj->nij", J, J)
-        lam2 = self.gains.force_damping * (gram[:, 0, 0] + gram[:, 1, 1])
-        a11, a22, a12 = gram[:, 0, 0] + lam2, gram[:, 1, 1] + lam2, gram[:, 0, 1]
-        det = a11 * a22 - a12 * a12
-        ok = det > 0.0  # J = 0 (no tendon touches a pulley) or non-finite: no force
-        det = np.where(ok, det, 1.0)
-        x = np.stack([(a22 * tau[:, 0] - a12 * tau[:, 1]), (a11 * tau[:, 1] - a12 * tau[:, 0])], 1)
-        tension = -np.einsum("nki,ni->nk", J, x / det[:, None])
-        tension[~ok] = 0.0
-        f_max = self._max_force
-        if self._pull_only:
-            tension = _pretension_shift(J, tension, self._pretension)
-            u = 2.0 * tension / f_max - 1.0
-        else:
-            u = -tension / f_max
+        torques tau (N, 2) through the moment arms J (N, n_tendons, 2): the tension
+        distribution of tendon2r_gym.actuation.distribute (damped by force_damping), then
+        push-pull: -t / F; pull-only: 2 t / F - 1 (F the force limit)."""
+        t = distribute(J, tau, self._pull_only, self._pretension, self.gains.force_damping)
+        u = 2.0 * t / self._max_force - 1.0 if self._pull_only else -t / self._max_force
         return np.clip(u, -1.0, 1.0).astype(np.float32)
 
     def _torque(self, obs: np.ndarray, M: np.ndarray) -> np.ndarray:
@@ -140,21 +124,6 @@ class _TendonController:
         J, M = self.kinematics(batch[:, Q])
         action = self.tendon_command(J, self._torque(batch, M))
         return (action[0] if obs.ndim == 1 else action), state
-
-
-def _pretension_shift(J: np.ndarray, tension: np.ndarray, pretension: float) -> np.ndarray:
-    """Adds to each row of tensions the multiple of the positive null vector of J^T (three
-    tendons: the cross product of J's columns) that lifts the least tension to the
-    pretension; rows without a positive null vector are only floored at it."""
-    if J.shape[1] != 3:
-        rows = zip(J, tension, strict=True)
-        return np.array([distribute(j, -j.T @ t, True, pretension) for j, t in rows])
-    n = np.cross(J[:, :, 0], J[:, :, 1])
-    n *= np.sign(n[:, :1])
-    spans = np.all(n > 0, axis=1)
-    safe = np.where(spans[:, None], n, 1.0)
-    shift = np.max((pretension - tension) / safe, axis=1, keepdims=True)
-    return np.where(spans[:, None], tension + shift * n, np.maximum(tension, pretension))
 
 
 class _Kinematics:

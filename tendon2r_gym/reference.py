@@ -192,6 +192,10 @@ class ReferenceRanges:
             raise invalid("reference_ranges", values, f"a mapping that also has {missing}")
         return cls(**values)
 
+    def to_dict(self) -> dict[str, list[list[float]]]:
+        """Returns the ranges as plain YAML-friendly lists."""
+        return {f.name: [list(r) for r in getattr(self, f.name)] for f in dataclasses.fields(self)}
+
     def corner_violations(self, mech: Mechanism) -> list[str]:
         """Returns why some draw could fail on ``mech`` (empty if none can): every bias in the
         ranges must fit the workspace at zero amplitude, since a draw's amplitudes are scaled

@@ -180,3 +180,20 @@ def test_sigkill_loses_little_thanks_to_timed_checkpoints(tmp_path):
     proc.kill()
     proc.wait()
     assert RunFolder(tmp_path / "run" / "seed_0").checkpoint_candidates()
+
+
+def test_a_run_on_reference_ranges_records_them_and_loads(tmp_path):
+    ranges = {"amp_deg": [[5, 10], [5, 10]], "freq_hz": [[0.5, 1], [0.5, 1]],
+              "bias_deg": [[-5, 5], [-5, 5]]}  # fmt: skip
+    config = _tiny(tmp_path)
+    cfg = yaml.safe_load(config.read_text())
+    cfg["tiny"]["env_kwargs"]["reference_ranges"] = ranges
+    config.write_text(yaml.safe_dump(cfg))
+    _train(config, tmp_path / "run")
+    run = RunFolder(tmp_path / "run" / "seed_0")
+    assert run.read_json("run.json")["env_config"]["reference_ranges"]["amp_deg"] == [
+        [5, 10],
+        [5, 10],
+    ]
+    env = gym.make("Tendon2R-v0", **run.read_json("run.json")["env_kwargs"])
+    PPOPolicy.load(run.best.with_suffix(".zip"), env)
