@@ -126,7 +126,18 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     worst corner), see ``force_need()``.  A fixed limit below that need warns.
 
     ## Version History
-    - v0: initial version.
+    - v0 (unreleased, so the id stays v0): initial version, then, before any release:
+      - defaults that make the env learnable from scratch, measured by
+        tendon2r_gym.studies.learnability (results/learnability.md): the bounded "log" tracking
+        reward (was quadratic in deg^2), reward scales ctrl 0.001 and divergence 10 (were
+        0.01 and 1000), and the log-scaled tracking error ``error_log`` in the observation;
+        the observation reordered into named slices (tendon2r_gym.observation);
+      - every argument may come from an experiment file; truncation by a TimeLimit of
+        episode_duration / ctrl_dt steps; ``max_tendon_force: auto``;
+      - any number of tendons, ``pull_only`` motors, ``info["tendon_tension"]`` (was
+        ``tendon_force``, the motor force with the opposite sign);
+      - a diverged step returns the last good observation; construction refuses unstable
+        physics and late-failing arguments.
     """
 
     metadata = {"render_modes": ["human", "rgb_array", "depth_array"]}

@@ -32,6 +32,7 @@ from tendon2r_gym.env import (
     DIVERGED_PAST_LIMIT,
     DIVERGED_SPEED,
     RAD_PER_DEG,
+    _log_error,
 )
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.model import build_model, tendon_name
@@ -277,7 +278,7 @@ class Tendon2RVectorEnv(VectorEnv):
             self._amp[:, 0] * self._omega[:, 0] * np.cos(arg[:, 0]),
             self._amp[:, 1] * self._omega[:, 1] * np.cos(arg[:, 1]),
             e[:, 0], e[:, 1],
-            *_log_error(e).T,
+            *_log_errors(e).T,
             m.a + m.c * c1 + m.b * c12, m.c * s1 + m.b * s12,
             -m.c * s1 * w1 - m.b * s12 * w12, m.c * c1 * w1 + m.b * c12 * w12,
         ]  # fmt: skip
@@ -324,9 +325,7 @@ class Tendon2RVectorEnv(VectorEnv):
         self.batch = None
 
 
-def _log_error(e: np.ndarray) -> np.ndarray:
-    """sign(e) log(1 + |e| / ERROR_LOG_SCALE) with math.log1p, as the single env computes it
-    (numpy's log1p may differ in the last bit)."""
-    scale = obs_layout.ERROR_LOG_SCALE
-    flat = [math.copysign(math.log1p(abs(x) / scale), x) for x in e.ravel().tolist()]
-    return np.array(flat).reshape(e.shape)
+def _log_errors(e: np.ndarray) -> np.ndarray:
+    """The single env's ``_log_error`` on every entry of e (math.log1p, bit for bit: numpy's
+    log1p may differ in the last bit)."""
+    return np.array([_log_error(x) for x in e.ravel().tolist()]).reshape(e.shape)
