@@ -233,7 +233,6 @@ def benchmark_bundled(episodes: int, out: Path, command: str) -> dict[str, Any]:
     held = held_out()
     result = {"command": command, "rows": rows, "held_out": held}
     tension = tension_comparison(rows)
-    (out / "benchmark.json").write_text(json.dumps(result, indent=1))
     bundles = [
         f"- {n}: seeds {m['seeds']}, trained by `{m['train_command']}`, bundled by `{m['command']}`"
         for n in sorted(
@@ -272,6 +271,12 @@ def benchmark_bundled(episodes: int, out: Path, command: str) -> dict[str, Any]:
         "|---|---|",
         *(f"| {r['policy']} | {r.get('missing') or _fmt(r['rms_deg_mean'])} |" for r in held),
     ]
+    return _write(out, result, lines)
+
+
+def _write(out: Path, result: dict[str, Any], lines: list[str]) -> dict[str, Any]:
+    """Writes out/benchmark.json and out/benchmark.md; returns the result."""
+    (out / "benchmark.json").write_text(json.dumps(result, indent=1))
     (out / "benchmark.md").write_text("\n".join(lines) + "\n")
     print("wrote", out / "benchmark.md")
     return result
@@ -368,7 +373,6 @@ def benchmark_own_arm(
         "force_need_N": config.force_need,
         "rows": rows,
     }
-    (out / "benchmark.json").write_text(json.dumps(result, indent=1))
     lines = [
         f"# Benchmark on {env_config}",
         "",
@@ -382,6 +386,4 @@ def benchmark_own_arm(
         "",
         *verdicts(rows),
     ]
-    (out / "benchmark.md").write_text("\n".join(lines) + "\n")
-    print("wrote", out / "benchmark.md")
-    return result
+    return _write(out, result, lines)
