@@ -204,7 +204,7 @@ class BenchmarkArgs:
     seeds: list[int] = arg([0], "PPO training seeds (with --env-config)")
     episodes: int = arg(3, "evaluation episodes per policy (seeds 0 ..)")
     out: str = arg("results", "folder for benchmark.md, benchmark.json and plots/")
-    run_dir: str | None = arg(None, "training runs (default <out>/runs)")
+    run_dir: str | None = arg(None, "training runs (default runs/<env-config name>)")
 
 
 def benchmark_main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -225,7 +225,7 @@ def benchmark_main(argv: list[str] | None = None) -> dict[str, Any]:
         args.seeds,
         args.episodes,
         Path(args.out),
-        Path(args.run_dir) if args.run_dir else Path(args.out) / "runs",
+        Path(args.run_dir or f"runs/{Path(args.env_config).stem}"),
         command,
     )
 

@@ -84,7 +84,7 @@ def test_benchmark_on_your_own_arm(tmp_path):
     out = tmp_path / "out"
     result = benchmark_main(
         ["--env-config", str(arm), "--train-steps", "256", "--seeds", "0", "--episodes", "1",
-         "--out", str(out)]
+         "--out", str(out), "--run-dir", str(tmp_path / "runs")]
     )  # fmt: skip
     policies = [r["policy"] for r in result["rows"]]
     assert policies == ["pd", "ct", "ppo scratch", "ppo residual"]
@@ -92,4 +92,4 @@ def test_benchmark_on_your_own_arm(tmp_path):
     md = (out / "benchmark.md").read_text()
     assert "| my_arm | pd |" in md and "needs" in md
     assert (out / "plots" / "my_arm" / "pd" / "tracking.png").is_file()
-    assert (out / "runs" / "ppo_scratch" / "seed_0" / "run.json").is_file()
+    assert (tmp_path / "runs" / "ppo_scratch" / "seed_0" / "run.json").is_file()
