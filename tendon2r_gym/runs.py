@@ -58,10 +58,10 @@ def stem_of(model_path: str | Path) -> Path:
 
 
 def command_line(argv: list[str] | None = None, program: str | None = None) -> str:
-    """Returns the command that started this process (or ``program argv``), quoted."""
-    if argv is None:
-        return shlex.join([Path(sys.argv[0]).name, *sys.argv[1:]])
-    return " ".join([program or Path(sys.argv[0]).name, shlex.join(argv)]).strip()
+    """Returns ``program`` (default: this process's script name) and ``argv`` (default: this
+    process's arguments), quoted as a shell command."""
+    args = sys.argv[1:] if argv is None else argv
+    return " ".join([program or Path(sys.argv[0]).name, shlex.join(args)]).strip()
 
 
 @dataclass(frozen=True)
