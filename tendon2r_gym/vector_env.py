@@ -197,7 +197,6 @@ class Tendon2RVectorEnv(VectorEnv):
         if not np.all(np.isfinite(a)):
             raise ValueError(f"actions = {a.tolist()} are not all finite; allowed: [-1, 1]")
         a = np.clip(a, -1.0, 1.0)
-        rewards = np.zeros(n)
         terminated = np.zeros(n, dtype=bool)
         truncated = np.zeros(n, dtype=bool)
         # NEXT_STEP: arms that ended last step are reset now and report the reset observation.
