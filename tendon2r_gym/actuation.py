@@ -35,10 +35,12 @@ FORCE_HEADROOM = 2.0
 def cond(J: np.ndarray) -> float:
     """Returns the 2-norm condition number of an n x 2 moment-arm matrix (closed form on the
     2 x 2 Gram matrix J^T J, no SVD; inf if rank deficient)."""
-    rows = np.asarray(J, dtype=np.float64).reshape(-1, 2).tolist()
-    g11 = sum(a * a for a, _ in rows)
-    g22 = sum(b * b for _, b in rows)
-    g12 = sum(a * b for a, b in rows)
+    rows = (J if isinstance(J, np.ndarray) else np.asarray(J, dtype=np.float64)).tolist()
+    g11 = g22 = g12 = 0.0  # scalar math: this runs in every env step's info
+    for a, b in rows:
+        g11 += a * a
+        g22 += b * b
+        g12 += a * b
     tr, det = g11 + g22, g11 * g22 - g12 * g12
     if not math.isfinite(tr) or det <= 1e-300 * max(tr * tr, 1e-300):
         return math.inf

@@ -220,6 +220,8 @@ class Tendon2REnv(MujocoEnv, EzPickle):
             cfg.reward_scales[k] for k in ("tracking", "ctrl", "divergence")
         )
         self._log_form = cfg.tracking_form == "log"
+        self._err = obs_layout.ERROR
+        self._info_keys = {k: f"reward_{k}" for k in cfg.reward_scales}
         self._sigma = cfg.tracking_sigma_deg
         self._log_norm = 2.0 * math.log1p((180.0 / self._sigma) ** 2)
         self._set_reference_cache(self.reference)
@@ -316,22 +318,26 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         self, obs: np.ndarray, action: list[float], diverged: bool
     ) -> tuple[float, dict[str, float]]:
         """Returns (reward, scaled terms); the reward is the sum of the terms."""
-        e1, e2 = (e / RAD_PER_DEG for e in obs[obs_layout.ERROR].tolist())
+        e1, e2 = obs[self._err].tolist()
+        e1, e2 = e1 / RAD_PER_DEG, e2 / RAD_PER_DEG
         if self._log_form:
             u1, u2 = e1 / self._sigma, e2 / self._sigma
             tracking = 1.0 - (math.log1p(u1 * u1) + math.log1p(u2 * u2)) / self._log_norm
         else:
             tracking = -(e1 * e1 + e2 * e2)
+        effort = 0.0  # sum of squares in order, as numpy's sum over a few entries
+        for x in action:
+            effort += x * x
         terms = {
             "tracking": self._w_track * tracking,
-            "ctrl": -self._w_ctrl * sum(x * x for x in action),
+            "ctrl": -self._w_ctrl * effort,
             "divergence": -self._w_div if diverged else 0.0,
         }
         return sum(terms.values()), terms
 
     def _get_info(self, obs: np.ndarray, terms: dict[str, float], diverged: bool) -> dict[str, Any]:
         return {
-            **{f"reward_{k}": v for k, v in terms.items()},
+            **{self._info_keys[k]: v for k, v in terms.items()},
             "q": obs[obs_layout.Q],
             "q_des": obs[obs_layout.Q_DES],
             "tracking_error_deg": obs[obs_layout.ERROR] / RAD_PER_DEG,

@@ -303,7 +303,7 @@ class Tendon2RVectorEnv(VectorEnv):
             "ctrl": -w_ctrl * np.sum(a * a, axis=1),
             "divergence": np.where(diverged, -w_div, 0.0),
         }
-        return terms["tracking"] + terms["ctrl"] + terms["divergence"], terms
+        return sum(terms.values()), terms
 
     def _step_info(
         self, obs: np.ndarray, terms: dict[str, np.ndarray], diverged: np.ndarray, mask: np.ndarray

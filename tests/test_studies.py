@@ -12,7 +12,8 @@ RESULTS = Path(__file__).resolve().parent.parent / "results"
 
 def test_bench_speed_writes_every_figure(tmp_path):
     result = speed.main(
-        ["--steps", "200", "--ppo-timesteps", "512", "--eval-freq", "4096", "--vector-seconds",
+        ["--steps", "200", "--ppo-timesteps", "512", "--eval-freq", "4096",
+         "--first-win-timesteps", "512", "--vector-seconds",
          "0.05", "--num-envs", "1", "2", "--max-processes", "1", "--out", str(tmp_path)]
     )  # fmt: skip
     saved = json.loads((tmp_path / "speed.json").read_text())
