@@ -2,9 +2,9 @@
 
 ``train(TrainSpec)`` owns one run from config to saved models (the run folder's layout belongs to
 tendon2r_gym.runs).  It survives interruption:
-- Ctrl-C (or SIGTERM) saves ``last_model`` and the summary, then re-raises, so a multi-seed
-  command stops as a whole (exit code 130) after writing the summary of the seeds that
-  finished;
+- Ctrl-C (or SIGTERM) stops training at the next env step (StopOnSignal), saves
+  ``last_model`` and the summary, then raises KeyboardInterrupt, so a multi-seed command stops
+  as a whole (exit code 130) after writing the summary of the seeds that finished;
 - checkpoints are taken every ``checkpoint_freq`` steps and every ``checkpoint_minutes``;
 - ``resume`` continues from the newest readable saved state, skipping a corrupt one with a
   warning;
@@ -19,7 +19,6 @@ import json
 import signal
 import time
 import warnings
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -426,16 +425,19 @@ def train(spec: TrainSpec) -> dict[str, Any]:
     remaining = cfg["total_timesteps"] - start_steps
     start = time.perf_counter()
     interrupted = False
+    stop = StopOnSignal()
     try:
-        with _sigterm_as_interrupt():
+        with stop:
             if remaining > 0:
                 model.learn(
                     remaining,
-                    callback=CallbackList(callbacks),
+                    callback=CallbackList([stop, *callbacks]),
                     reset_num_timesteps=not spec.resume,
                     progress_bar=spec.progress_bar,
                     tb_log_name="ppo",
                 )
+        if stop.stopped:
+            raise KeyboardInterrupt("signal")
     except KeyboardInterrupt:
         interrupted = True
         print(f"interrupted at {model.num_timesteps} steps; resume with --resume", flush=True)
@@ -497,24 +499,34 @@ def _close(vecnorm: Any) -> None:
         pass
 
 
-class _sigterm_as_interrupt:
-    """Turns SIGTERM into KeyboardInterrupt while training (main thread only), so that
-    ``kill`` saves the run like Ctrl-C does."""
+class StopOnSignal(BaseCallback):
+    """Ctrl-C (SIGINT) or SIGTERM during ``learn`` asks training to stop at the next env step,
+    so that no signal lands inside torch or MuJoCo; a second signal interrupts at once."""
 
-    def __enter__(self) -> None:
-        self._old: Callable | int | None = None
+    def __init__(self) -> None:
+        super().__init__()
+        self.stopped = False
+        self._old: dict[int, Any] = {}
+
+    def _request(self, signum: int, frame: Any) -> None:
+        self.stopped = True
+        for sig, old in self._old.items():  # a second signal acts at once
+            signal.signal(sig, old)
+
+    def __enter__(self) -> StopOnSignal:
         try:
-            self._old = signal.signal(signal.SIGTERM, self._raise)
-        except ValueError:  # not the main thread
-            self._old = None
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._old[sig] = signal.signal(sig, self._request)
+        except ValueError:  # not the main thread: signals stay as they are
+            self._old.clear()
+        return self
 
     def __exit__(self, *exc: object) -> None:
-        if self._old is not None:
-            signal.signal(signal.SIGTERM, self._old)
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
 
-    @staticmethod
-    def _raise(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt(f"signal {signum}")
+    def _on_step(self) -> bool:
+        return not self.stopped
 
 
 def train_seeds(
