@@ -170,11 +170,13 @@ class TrackingEvalCallback(BaseCallback):
         self.best_rms = float(np.mean(best["rms_deg"])) if best else float("inf")
         self._last_eval = 0
         self._start = time.perf_counter() - wall_offset_s
-        self._make = lambda: gym.make("Tendon2R-v0", **self.env_kwargs)  # noqa: E731
+        # One env, built once: its mechanism and control period define the PD baseline and
+        # the PD inside a residual policy (the rollouts run on the vector env).
+        self._env = gym.make("Tendon2R-v0", **self.env_kwargs)
         self.pd_rms = run.read_json("pd_eval.json")
         if self.pd_rms is None:
             pd_metrics = tracking_metrics(
-                rollouts(PDPolicy.from_env(self._make()), self.env_kwargs, seeds)
+                rollouts(PDPolicy.from_env(self._env), self.env_kwargs, seeds)
             )
             self.pd_rms = pd_metrics["rms_deg"]
             run.write_json("pd_eval.json", self.pd_rms)
@@ -193,8 +195,9 @@ class TrackingEvalCallback(BaseCallback):
             self.evaluate()
 
     def evaluate(self) -> dict[str, Any]:
-        env = self._make()
-        policy = PPOPolicy(self.model, self.model.get_vec_normalize_env(), self.residual_scale, env)
+        policy = PPOPolicy(
+            self.model, self.model.get_vec_normalize_env(), self.residual_scale, self._env
+        )
         metrics = tracking_metrics(rollouts(policy, self.env_kwargs, self.seeds))
         rms = float(np.mean(metrics["rms_deg"]))
         self.logger.record("eval/rms_deg_A", metrics["rms_deg"][0])
