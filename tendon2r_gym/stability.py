@@ -9,10 +9,12 @@ M(q) the joint inertia and J(q) the tendon moment arms,
 - stiffness rate omega  = sqrt(max eig(M^-1 tendon_stiffness J^T J)).
 
 A run is accepted if lambda * sim_dt and omega * sim_dt stay below the integrator's limits in
-:data:`LIMITS`.  Those were measured on the compiled default mechanism at sim_dt = 1 ms
-(bisection on each parameter until a 2 s episode diverged) and set 20% below that: for RK4
-divergence started at lambda dt = 4.8-5.1 and omega dt = 3.4; for Euler at 4.4 (tendon
-damping) and 1.9; for implicitfast at omega dt = 1.9; for implicit at 1.0.
+:data:`LIMITS`.  ``python scripts/stability_limits.py`` measures them on the compiled default
+mechanism at sim_dt = 1 ms (bisection on each parameter until a 2 s episode diverges); the
+limits are set 20% below: for RK4 divergence started at lambda dt = 4.9-5.2 and omega dt =
+3.4; for Euler at 4.4 (tendon damping) and 1.9; for implicitfast at omega dt = 1.9; for
+implicit at 1.0.  MuJoCo's implicit integrators (and Euler for joint damping) integrate
+damping implicitly: it diverges there only at values thousands of times larger.
 """
 
 from __future__ import annotations
