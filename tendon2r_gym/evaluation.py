@@ -36,10 +36,7 @@ def resolve_model(
     """Returns the model file a policy needs: ``model``, or the primary seed of ``bundle``, or
     of the bundle named like the env's preset.  Raises for a model given to a policy that
     takes none."""
-    if policy not in POLICIES:
-        raise invalid("policy", policy, f"one of {sorted(POLICIES)}")
-    takes_model = POLICIES[policy][1]
-    if not takes_model:
+    if not _entry(policy)[1]:
         if model is not None or bundle is not None:
             raise invalid(
                 "model" if model is not None else "bundle",
@@ -58,9 +55,14 @@ def resolve_model(
 
 def make_policy(name: str, env: gym.Env, model: str | Path | None = None) -> Policy:
     """Returns the policy ``name`` for ``env`` (a learned one loads ``model``)."""
+    return _entry(name)[0](env, model)
+
+
+def _entry(name: str) -> tuple[Callable[[gym.Env, Any], Policy], bool]:
+    """Returns the POLICIES entry of ``name``, or raises naming the allowed ones."""
     if name not in POLICIES:
         raise invalid("policy", name, f"one of {sorted(POLICIES)}")
-    return POLICIES[name][0](env, model)
+    return POLICIES[name]
 
 
 def evaluate(

@@ -20,6 +20,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from tendon2r_gym import observation
 from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.policies import PDPolicy
 from tendon2r_gym.reference import Reference, ReferenceRanges
@@ -77,12 +78,8 @@ def make_training_env(
     ablations: a constant zero carries no information."""
     env = gym.make("Tendon2R-v0", **env_kwargs)
     if zero_obs:
-        from tendon2r_gym.observation import SLICES
-
-        mask = np.ones(env.observation_space.shape)
-        for name in zero_obs:
-            mask[SLICES[name]] = 0.0
-        env = gym.wrappers.TransformObservation(env, lambda o: o * mask, env.observation_space)
+        keep = observation.mask(zero_obs, env.observation_space.shape[0])
+        env = gym.wrappers.TransformObservation(env, lambda o: o * keep, env.observation_space)
     return ResidualPDWrapper(env, residual_scale) if residual_scale > 0 else env
 
 
@@ -101,7 +98,7 @@ def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
     }
     ours = {
         **{k: getattr(config, k) for k in ("ctrl_dt", "preview_steps", "preview_dt")},
-        "observation": observation_layout(env),
+        "observation": observation_layout(config.preview_steps),
         "mechanism": config.mechanism,
         "reference": None if ranges else config.reference,
         "reference_ranges": config.reference_ranges,
@@ -119,12 +116,9 @@ def _shown(value: Any) -> Any:
     return value.to_dict() if hasattr(value, "to_dict") else value
 
 
-def observation_layout(env: gym.Env | None = None, preview_steps: int | None = None) -> list:
+def observation_layout(preview_steps: int) -> list:
     """Returns the observation layout as [[name, size], ...] with the preview last."""
-    from tendon2r_gym import observation
-
-    steps = env.unwrapped.config.preview_steps if env is not None else preview_steps
-    return [[name, n] for name, n, _ in observation.FIXED] + [["preview", 2 * steps]]
+    return [[name, n] for name, n, _ in observation.FIXED] + [["preview", 2 * preview_steps]]
 
 
 def _plain(value: Any) -> Any:

@@ -6,6 +6,10 @@ The fixed entries come first, so their slices do not depend on ``preview_steps``
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
+import numpy as np
+
 #: (name, size, unit) of each fixed entry, in order.  Two values each: joint A, then joint B
 #: (or x, then z for the effector).
 FIXED: tuple[tuple[str, int, str], ...] = (
@@ -52,6 +56,15 @@ def preview_slice(preview_steps: int) -> slice:
 def size(preview_steps: int) -> int:
     """Returns the length of the observation."""
     return N_FIXED + 2 * preview_steps
+
+
+def mask(zeroed: Iterable[str], n_obs: int) -> np.ndarray:
+    """Returns a multiplier of length ``n_obs`` that blanks the named fixed entries (for
+    ablations: a constant zero carries no information)."""
+    out = np.ones(n_obs)
+    for name in zeroed:
+        out[SLICES[name]] = 0.0
+    return out
 
 
 def table(preview_steps_name: str = "P") -> str:

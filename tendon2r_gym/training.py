@@ -28,6 +28,7 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 from stable_baselines3.common.vec_env import VecEnv
 
+from tendon2r_gym import observation
 from tendon2r_gym.config import PPO_CONFIG, load_yaml
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.learned import (
@@ -90,9 +91,7 @@ def check_hyperparams(cfg: dict[str, Any]) -> None:
     integer("eval_freq", cfg["eval_freq"], 1, 10**10)
     integer("checkpoint_freq", cfg["checkpoint_freq"], 1, 10**10)
     number("checkpoint_minutes", cfg["checkpoint_minutes"], 0.0, lo_open=True)
-    from tendon2r_gym.observation import SLICES
-
-    check_keys("zero_obs", cfg.get("zero_obs", ()), SLICES)
+    check_keys("zero_obs", cfg.get("zero_obs", ()), observation.SLICES)
     if cfg["vec_env"] not in VEC_ENVS:
         raise invalid("vec_env", cfg["vec_env"], f"one of {VEC_ENVS}")
     EnvConfig.make(**cfg["env_kwargs"])  # the env kwargs, before any worker starts
@@ -286,18 +285,13 @@ class SB3VecEnv(VecEnv):
         super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
         self.venv, self.residual_scale = venv, residual_scale
         self.pd = PDPolicy(venv.mechanism, venv.ctrl_dt) if residual_scale > 0 else None
-        self._mask = np.ones(venv.single_observation_space.shape)
-        from tendon2r_gym.observation import SLICES
-
-        for name in zero_obs:
-            self._mask[SLICES[name]] = 0.0
+        self._mask = observation.mask(zero_obs, venv.single_observation_space.shape[0])
         self._raw: np.ndarray | None = None
         self._actions: np.ndarray | None = None
 
     def reset(self) -> np.ndarray:
-        seeds = [s if s is not None else None for s in self._seeds]
-        seed = seeds if any(s is not None for s in seeds) else None
-        self._raw, _ = self.venv.reset(seed=seed)
+        seeds = list(self._seeds)
+        self._raw, _ = self.venv.reset(seed=seeds if any(s is not None for s in seeds) else None)
         self._reset_seeds()
         self._reset_options()
         return self._raw * self._mask
@@ -387,7 +381,7 @@ def train(spec: TrainSpec) -> dict[str, Any]:
             "env_kwargs": cfg["env_kwargs"],
             "env_config": {
                 **env_config.to_dict(),
-                "observation": observation_layout(preview_steps=env_config.preview_steps),
+                "observation": observation_layout(env_config.preview_steps),
             },
         },
     )
