@@ -177,11 +177,6 @@ class MomentArms:
         return self._buf
 
 
-def moment_arms_from_data(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
-    """Returns a copy of the dense moment-arm matrix J = dL/dq (m) last computed in ``data``."""
-    return MomentArms(model, data).dense().copy()
-
-
 class ActuationAnalysis:
     """Moment arms and inertia of a model at any joint configuration, on a private MjData."""
 
