@@ -43,7 +43,8 @@ from tendon2r_gym.validation import integer, invalid
 class Tendon2RVectorEnv(VectorEnv):
     """N Tendon2R-v0 arms in one process (see the module docstring).  Takes the arguments of
     Tendon2R-v0 (preset, mechanism, reference, ...) plus ``num_envs``, ``autoreset_mode``,
-    ``nthread`` (MuJoCo batch threads; 0: one per CPU) and ``stagger`` (training: after each
+    ``nthread`` (MuJoCo batch threads; None: one per 8 arms, up to the CPUs this process may
+    use; 0: one per CPU) and ``stagger`` (training: after each
     full reset, arm i's episode is already i / N of the way to its step limit, so the arms
     desynchronize; off by default, as it breaks the equality with single envs)."""
 
@@ -54,7 +55,7 @@ class Tendon2RVectorEnv(VectorEnv):
         num_envs: int,
         preset: str | os.PathLike = "default",
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
-        nthread: int = 1,
+        nthread: int | None = None,
         max_episode_steps: int | None = None,
         stagger: bool = False,
         **kwargs: Any,
@@ -81,6 +82,9 @@ class Tendon2RVectorEnv(VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
 
         self.model = build_model(cfg.mechanism)
+        if nthread is None:
+            nthread = default_nthread(self.num_envs)
+        nthread = integer("nthread", nthread, 0, 4096)
         self.batch = mj_batch.Batch(self.model, self.num_envs, nthread=nthread)
         b = self.batch
         self._qpos, self._qvel, self._ctrl, self._time = (
@@ -260,31 +264,36 @@ class Tendon2RVectorEnv(VectorEnv):
         return mask
 
     def _observe(self) -> np.ndarray:
-        """The observations of every arm, in the order of tendon2r_gym.observation.FIXED, with
-        the same floating-point operations as Tendon2REnv._get_obs."""
-        m = self.mechanism
-        q, w, t = self._qpos, self._qvel, self._time
-        q1, q2, w1, w2 = q[:, 0], q[:, 1], w[:, 0], w[:, 1]
-        c1, s1 = np.cos(q1), np.sin(q1)
-        c12, s12 = np.cos(q1 + q2), np.sin(q1 + q2)
-        w12 = w1 + w2
-        arg = self._omega * t[:, None] + self._phase
+        """The observations of every arm, written by the named slices of
+        tendon2r_gym.observation, with the same floating-point operations as
+        Tendon2REnv._get_obs (numpy's float64 sin and cos round as math's do; tested)."""
+        m, L = self.mechanism, obs_layout
+        q, w = self._qpos, self._qvel
+        out = np.empty((self.num_envs, self.single_observation_space.shape[0]))
+        out[:, L.Q], out[:, L.DQ] = q, w
+        arg = self._omega * self._time[:, None] + self._phase  # (N, 2)
         q_des = self._amp * np.sin(arg) + self._bias
-        e = q_des - q
-        cols = [
-            q1, q2, w1, w2,
-            q_des[:, 0], q_des[:, 1],
-            self._amp[:, 0] * self._omega[:, 0] * np.cos(arg[:, 0]),
-            self._amp[:, 1] * self._omega[:, 1] * np.cos(arg[:, 1]),
-            e[:, 0], e[:, 1],
-            *_log_errors(e).T,
-            m.a + m.c * c1 + m.b * c12, m.c * s1 + m.b * s12,
-            -m.c * s1 * w1 - m.b * s12 * w12, m.c * c1 * w1 + m.b * c12 * w12,
-        ]  # fmt: skip
-        for dt in self._offsets:
-            preview = self._amp * np.sin(arg + self._omega * dt) + self._bias
-            cols += [preview[:, 0], preview[:, 1]]
-        return np.stack(cols, axis=1)
+        out[:, L.Q_DES] = q_des
+        out[:, L.DQ_DES] = self._amp * self._omega * np.cos(arg)
+        e = out[:, L.ERROR] = q_des - q
+        out[:, L.ERROR_LOG] = _log_errors(e)
+        angle = np.empty((self.num_envs, 2))  # link c, link b
+        angle[:, 0] = q[:, 0]
+        angle[:, 1] = q[:, 0] + q[:, 1]
+        cos, sin = np.cos(angle), np.sin(angle)
+        (c1, c12), (s1, s12) = cos.T, sin.T
+        w1, w12 = w[:, 0], w[:, 0] + w[:, 1]
+        out[:, L.EFFECTOR_POS] = np.stack(
+            [m.a + m.c * c1 + m.b * c12, m.c * s1 + m.b * s12], axis=1
+        )
+        out[:, L.EFFECTOR_VEL] = np.stack(
+            [-m.c * s1 * w1 - m.b * s12 * w12, m.c * c1 * w1 + m.b * c12 * w12], axis=1
+        )
+        # q_des(t + k dt) for every k at once: (N, P, 2), stored k by k, A then B.
+        ahead = arg[:, None, :] + self._omega[:, None, :] * self._offsets[None, :, None]
+        preview = self._amp[:, None, :] * np.sin(ahead) + self._bias[:, None, :]
+        out[:, L.preview_slice(len(self._offsets))] = preview.reshape(self.num_envs, -1)
+        return out
 
     def _rewards(
         self, obs: np.ndarray, a: np.ndarray, diverged: np.ndarray
@@ -322,6 +331,19 @@ class Tendon2RVectorEnv(VectorEnv):
 
     def close_extras(self, **kwargs: Any) -> None:
         self.batch = None
+
+
+#: Arms per MuJoCo batch thread by default.  On 2 cores (python scripts/bench_speed.py, columns
+#: native and native_1thread of results/speed.md), 8 arms step faster on one thread, 16 and
+#: more on two.
+ARMS_PER_THREAD = 8
+
+
+def default_nthread(num_envs: int) -> int:
+    """Returns the default number of MuJoCo batch threads: one per ARMS_PER_THREAD arms, at
+    least one, at most the CPUs this process may run on."""
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return max(1, min(cpus or 1, num_envs // ARMS_PER_THREAD))
 
 
 def _log_errors(e: np.ndarray) -> np.ndarray:

@@ -159,3 +159,24 @@ def test_explicit_routing_equals_named_routing():
     np.testing.assert_array_equal(
         ActuationAnalysis(named).moment_arms(q), ActuationAnalysis(explicit).moment_arms(q)
     )
+
+
+def test_disabling_island_discovery_changes_no_trajectory(mech):
+    """The model skips island discovery (one chain, one island); with it on, the same bang-bang
+    commands, which drive the arm into its joint limits, give bit-identical states."""
+    off = build_model(mech)
+    assert off.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_ISLAND
+    on = build_model(mech)
+    on.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_ISLAND)
+    states, limited = [], 0
+    for model in (off, on):
+        data, rng, traj = mujoco.MjData(model), np.random.default_rng(0), []
+        for k in range(3000):
+            if k % 100 == 0:
+                data.ctrl[:] = rng.choice([-1.0, 1.0], model.nu)
+            mujoco.mj_step(model, data)
+            traj.append(np.concatenate([data.qpos, data.qvel, data.qacc]))
+            limited += data.nefc > 0
+        states.append(np.array(traj))
+    assert limited > 100  # the joint-limit constraints were active
+    np.testing.assert_array_equal(states[0], states[1])

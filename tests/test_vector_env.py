@@ -16,15 +16,15 @@ def _native(n, **kw):
 
 
 @pytest.mark.parametrize(
-    "kwargs",
-    [{}, {"preset": "pull_only"}, {"reference_ranges": RANGES}, {"tracking_form": "quadratic"},
-     {"preset": "report_002", "ctrl_dt": 0.002}],
+    ("n", "nthread", "kwargs"),
+    [(3, 1, {}), (3, 1, {"preset": "pull_only"}), (3, 1, {"reference_ranges": RANGES}),
+     (3, 1, {"tracking_form": "quadratic"}), (3, 1, {"preset": "report_002", "ctrl_dt": 0.002}),
+     (17, 2, {"preview_steps": 6}), (9, None, {"preview_steps": 0})],
 )  # fmt: skip
-def test_same_seeds_same_trajectories_as_single_envs_bit_for_bit(kwargs):
+def test_same_seeds_same_trajectories_as_single_envs_bit_for_bit(n, nthread, kwargs):
     """Observations, rewards, terminations, truncations and infos equal a SyncVectorEnv of
-    gym.make envs exactly, through several autoresets."""
-    n = 3
-    native = _native(n, episode_duration=0.03, **kwargs)
+    gym.make envs exactly, through several autoresets, with any number of MuJoCo threads."""
+    native = _native(n, episode_duration=0.03, nthread=nthread, **kwargs)
     sync = gym.make_vec("Tendon2R-v0", num_envs=n, vectorization_mode="sync",
                         episode_duration=0.03, **kwargs)  # fmt: skip
     assert isinstance(native.unwrapped, Tendon2RVectorEnv)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import threading
 import time
 from pathlib import Path
@@ -22,6 +23,7 @@ import numpy as np  # noqa: E402
 
 import tendon2r_gym  # noqa: E402, F401
 from tendon2r_gym.runs import command_line  # noqa: E402
+from tendon2r_gym.vector_env import ARMS_PER_THREAD  # noqa: E402
 
 
 def time_raw_physics(env: gym.Env, n: int) -> float:
@@ -56,9 +58,13 @@ def best_of(fn, *args, repeats: int = 3) -> float:
 
 #: Vector-env backends: (name, factory(num_envs) -> object with reset/step, SB3-style?).
 def _make_backend(name: str, num_envs: int) -> Any:
-    if name in ("native", "sync", "async"):
-        mode = "vector_entry_point" if name == "native" else name
-        return gym.make_vec("Tendon2R-v0", num_envs=num_envs, vectorization_mode=mode)
+    if name.startswith("native"):  # native: default threads; native_1thread: one
+        kwargs = {"nthread": 1} if name == "native_1thread" else {}
+        return gym.make_vec(
+            "Tendon2R-v0", num_envs=num_envs, vectorization_mode="vector_entry_point", **kwargs
+        )
+    if name in ("sync", "async"):
+        return gym.make_vec("Tendon2R-v0", num_envs=num_envs, vectorization_mode=name)
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
@@ -67,26 +73,77 @@ def _make_backend(name: str, num_envs: int) -> Any:
     return make_vec_env("tendon2r_gym:Tendon2R-v0", n_envs=num_envs, vec_env_cls=cls)
 
 
-BACKENDS = ("native", "sync", "async", "sb3_dummy", "sb3_subproc")
+BACKENDS = ("native", "native_1thread", "sync", "async", "sb3_dummy", "sb3_subproc")
 PROCESS_BACKENDS = ("async", "sb3_subproc")  # one process per env
 
 
-def vector_throughput(name: str, num_envs: int, seconds: float) -> float:
-    """Returns env steps/s (all envs together) of a backend, random actions, autoreset on."""
+class _TimedBatch:
+    """Stands in for a native env's mujoco.batch.Batch and adds up the seconds spent in its
+    ``step`` (the MuJoCo physics, on the env's threads)."""
+
+    def __init__(self, batch: Any) -> None:
+        self._batch, self.seconds = batch, 0.0
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._batch, name)
+
+    def step(self, *args: Any, **kwargs: Any) -> Any:
+        start = time.perf_counter()
+        try:
+            return self._batch.step(*args, **kwargs)
+        finally:
+            self.seconds += time.perf_counter() - start
+
+
+def vector_throughput(name: str, num_envs: int, seconds: float) -> dict[str, float]:
+    """Returns env steps/s (all envs together) of a backend, random actions, autoreset on; for
+    the native env also ``physics_steps_per_s``: the same steps over the seconds spent in
+    MuJoCo alone, the rate no Python-side work could exceed."""
     envs = _make_backend(name, num_envs)
     sb3 = name.startswith("sb3")
     envs.reset() if sb3 else envs.reset(seed=0)
+    timed = None
+    if name.startswith("native"):
+        timed = envs.unwrapped.batch = _TimedBatch(envs.unwrapped.batch)
     rng = np.random.default_rng(0)
-    actions = rng.uniform(-1, 1, (64, num_envs, 2)).astype(np.float32)
+    actions = rng.uniform(-1, 1, (64, num_envs, envs.action_space.shape[-1])).astype(np.float32)
     for k in range(20):
         envs.step(actions[k % 64])
+    if timed is not None:
+        timed.seconds = 0.0
     steps, start = 0, time.perf_counter()
     while time.perf_counter() - start < seconds:
         envs.step(actions[steps // num_envs % 64])
         steps += num_envs
-    rate = steps / (time.perf_counter() - start)
+    out = {"steps_per_s": steps / (time.perf_counter() - start)}
+    if timed is not None:
+        out["physics_steps_per_s"] = steps / timed.seconds
     envs.close()
-    return rate
+    return out
+
+
+#: What a training process cannot do without, each timed alone in a fresh process: PyPI's
+#: torch (a CUDA build), and torch with one optimizer (creating one imports torch._dynamo).
+FLOORS = {
+    "import torch": "import torch",
+    "torch + one Adam optimizer": (
+        "import torch; torch.optim.Adam([torch.zeros(1, requires_grad=True)])"
+    ),
+    "import tendon2r_gym.training": "import tendon2r_gym.training",
+}
+
+
+def fresh_process_pss_mb(code: str) -> float:
+    """Returns the PSS (MB) of a fresh Python process once it has run ``code``."""
+    import subprocess
+
+    code += (
+        "\nimport pathlib; print(next(int(line.split()[1]) for line in "
+        "pathlib.Path('/proc/self/smaps_rollup').read_text().splitlines() "
+        "if line.startswith('Pss:')))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return int(out.stdout.split()[-1]) / 1024
 
 
 def _descendants(pid: int) -> list[int]:
@@ -155,7 +212,6 @@ def ppo_throughput(setup: dict[str, Any], timesteps: int, eval_freq: int) -> dic
     """Trains residual PPO (configs/ppo.yaml `default`, with ``setup``) in a fresh process and
     returns its env steps/s, peak summed PSS of its process tree and its first win over PD."""
     import subprocess
-    import sys
     import tempfile
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -220,13 +276,25 @@ def targets(result: dict[str, Any], num_envs: list[int]) -> list[str]:
         f"(target <= 600 MB: **{'met' if native['peak_pss_mb'] <= 600 else 'MISSED'}**; landed "
         f"subproc {landed['peak_pss_mb']:.0f} MB).",
     ]
+    if result["parent_maps_torch"]:
+        lines.append("  (This run's own process mapped torch: every PSS figure is understated.)")
+    lines.append(
+        "  Each alone, in a fresh process: "
+        + "; ".join(f"{k}: {v:.0f} MB" for k, v in result["floor_pss_mb"].items())
+        + "."
+    )
     vec = result["vector"]
     if "native_64" in vec and "sync_64" in vec:
-        ratio = vec["native_64"] / vec["sync_64"]
-        lines.append(
+        native, sync = vec["native_64"], vec["sync_64"]["steps_per_s"]
+        ratio = native["steps_per_s"] / sync
+        lines += [
             f"- Native vector env at N = 64: **{ratio:.1f}x** gym.make_vec sync (target >= 5x: "
-            f"**{'met' if ratio >= 5 else 'MISSED'}**)."
-        )
+            f"**{'met' if ratio >= 5 else 'MISSED'}**).",
+            f"  MuJoCo alone, on the native env's threads, stepped those arms at "
+            f"{native['physics_steps_per_s']:.0f} steps/s = "
+            f"{native['physics_steps_per_s'] / sync:.1f}x sync: the ceiling for any "
+            "Python-side work.",
+        ]
     beat = result["first_win"]["first_beat_pd"]
     wall = beat["wall_time_s"] if beat else None
     lines.append(
@@ -274,19 +342,24 @@ def main(argv: list[str] | None = None) -> dict:
         print(env_id, result[env_id], flush=True)
     ours, ref = result["Tendon2R-v0"]["overhead_us"], result["Reacher-v5"]["overhead_us"]
     result["overhead_ratio"] = ours / ref
-    result["vector"] = {}
-    for name in BACKENDS:
-        for n in args.num_envs:
-            if name in PROCESS_BACKENDS and n > args.max_processes:
-                continue  # one process per env: N processes on 2 cores
-            result["vector"][f"{name}_{n}"] = vector_throughput(name, n, args.vector_seconds)
-            print(name, n, round(result["vector"][f"{name}_{n}"]), flush=True)
+    # Memory first, while this process maps no torch: PSS splits a shared page among every
+    # process that maps it, so a parent holding torch would halve the children's figures.
+    result["parent_maps_torch"] = "torch" in sys.modules  # True only when run inside pytest
+    result["floor_pss_mb"] = {k: fresh_process_pss_mb(c) for k, c in FLOORS.items()}
+    print("floors, PSS (MB)", result["floor_pss_mb"], flush=True)
     result["ppo"] = {}
     for label, setup in PPO_SETUPS.items():  # each with its entry's evaluation period
         result["ppo"][label] = ppo_throughput(setup, args.ppo_timesteps, 0)
         print("ppo", label, result["ppo"][label], flush=True)
     # Time to beat PD: the native set-up again, evaluated every --eval-freq steps.
     result["first_win"] = ppo_throughput({}, args.first_win_timesteps, args.eval_freq)
+    result["vector"] = {}
+    for name in BACKENDS:
+        for n in args.num_envs:
+            if name in PROCESS_BACKENDS and n > args.max_processes:
+                continue  # one process per env: N processes on 2 cores
+            result["vector"][f"{name}_{n}"] = vector_throughput(name, n, args.vector_seconds)
+            print(name, n, result["vector"][f"{name}_{n}"], flush=True)
     print("first win", result["first_win"], flush=True)
 
     out = Path(args.out)
@@ -317,17 +390,23 @@ def main(argv: list[str] | None = None) -> dict:
         '`native` is gym.make_vec(..., vectorization_mode="vector_entry_point") '
         "(tendon2r_gym.vector_env: mujoco.batch, one process); `sync` / `async` are "
         "Gymnasium's, `sb3_dummy` / `sb3_subproc` SB3's.  Process-based backends run only "
-        f"up to N = {args.max_processes} (one process per env on 2 cores).",
+        f"up to N = {args.max_processes} (one process per env on 2 cores).  `native` uses its "
+        f"default MuJoCo threads (one per {ARMS_PER_THREAD} arms, up to the CPUs), "
+        "`native_1thread` one; "
+        "`native, MuJoCo alone` divides native's steps by the seconds spent inside "
+        "mujoco.batch's step.",
         "",
-        "| N | " + " | ".join(BACKENDS) + " |",
-        "|---|" + "---|" * len(BACKENDS),
+        "| N | " + " | ".join(BACKENDS) + " | native, MuJoCo alone |",
+        "|---|" + "---|" * (len(BACKENDS) + 1),
         *(
             f"| {n} | "
             + " | ".join(
-                f"{result['vector'][f'{b}_{n}']:.0f}" if f"{b}_{n}" in result["vector"] else "-"
+                f"{result['vector'][f'{b}_{n}']['steps_per_s']:.0f}"
+                if f"{b}_{n}" in result["vector"]
+                else "-"
                 for b in BACKENDS
             )
-            + " |"
+            + f" | {result['vector'][f'native_{n}']['physics_steps_per_s']:.0f} |"
             for n in args.num_envs
         ),
         "",
