@@ -198,25 +198,28 @@ class Tendon2RVectorEnv(VectorEnv):
         a = np.asarray(actions, dtype=np.float64)
         if a.shape != (n, n_act):
             raise ValueError(f"actions have shape {a.shape}; allowed: ({n}, {n_act}) in [-1, 1]")
-        if not np.all(np.isfinite(a)):
+        if not np.isfinite(a).all():
             raise ValueError(f"actions = {a.tolist()} are not all finite; allowed: [-1, 1]")
-        a = np.clip(a, -1.0, 1.0)
+        a = a.clip(-1.0, 1.0)
         terminated = np.zeros(n, dtype=bool)
         truncated = np.zeros(n, dtype=bool)
         # NEXT_STEP: arms that ended last step are reset now and report the reset observation.
         resetting = self._needs_reset.copy()
-        self._reset_ids(np.flatnonzero(resetting))
-        active = np.flatnonzero(~resetting)
+        if resetting.any():
+            self._reset_ids(np.flatnonzero(resetting))
+            ids = active = np.flatnonzero(~resetting)
+        else:  # the common step: every arm, without index arrays
+            ids, active = None, slice(None)
         self._ctrl[active] = a[active]
+        failed = np.zeros(n, dtype=bool)
         try:
-            self.batch.step(active, nstep=self.config.n_substeps)
-            failed = np.zeros(n, dtype=bool)
+            self.batch.step(ids, nstep=self.config.n_substeps)
         except mj_batch.SimulationError as e:  # MuJoCo raised: those arms diverged
-            failed = np.zeros(n, dtype=bool)
             failed[e.ids] = True
         diverged = self._check_divergence(active, failed)
         obs = self._observe()
-        obs[diverged] = self._last_obs[diverged]  # the last good state, as on the single env
+        if diverged.any():
+            obs[diverged] = self._last_obs[diverged]  # the last good state, as the single env
         rewards, terms = self._rewards(obs, a, diverged)
         rewards[resetting] = 0.0
         self._steps[active] += 1
@@ -243,7 +246,7 @@ class Tendon2RVectorEnv(VectorEnv):
     def _warnings(self) -> np.ndarray:
         return self.batch.warning[:, self._warn_ids, 1].sum(axis=1)  # (lastinfo, number)
 
-    def _check_divergence(self, active: np.ndarray, failed: np.ndarray) -> np.ndarray:
+    def _check_divergence(self, active: np.ndarray | slice, failed: np.ndarray) -> np.ndarray:
         """Per arm: a new MuJoCo instability warning, a failed call, a joint far past its limit
         or too fast, or a non-finite state; a diverged arm is left in a finite state."""
         warn = self._warnings()
@@ -302,8 +305,9 @@ class Tendon2RVectorEnv(VectorEnv):
         e = obs[:, obs_layout.ERROR] / RAD_PER_DEG
         if self.config.tracking_form == "log":
             sig = self.config.tracking_sigma_deg
-            u = (e / sig).ravel().tolist()  # math.log1p, as the single env: numpy's may differ
-            logs = np.array([math.log1p(x * x) for x in u]).reshape(e.shape)
+            u = e / sig  # math.log1p, as the single env: numpy's may differ in the last bit
+            logs = np.fromiter(map(math.log1p, (u * u).ravel().tolist()), float, u.size)
+            logs = logs.reshape(e.shape)
             tracking = 1.0 - (logs[:, 0] + logs[:, 1]) / self._log_norm
         else:
             tracking = -(e[:, 0] * e[:, 0] + e[:, 1] * e[:, 1])
@@ -349,4 +353,4 @@ def default_nthread(num_envs: int) -> int:
 def _log_errors(e: np.ndarray) -> np.ndarray:
     """The single env's ``_log_error`` on every entry of e (math.log1p, bit for bit: numpy's
     log1p may differ in the last bit)."""
-    return np.array([_log_error(x) for x in e.ravel().tolist()]).reshape(e.shape)
+    return np.fromiter(map(_log_error, e.ravel().tolist()), float, e.size).reshape(e.shape)

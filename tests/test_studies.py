@@ -14,7 +14,8 @@ def test_bench_speed_writes_every_figure(tmp_path):
     result = speed.main(
         ["--steps", "200", "--ppo-timesteps", "512", "--eval-freq", "4096",
          "--first-win-timesteps", "512", "--vector-seconds",
-         "0.05", "--num-envs", "1", "2", "--max-processes", "1", "--out", str(tmp_path)]
+         "0.05", "--repeats", "1", "--num-envs", "1", "2", "--max-processes", "1",
+         "--out", str(tmp_path)]
     )  # fmt: skip
     saved = json.loads((tmp_path / "speed.json").read_text())
     assert saved["overhead_ratio"] == result["overhead_ratio"] > 0
