@@ -287,13 +287,19 @@ def targets(result: dict[str, Any], num_envs: list[int]) -> list[str]:
     if "native_64" in vec and "sync_64" in vec:
         native, sync = vec["native_64"], vec["sync_64"]["steps_per_s"]
         ratio = native["steps_per_s"] / sync
+        # Per step of all 64 arms (us): the whole step, MuJoCo's share, and the step that 5x
+        # sync allows; the rest of a step is the Python-side work.
+        step_us, physics_us = 64e6 / native["steps_per_s"], 64e6 / native["physics_steps_per_s"]
+        allowed_us = 64e6 / (5 * sync)
         lines += [
             f"- Native vector env at N = 64: **{ratio:.1f}x** gym.make_vec sync (target >= 5x: "
             f"**{'met' if ratio >= 5 else 'MISSED'}**).",
             f"  MuJoCo alone, on the native env's threads, stepped those arms at "
             f"{native['physics_steps_per_s']:.0f} steps/s = "
             f"{native['physics_steps_per_s'] / sync:.1f}x sync: the ceiling for any "
-            "Python-side work.",
+            f"Python-side work.  Per step of the 64 arms: MuJoCo {physics_us:.0f} us, the "
+            f"Python-side work {step_us - physics_us:.0f} us; 5x sync leaves it "
+            f"{allowed_us - physics_us:.0f} us.",
         ]
     beat = result["first_win"]["first_beat_pd"]
     wall = beat["wall_time_s"] if beat else None
