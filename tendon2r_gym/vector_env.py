@@ -37,7 +37,7 @@ from tendon2r_gym.env import (
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.model import build_model, tendon_name
 from tendon2r_gym.reference import Reference
-from tendon2r_gym.validation import integer, invalid
+from tendon2r_gym.validation import boolean, integer, invalid
 
 
 class Tendon2RVectorEnv(VectorEnv):
@@ -62,9 +62,11 @@ class Tendon2RVectorEnv(VectorEnv):
     ) -> None:
         self.num_envs = integer("num_envs", num_envs, 1, 1_000_000)
         self.config = cfg = EnvConfig.make(preset, **kwargs)
+        modes = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
+        if autoreset_mode not in modes + tuple(m.value for m in modes):
+            allowed = " or ".join(f"AutoresetMode.{m.name} ({m.value!r})" for m in modes)
+            raise invalid("autoreset_mode", autoreset_mode, allowed)
         mode = AutoresetMode(autoreset_mode)
-        if mode == AutoresetMode.DISABLED:
-            raise invalid("autoreset_mode", mode, "NEXT_STEP or SAME_STEP")
         self.metadata = {**type(self).metadata, "autoreset_mode": mode}
         self.autoreset_mode = mode
         self.max_episode_steps = (
@@ -111,7 +113,7 @@ class Tendon2RVectorEnv(VectorEnv):
         self._needs_reset = np.zeros(n, dtype=bool)
         # Training: the arms' first episodes end at staggered steps, so that every rollout
         # samples all phases of the reference instead of N copies of the same window.
-        self._stagger = bool(stagger)
+        self._stagger = boolean("stagger", stagger)
         self._last_obs = np.zeros((n, self.single_observation_space.shape[0]))
 
     # -- references --------------------------------------------------------------------------

@@ -78,6 +78,34 @@ def test_bad_actions_raise(action, match):
         envs.step(action)
 
 
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [({"num_envs": 0}, r"num_envs = 0 is invalid; allowed: .*1"),
+     ({"nthread": -1}, r"nthread = -1 is invalid; allowed: .*0"),
+     ({"nthread": 1.5}, "nthread = 1.5 is invalid"),
+     ({"autoreset_mode": "Disabled"}, r"autoreset_mode = 'Disabled' is invalid; .*NEXT_STEP"),
+     ({"autoreset_mode": "next"}, r"autoreset_mode = 'next' is invalid; allowed: .*'SameStep'"),
+     ({"max_episode_steps": 0}, "max_episode_steps = 0 is invalid"),
+     ({"stagger": "yes"}, "stagger = 'yes' is invalid; allowed: true or false"),
+     ({"ctrl_dt": -1.0}, "ctrl_dt = -1.0 is invalid")],
+)  # fmt: skip
+def test_bad_constructor_arguments_raise_naming_the_field(kwargs, match):
+    kwargs = {"num_envs": 2, **kwargs}
+    with pytest.raises(ValueError, match=match):
+        Tendon2RVectorEnv(**kwargs)
+
+
+def test_default_threads_follow_the_number_of_arms(monkeypatch):
+    """One MuJoCo thread per ARMS_PER_THREAD arms, at least one, at most the usable CPUs."""
+    from tendon2r_gym import vector_env
+
+    monkeypatch.setattr(vector_env.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    per = vector_env.ARMS_PER_THREAD
+    assert [vector_env.default_nthread(n) for n in (1, per, 2 * per, 100 * per)] == [1, 1, 2, 2]
+    assert Tendon2RVectorEnv(2 * per).batch.nthread == 2
+    assert Tendon2RVectorEnv(2 * per, nthread=1).batch.nthread == 1
+
+
 def test_batched_pd_equals_single_pd():
     env = gym.make("Tendon2R-v0", preset="pull_only")
     pd = PDPolicy.from_env(env)
