@@ -43,8 +43,8 @@ from tendon2r_gym.validation import boolean, integer, invalid
 class Tendon2RVectorEnv(VectorEnv):
     """N Tendon2R-v0 arms in one process (see the module docstring).  Takes the arguments of
     Tendon2R-v0 (preset, mechanism, reference, ...) plus ``num_envs``, ``autoreset_mode``,
-    ``nthread`` (MuJoCo batch threads; None: one per 8 arms, up to the CPUs this process may
-    use; 0: one per CPU) and ``stagger`` (training: after each
+    ``nthread`` (MuJoCo batch threads; None: one per ARMS_PER_THREAD arms, up to the CPUs this
+    process may use; 0: one per CPU) and ``stagger`` (training: after each
     full reset, arm i's episode is already i / N of the way to its step limit, so the arms
     desynchronize; off by default, as it breaks the equality with single envs)."""
 
@@ -340,8 +340,8 @@ class Tendon2RVectorEnv(VectorEnv):
 
 
 #: Arms per MuJoCo batch thread by default.  On 2 cores (python scripts/bench_speed.py, columns
-#: native and native_1thread of results/speed.md), 8 arms step faster on one thread, 16 and
-#: more on two.
+#: native_1thread and native_2threads of results/speed.md), 8 arms step faster on one thread,
+#: 16 and more on two.
 ARMS_PER_THREAD = 8
 
 

@@ -58,8 +58,8 @@ def best_of(fn, *args, repeats: int = 3) -> float:
 
 #: Vector-env backends: (name, factory(num_envs) -> object with reset/step, SB3-style?).
 def _make_backend(name: str, num_envs: int) -> Any:
-    if name.startswith("native"):  # native: default threads; native_1thread: one
-        kwargs = {"nthread": 1} if name == "native_1thread" else {}
+    if name.startswith("native"):  # native: default threads; native_<k>thread(s): k
+        kwargs = {"nthread": NATIVE_THREADS[name]} if name in NATIVE_THREADS else {}
         return gym.make_vec(
             "Tendon2R-v0", num_envs=num_envs, vectorization_mode="vector_entry_point", **kwargs
         )
@@ -73,7 +73,8 @@ def _make_backend(name: str, num_envs: int) -> Any:
     return make_vec_env("tendon2r_gym:Tendon2R-v0", n_envs=num_envs, vec_env_cls=cls)
 
 
-BACKENDS = ("native", "native_1thread", "sync", "async", "sb3_dummy", "sb3_subproc")
+NATIVE_THREADS = {"native_1thread": 1, "native_2threads": 2}  # fixed MuJoCo thread counts
+BACKENDS = ("native", *NATIVE_THREADS, "sync", "async", "sb3_dummy", "sb3_subproc")
 PROCESS_BACKENDS = ("async", "sb3_subproc")  # one process per env
 
 
@@ -328,7 +329,7 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--first-win-timesteps", type=int, default=49152)
     p.add_argument("--vector-seconds", type=float, default=1.5, help="per vector-env setting")
     p.add_argument("--repeats", type=int, default=3, help="best of, per timing")
-    p.add_argument("--num-envs", type=int, nargs="+", default=[1, 8, 64, 256])
+    p.add_argument("--num-envs", type=int, nargs="+", default=[1, 8, 16, 64, 256])
     p.add_argument("--max-processes", type=int, default=8, help="largest N for async/subproc")
     p.add_argument("--out", default="results", help="folder for speed.md and speed.json")
     args = p.parse_args(argv)
@@ -401,7 +402,7 @@ def main(argv: list[str] | None = None) -> dict:
         "Gymnasium's, `sb3_dummy` / `sb3_subproc` SB3's.  Process-based backends run only "
         f"up to N = {args.max_processes} (one process per env on 2 cores).  `native` uses its "
         f"default MuJoCo threads (one per {ARMS_PER_THREAD} arms, up to the CPUs), "
-        "`native_1thread` one; "
+        "`native_1thread` / `native_2threads` one / two; "
         "`native, MuJoCo alone` divides native's steps by the seconds spent inside "
         "mujoco.batch's step.",
         "",
