@@ -340,8 +340,8 @@ class Tendon2RVectorEnv(VectorEnv):
 
 
 #: Arms per MuJoCo batch thread by default.  On 2 cores (python scripts/bench_speed.py, columns
-#: native_1thread and native_2threads of results/speed.md), 8 arms step faster on one thread,
-#: 16 and more on two.
+#: native_1thread and native_2threads of results/speed.md), a second thread pays from 16 arms
+#: on; at 8 arms and fewer, one and two threads differ by less than the noise between runs.
 ARMS_PER_THREAD = 8
 
 
