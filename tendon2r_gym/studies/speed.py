@@ -138,13 +138,15 @@ def fresh_process_pss_mb(code: str) -> float:
     """Returns the PSS (MB) of a fresh Python process once it has run ``code``."""
     import subprocess
 
-    code += (
-        "\nimport pathlib; print(next(int(line.split()[1]) for line in "
-        "pathlib.Path('/proc/self/smaps_rollup').read_text().splitlines() "
-        "if line.startswith('Pss:')))"
-    )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    return int(out.stdout.split()[-1]) / 1024
+    wait = "\nimport sys; print('ready', flush=True); sys.stdin.read()"
+    with subprocess.Popen(
+        [sys.executable, "-c", code + wait], stdin=subprocess.PIPE, stdout=subprocess.PIPE
+    ) as proc:
+        if proc.stdout.readline().strip() != b"ready":
+            raise RuntimeError(f"{code!r} failed in a fresh process")
+        mb = _pss_mb([proc.pid])
+        proc.communicate(b"")
+    return mb
 
 
 def _descendants(pid: int) -> list[int]:
