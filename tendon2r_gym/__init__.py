@@ -5,12 +5,13 @@ Data flows one way: Mechanism -> build_model -> Tendon2REnv -> policy -> rollout
 
 import gymnasium as gym
 
-from tendon2r_gym.actuation import ActuationAnalysis, cond, positive_span
+from tendon2r_gym.actuation import ActuationAnalysis, cond
 from tendon2r_gym.env import Tendon2REnv
 from tendon2r_gym.env_config import EnvConfig
-from tendon2r_gym.mechanism import ROUTINGS, Mechanism
+from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.model import build_model, build_spec, to_xml
 from tendon2r_gym.reference import Reference, ReferenceRanges
+from tendon2r_gym.routing import ROUTINGS, positive_span
 
 __all__ = [
     "ROUTINGS",

@@ -17,7 +17,7 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-from tendon2r_gym.config import MODELS_DIR
+from tendon2r_gym.presets import MODELS_DIR
 from tendon2r_gym.runs import BEST, BUNDLE_FILES, RunFolder
 from tendon2r_gym.validation import invalid
 

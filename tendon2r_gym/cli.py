@@ -102,7 +102,7 @@ class TrainArgs:
 
 def resolve_train(args: TrainArgs) -> dict[str, Any]:
     """Returns the validated hyperparameters of a train command."""
-    from tendon2r_gym.config import PPO_CONFIG
+    from tendon2r_gym.presets import PPO_CONFIG
     from tendon2r_gym.training import check_hyperparams, load_hyperparams
 
     cfg = load_hyperparams(args.hyperparams, args.config or PPO_CONFIG, args.env_config)

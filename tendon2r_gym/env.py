@@ -15,30 +15,23 @@ from gymnasium.utils import EzPickle
 
 from tendon2r_gym import observation as obs_layout
 from tendon2r_gym.actuation import MomentArms, cond
-from tendon2r_gym.config import merge_reference
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.model import CAMERA, build_model, tendon_name
+from tendon2r_gym.ops import SCALAR
 from tendon2r_gym.reference import Reference
-from tendon2r_gym.validation import integer, invalid
+from tendon2r_gym.task import Task, reference_params, rewards_table
+from tendon2r_gym.validation import integer, invalid, real_array
 
-_DIVERGENCE_WARNINGS = (
+#: MuJoCo's warnings that mean the integration failed.
+DIVERGENCE_WARNINGS = (
     mujoco.mjtWarning.mjWARN_BADQACC,
     mujoco.mjtWarning.mjWARN_BADQPOS,
     mujoco.mjtWarning.mjWARN_BADQVEL,
 )
 
 
-DIVERGED_PAST_LIMIT = 0.5  # rad past a joint limit that counts as diverged
-#: Degrees from radians as e / RAD_PER_DEG, in the single and the vector env alike (numpy's
-#: np.degrees rounds differently from this in the last bit).
-RAD_PER_DEG = math.pi / 180.0
-#: A joint speed that counts as diverged (rad/s): bang-bang commands at 10x the default force
-#: limit reach about 500 rad/s.
-DIVERGED_SPEED = 1e4
-
-
-def _log_error(e: float) -> float:
-    return math.copysign(math.log1p(abs(e) / obs_layout.ERROR_LOG_SCALE), e)
+def _allowed_actions(n: int) -> str:
+    return f"({n},) finite real numbers (one per tendon) in [-1, 1]; values outside are clipped"
 
 
 def make_env(preset: str | os.PathLike = "default", **kwargs: Any) -> gym.Env:
@@ -75,15 +68,10 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     {obs_table}
 
     ## Rewards
-    ``reward = sum(reward_scales[k] * term_k)`` over the terms below (each is in ``info`` as
-    ``reward_<k>``, already scaled):
+    ``reward = sum(reward_scales[k] * term_k)`` over the terms below (tendon2r_gym.task.TERMS;
+    each is in ``info`` as ``reward_<k>``, already scaled):
 
-    - ``tracking``: with ``tracking_form="quadratic"``, ``-sum(e^2)`` with the errors e in
-      **degrees**; with ``"log"``, ``1 - sum(log(1 + (e / sigma)^2)) / (2 log(1 + (180 /
-      sigma)^2))`` with sigma = ``tracking_sigma_deg``: in [0, 1] for |e| <= 180 deg, 1 on
-      the reference, and quadratic near it.
-    - ``ctrl``: ``-sum(action^2)``, on the clipped action (for pull-only, -1 is slack);
-    - ``divergence``: -1 on the step where the physics diverges, else 0.
+    {rewards}
 
     ## Starting State
     On the reference: q = q_des(0), dq = dq_des(0), plus uniform noise in
@@ -196,15 +184,8 @@ class Tendon2REnv(MujocoEnv, EzPickle):
 
     def _resolve_ids(self) -> None:
         """Caches views and constants used on every step (no name look-ups in the hot path)."""
-        m, d = self.mechanism, self.data
-        self._a, self._b, self._c = m.a, m.b, m.c
-        self._q_lo, self._q_hi = m.joint_range_rad
-        # Soft joint limits let a joint overshoot a little; this far past them (NaN included)
-        # the simulation has left its valid domain.
-        self._q_lo_div, self._q_hi_div = (
-            self._q_lo - DIVERGED_PAST_LIMIT,
-            self._q_hi + DIVERGED_PAST_LIMIT,
-        )
+        d = self.data
+        self.task = Task(self.config)
         # Views into MjData stay valid for its lifetime; fetching them once saves a binding call
         # per access on every step.
         self._qpos, self._qvel, self._ctrl = d.qpos, d.qvel, d.ctrl
@@ -212,30 +193,18 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         # Named sensor reads: each tendon's motor force (N, positive lengthens), contiguous.
         first = self.model.sensor(f"force_{tendon_name(0)}").adr[0]
         self._motor_force = d.sensordata[first : first + self._n]
-        self._warnings = [d.warning[w] for w in _DIVERGENCE_WARNINGS]
+        self._warnings = [d.warning[w] for w in DIVERGENCE_WARNINGS]
         self._arms = MomentArms(self.model, d)
-        self._offsets = [k * self.preview_dt for k in range(1, self.preview_steps + 1)]
-        cfg = self.config
-        self._w_track, self._w_ctrl, self._w_div = (
-            cfg.reward_scales[k] for k in ("tracking", "ctrl", "divergence")
-        )
-        self._log_form = cfg.tracking_form == "log"
         self._err = obs_layout.ERROR
-        self._info_keys = {k: f"reward_{k}" for k in cfg.reward_scales}
-        self._sigma = cfg.tracking_sigma_deg
-        self._log_norm = 2.0 * math.log1p((180.0 / self._sigma) ** 2)
-        self._set_reference_cache(self.reference)
+        self._fixed_reference: Reference | None = None
+        self._set_reference(self.reference)
         self._warning_count = 0
         self._last_obs: np.ndarray | None = None
 
-    def _set_reference_cache(self, ref: Reference) -> None:
-        """Caches the reference as Python floats, joint A then B (scalar math is faster than
-        numpy on two-element arrays)."""
+    def _set_reference(self, ref: Reference) -> None:
+        """Sets the episode's reference, cached as Python floats for the task's scalar math."""
         self.reference = ref
-        self._amp1, self._amp2 = ref._amp.tolist()
-        self._bias1, self._bias2 = ref._bias.tolist()
-        self._omega1, self._omega2 = ref._omega.tolist()
-        self._phase1, self._phase2 = ref._phase.tolist()
+        self._ref = reference_params(ref)
 
     # -- named quantities ------------------------------------------------------------------------
     def tendon_tensions(self) -> np.ndarray:
@@ -251,15 +220,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
 
     # -- gymnasium API -----------------------------------------------------------------------------
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        n = self._n
-        if type(action) is not np.ndarray or action.shape != (n,):
-            action = np.asarray(action, dtype=np.float64)
-            if action.shape != (n,):
-                raise ValueError(f"action has shape {action.shape}; allowed: ({n},) in [-1, 1]")
-        a = action.tolist()
-        if not all(math.isfinite(x) for x in a):
-            raise ValueError(f"action = {a} is not finite; allowed: {n} values in [-1, 1]")
-        a = [min(max(x, -1.0), 1.0) for x in a]
+        a = self._check_action(action)
         self._ctrl[:] = a
         mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
         diverged = self._check_divergence()
@@ -272,17 +233,22 @@ class Tendon2REnv(MujocoEnv, EzPickle):
             self.render()
         return obs, reward, diverged, False, info
 
+    def _check_action(self, action: Any) -> list[float]:
+        """Returns the action as n floats clipped to [-1, 1], or raises a ValueError naming it."""
+        n = self._n
+        if type(action) is not np.ndarray or action.shape != (n,) or action.dtype.kind != "f":
+            action = real_array("action", action, (n,), _allowed_actions(n))
+        a = action.tolist()
+        if not all(math.isfinite(x) for x in a):
+            raise invalid("action", action, _allowed_actions(n))
+        return [min(max(x, -1.0), 1.0) for x in a]
+
     def _check_divergence(self) -> bool:
-        """Returns whether the last step diverged (a new MuJoCo instability warning, a
-        non-finite state, or a joint far past its limit); if so, leaves a finite state."""
+        """Returns whether the last step diverged (a new MuJoCo instability warning, or a state
+        outside the task's domain); if so, leaves a finite state."""
         n_warn = sum(w.number for w in self._warnings)
         (q1, q2), (w1, w2) = self._qpos.tolist(), self._qvel.tolist()
-        lo, hi = self._q_lo_div, self._q_hi_div
-        diverged = (
-            n_warn > self._warning_count
-            or not (lo < q1 < hi and lo < q2 < hi)  # also catches NaN
-            or not (abs(w1) < DIVERGED_SPEED and abs(w2) < DIVERGED_SPEED)  # NaN too
-        )
+        diverged = n_warn > self._warning_count or self.task.out_of_domain(SCALAR, q1, q2, w1, w2)
         self._warning_count = n_warn
         if diverged:  # MuJoCo already reset the state on a bad QACC; make sure it is finite.
             self._qpos[:] = np.nan_to_num(self._qpos, nan=0.0, posinf=0.0, neginf=0.0)
@@ -290,71 +256,32 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         return diverged
 
     def _get_obs(self) -> np.ndarray:
-        """Writes the observation in the order of ``tendon2r_gym.observation.FIXED``."""
+        """Returns the observation (tendon2r_gym.task.Task.observation on this arm)."""
         (q1, q2), (w1, w2) = self._qpos.tolist(), self._qvel.tolist()
-        a, b, c = self._a, self._b, self._c
-        c1, s1 = math.cos(q1), math.sin(q1)
-        c12, s12 = math.cos(q1 + q2), math.sin(q1 + q2)
-        w12 = w1 + w2
-        t = self.data.time
-        amp1, amp2, om1, om2 = self._amp1, self._amp2, self._omega1, self._omega2
-        ph1, ph2, bias1, bias2 = self._phase1, self._phase2, self._bias1, self._bias2
-        arg1, arg2 = om1 * t + ph1, om2 * t + ph2
-        qd1, qd2 = amp1 * math.sin(arg1) + bias1, amp2 * math.sin(arg2) + bias2
-        obs = [
-            q1, q2, w1, w2,
-            qd1, qd2, amp1 * om1 * math.cos(arg1), amp2 * om2 * math.cos(arg2),
-            qd1 - q1, qd2 - q2,
-            _log_error(qd1 - q1), _log_error(qd2 - q2),
-            a + c * c1 + b * c12, c * s1 + b * s12,  # effector x, z
-            -c * s1 * w1 - b * s12 * w12, c * c1 * w1 + b * c12 * w12,  # effector velocity
-        ]  # fmt: skip
-        for dt in self._offsets:
-            obs.append(amp1 * math.sin(arg1 + om1 * dt) + bias1)
-            obs.append(amp2 * math.sin(arg2 + om2 * dt) + bias2)
-        return np.array(obs, dtype=np.float64)
+        parts = self.task.observation(SCALAR, q1, q2, w1, w2, self.data.time, self._ref)
+        return np.array(parts, dtype=np.float64)
 
     def _get_rew(
         self, obs: np.ndarray, action: list[float], diverged: bool
     ) -> tuple[float, dict[str, float]]:
         """Returns (reward, scaled terms); the reward is the sum of the terms."""
         e1, e2 = obs[self._err].tolist()
-        e1, e2 = e1 / RAD_PER_DEG, e2 / RAD_PER_DEG
-        if self._log_form:
-            u1, u2 = e1 / self._sigma, e2 / self._sigma
-            tracking = 1.0 - (math.log1p(u1 * u1) + math.log1p(u2 * u2)) / self._log_norm
-        else:
-            tracking = -(e1 * e1 + e2 * e2)
-        effort = 0.0  # sum of squares in order, as numpy's sum over a few entries
-        for x in action:
-            effort += x * x
-        terms = {
-            "tracking": self._w_track * tracking,
-            "ctrl": -self._w_ctrl * effort,
-            "divergence": -self._w_div if diverged else 0.0,
-        }
-        return sum(terms.values()), terms
+        return self.task.scale(self.task.reward_terms(SCALAR, e1, e2, action, diverged))
 
     def _get_info(self, obs: np.ndarray, terms: dict[str, float], diverged: bool) -> dict[str, Any]:
-        return {
-            **{self._info_keys[k]: v for k, v in terms.items()},
-            "q": obs[obs_layout.Q],
-            "q_des": obs[obs_layout.Q_DES],
-            "tracking_error_deg": obs[obs_layout.ERROR] / RAD_PER_DEG,
-            "tendon_tension": self.tendon_tensions(),
-            "moment_arm_cond": cond(self._arms.dense()),
-            "effector_pos": obs[obs_layout.EFFECTOR_POS],
-            "time": self.data.time,
-            "diverged": diverged,
-        }
+        return self.task.step_info(
+            obs,
+            terms,
+            self.tendon_tensions(),
+            cond(self._arms.dense()),
+            self.data.time,
+            diverged,
+        )
 
     def reset_model(self) -> np.ndarray:
-        if self.reference_ranges is not None:
-            self._set_reference_cache(self.reference_ranges.sample(self.np_random, self.mechanism))
-        noise = self.config.reset_noise_scale
-        q = self.reference.q(0.0) + self.np_random.uniform(-noise, noise, 2)
-        qdot = self.reference.qdot(0.0) + self.np_random.uniform(-noise, noise, 2)
-        self.set_state(np.clip(q, self._q_lo, self._q_hi), qdot)
+        self._set_reference(self.task.episode_reference(self.np_random, self._fixed_reference))
+        q, qdot = self.task.initial_state(self.np_random, self.reference)
+        self.set_state(q, qdot)
         self._warning_count = sum(w.number for w in self._warnings)
         self._last_obs = self._get_obs()
         return self._last_obs
@@ -362,32 +289,15 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """Resets the episode.  ``options={"reference": {...}}`` fixes this episode's reference
         (Reference fields over the nominal one; it must fit the workspace), e.g. for held-out
-        evaluation."""
-        if options and "reference" in options:
-            ref = Reference.from_dict(
-                merge_reference(self.nominal_reference.to_dict(), options["reference"])
-            )
-            if problems := ref.workspace_violations(self.mechanism):
-                raise ValueError(f"options['reference'] leaves the workspace: {problems}")
-            saved, self.reference_ranges = self.reference_ranges, None
-            self._set_reference_cache(ref)
-            try:
-                return super().reset(seed=seed, options=options)
-            finally:
-                self.reference_ranges = saved
-        if self.reference_ranges is None:
-            self._set_reference_cache(self.nominal_reference)
+        evaluation; ``reference_ranges`` then draws nothing."""
+        self._fixed_reference = self.task.reference_option(options)
         return super().reset(seed=seed, options=options)
 
     def _get_reset_info(self) -> dict[str, Any]:
-        return {
-            "reference": self.reference.to_dict(),
-            "time": float(self.data.time),
-            "force_need_N": self.force_need(),
-            "max_tendon_force_N": self.mechanism.max_tendon_force,
-        }
+        return self.task.reset_info(self.reference, float(self.data.time))
 
 
 Tendon2REnv.__doc__ = Tendon2REnv.__doc__.format(
-    obs_table=obs_layout.table().replace("\n", "\n    ")
+    obs_table=obs_layout.table().replace("\n", "\n    "),
+    rewards=rewards_table().replace("\n", "\n    "),
 )

@@ -1,7 +1,7 @@
 """EnvConfig: every argument of Tendon2R-v0 except rendering, resolved and validated once.
 
 ``EnvConfig.make(preset, **overrides)`` reads the preset or experiment file, applies the
-overrides (:func:`tendon2r_gym.config.merge_env_kwargs`), checks every value, fits the reference
+overrides (:func:`tendon2r_gym.presets.merge_env_kwargs`), checks every value, fits the reference
 to the workspace if asked, and sizes ``max_tendon_force: auto``.  Every error is raised here,
 before any MuJoCo model is built.  ``to_dict()`` is what a training run records, and what a
 trained model is checked against when it is loaded.
@@ -13,22 +13,26 @@ import dataclasses
 import math
 import os
 import warnings
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Any
 
-from tendon2r_gym.actuation import FORCE_HEADROOM, force_need
-from tendon2r_gym.config import SECTIONS, load_preset, merge_env_kwargs
+import mujoco
+import numpy as np
+
+from tendon2r_gym.actuation import MomentArms, distribute
 from tendon2r_gym.mechanism import AUTO, Mechanism
 from tendon2r_gym.model import build_model
+from tendon2r_gym.presets import SECTIONS, load_preset, merge_env_kwargs
 from tendon2r_gym.reference import Reference, ReferenceRanges
 from tendon2r_gym.stability import check_stability
+from tendon2r_gym.task import REWARD_SCALES, TRACKING_FORMS
 from tendon2r_gym.validation import boolean, check_keys, integer, invalid, mapping, number
 
-#: Reward weights (mujoco_playground style): reward = sum of scale * term, one entry per term.
-REWARD_SCALES: dict[str, float] = {"tracking": 1.0, "ctrl": 0.001, "divergence": 10.0}
-TRACKING_FORMS = ("quadratic", "log")
+#: ``max_tendon_force: auto`` is this many times the peak force that inverse dynamics of the
+#: reference needs: PD's feedback and the start-up transient need room above feed-forward.
+FORCE_HEADROOM = 2.0
 
 
 @dataclass(frozen=True)
@@ -197,3 +201,35 @@ def _physics(mech: Mechanism, refs: tuple[Reference, ...]) -> float:
 
 
 assert set(SECTIONS) <= set(arguments())
+
+
+def force_need(
+    model: mujoco.MjModel,
+    references: Sequence[Reference],
+    pull_only: bool = False,
+    pretension: float = 0.0,
+    grid: int = 24,
+) -> float:
+    """Returns the peak tendon tension (N) that inverse dynamics needs to follow any of
+    ``references`` exactly, over every combination of the two joints' phases.
+
+    Each joint j moves as q = bias + amp sin(theta_j); the torques tau come from mj_inverse at
+    (q, dq, ddq) on a ``grid`` x ``grid`` grid of (theta_A, theta_B), and the tensions from
+    tendon2r_gym.actuation.distribute (with the pretension for pull-only tendons).  Taking every
+    phase pair bounds the need of any start time, phase and episode length."""
+    data = mujoco.MjData(model)
+    arms = MomentArms(model, data)
+    theta = np.linspace(0.0, 2.0 * np.pi, grid, endpoint=False)
+    s = np.stack(np.meshgrid(np.sin(theta), np.sin(theta), indexing="ij"), -1).reshape(-1, 2)
+    c = np.stack(np.meshgrid(np.cos(theta), np.cos(theta), indexing="ij"), -1).reshape(-1, 2)
+    peak = 0.0
+    for ref in references:
+        amp, bias, w = ref.amp_rad, ref.bias_rad, ref.omega_array
+        for si, ci in zip(s, c, strict=True):
+            data.qpos[:] = bias + amp * si
+            data.qvel[:] = amp * w * ci
+            data.qacc[:] = -amp * w * w * si
+            mujoco.mj_inverse(model, data)
+            t = distribute(arms.dense(), data.qfrc_inverse, pull_only, pretension)
+            peak = max(peak, float(np.max(np.abs(t))))
+    return peak

@@ -25,7 +25,7 @@ from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.policies import PDPolicy
 from tendon2r_gym.reference import Reference, ReferenceRanges
 from tendon2r_gym.runs import RUN_META, model_files, stem_of
-from tendon2r_gym.validation import number
+from tendon2r_gym.validation import number, real_array
 
 #: Env config fields a trained model depends on: what it observes and what it must track.
 MODEL_ENV_FIELDS = (
@@ -63,10 +63,9 @@ class ResidualPDWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 def residual_command(base: np.ndarray, action: np.ndarray, scale: float) -> np.ndarray:
     """Returns clip(base + scale * clip(action, -1, 1), -1, 1) for one observation: the PD
     command ``base`` plus the agent's residual.  Training (ResidualPDWrapper) and deployment
-    (PPOPolicy) share it; the env checks the shape and finiteness of the result."""
-    a = np.asarray(action, dtype=np.float64)
-    if a.shape != np.shape(base):
-        raise ValueError(f"action has shape {a.shape}; allowed: {np.shape(base)} in [-1, 1]")
+    (PPOPolicy) share it, and it refuses an action of the wrong shape or a non-finite one."""
+    shape = np.shape(base)
+    a = real_array("action", action, shape, f"finite real numbers of shape {shape} in [-1, 1]")
     return np.clip(base + scale * np.clip(a, -1.0, 1.0), -1.0, 1.0)
 
 

@@ -11,7 +11,7 @@ Geometry conventions (see README):
   joint A only.  Its moment arms are dL/dq = (-s1 r1, -s2 r2).
 - ``pull_only``: the motors only pull, as real tendons do (a pushed tendon goes slack).  Two
   pull-only tendons cannot reverse a joint torque; n + 1 tendons whose moment arms positively
-  span the torque plane can (tendon2r_gym.actuation.positive_span).
+  span the torque plane can (tendon2r_gym.routing.positive_span).
 """
 
 from __future__ import annotations
@@ -24,26 +24,9 @@ from typing import Any
 
 import numpy as np
 
+from tendon2r_gym import routing as routings
+from tendon2r_gym.routing import Sides
 from tendon2r_gym.validation import boolean, check_keys, invalid, is_number, mapping, number
-
-Sides = tuple[tuple[int, int], ...]
-
-#: Named routings: the side (+1 over, -1 under, 0 not reached) each tendon takes on
-#: (pulley 1, pulley 2).
-ROUTINGS: dict[str, Sides] = {
-    # Not mirror images: the moment-arm matrix is full rank, both joints are actuated.
-    "asymmetric": ((+1, +1), (-1, +1)),
-    # The reports' text: tendon 1 over both pulleys, tendon 2 under both (rank 1 at q = 0).
-    "parallel": ((+1, +1), (-1, -1)),
-    # The course XML template: tendon 1 under pulley 1 and over pulley 2, tendon 2 the reverse.
-    "crossed": ((-1, +1), (+1, -1)),
-    # Three tendons for pull-only motors: moment arms (-r1, -r2), (-r1, +r2) and (+r1, 0), whose
-    # null vector (1, 1, 2) is strictly positive, so a pretension keeps every tendon taut.  The
-    # third tendon ends on link c: with three tendons that all wrap both pulleys, the rows are
-    # corners (+-r1, +-r2) and the origin lies on an edge of their triangle (no strictly
-    # positive pretension exists).
-    "n_plus_1": ((+1, +1), (+1, -1), (-1, 0)),
-}
 
 INTEGRATORS = ("Euler", "RK4", "implicit", "implicitfast")
 #: ``max_tendon_force: auto`` sizes the force limit from the reference (Tendon2REnv does it).
@@ -64,12 +47,12 @@ class Mechanism:
     a: float = 0.052  # base link, wall to joint A (m)
     b: float = 0.073  # link from joint B to the effector (m)
     c: float = 0.094  # link from joint A to joint B (m)
-    # Routing: a name from ROUTINGS or explicit sides ((s11, s12), (s21, s22), ...), 2 or more.
+    # Routing: a name of tendon2r_gym.routing.ROUTINGS or sides ((s11, s12), (s21, s22), ...).
     routing: str | Sides = "asymmetric"
     # Actuation: push-pull, an action of +-1 is +-max_tendon_force on the tendon; pull-only,
     # an action in [-1, 1] is a tension in [0, max_tendon_force].  "auto": the env sets the
     # limit from the peak force that inverse dynamics of its reference needs, times
-    # FORCE_HEADROOM (tendon2r_gym.actuation.force_need).
+    # FORCE_HEADROOM (tendon2r_gym.env_config.force_need).
     max_tendon_force: float | str = AUTO  # (N)
     pull_only: bool = False
     # The least tension that model-based controllers keep in every pull-only tendon (N).
@@ -129,9 +112,7 @@ class Mechanism:
         set_("joint_range_deg", (lo, hi))
         set_("routing", _normalize_routing(self.routing))
         if self.pull_only:
-            from tendon2r_gym.actuation import positive_span_of_sides
-
-            spans, why = positive_span_of_sides(self.tendon_sides, self.r1, self.r2)
+            spans, why = routings.positive_span_of_sides(self.tendon_sides, self.r1, self.r2)
             if not spans:
                 raise _fail(
                     "pull_only",
@@ -173,7 +154,7 @@ class Mechanism:
     @property
     def tendon_sides(self) -> Sides:
         """Returns ((s11, s12), (s21, s22), ...): the side each tendon takes on each pulley."""
-        return ROUTINGS[self.routing] if isinstance(self.routing, str) else self.routing
+        return routings.sides_of(self.routing)
 
     @property
     def n_tendons(self) -> int:
@@ -206,28 +187,10 @@ class Mechanism:
 
 
 def _normalize_routing(routing: Any) -> str | Sides:
-    if isinstance(routing, str):
-        if routing not in ROUTINGS:
-            raise _fail(
-                "routing", routing, f"one of {sorted(ROUTINGS)} or ((s11, s12), (s21, s22))"
-            )
-        return routing
-    allowed = (
-        f"one of {sorted(ROUTINGS)}, or 2 or more (s1, s2) pairs: s1 in {{-1, +1}} on pulley 1, "
-        "s2 in {-1, 0, +1} on pulley 2 (0: the tendon ends on link c)"
-    )
-    try:
-        rows = [list(tendon) for tendon in routing]
-    except TypeError:
-        raise _fail("routing", routing, allowed) from None
-    if len(rows) < 2 or any(len(t) != 2 for t in rows):
-        raise _fail("routing", routing, allowed)
-    # Exact integers only: 1.5 must not be truncated to 1.
-    if not all(is_number(s) and s in (-1, 0, 1) for t in rows for s in t):
-        raise _fail("routing", routing, allowed)
-    if any(t[0] == 0 for t in rows):  # it would end on the wall and span no joint
-        raise _fail("routing", routing, allowed)
-    return tuple(tuple(int(s) for s in t) for t in rows)  # type: ignore[return-value]
+    out = routings.normalize(routing)
+    if out is None:
+        raise _fail("routing", routing, routings.ALLOWED)
+    return out
 
 
 def _positive_or_auto(name: str, value: Any) -> float:

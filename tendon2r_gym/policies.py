@@ -26,10 +26,10 @@ import mujoco
 import numpy as np
 
 from tendon2r_gym.actuation import MomentArms, distribute
-from tendon2r_gym.config import PD_CONFIG, load_yaml
 from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.model import build_model
 from tendon2r_gym.observation import DQ, DQ_DES, Q_DES, Q
+from tendon2r_gym.presets import PD_CONFIG, load_yaml
 from tendon2r_gym.reference import Reference
 from tendon2r_gym.validation import check_keys, number
 

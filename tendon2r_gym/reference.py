@@ -71,6 +71,27 @@ class Reference:
     def to_dict(self) -> dict[str, list[float]]:
         return {k: list(getattr(self, k)) for k in _FIELDS if getattr(self, k) is not None}
 
+    # -- the reference in SI units (cached arrays, joint A then B; do not modify) ------------------
+    @property
+    def amp_rad(self) -> np.ndarray:
+        """Returns the amplitudes (rad)."""
+        return self._amp
+
+    @property
+    def bias_rad(self) -> np.ndarray:
+        """Returns the biases (rad)."""
+        return self._bias
+
+    @property
+    def phase_rad(self) -> np.ndarray:
+        """Returns the phases (rad)."""
+        return self._phase
+
+    @property
+    def omega_array(self) -> np.ndarray:
+        """Returns the angular frequencies (rad/s) as an array."""
+        return self._omega
+
     @property
     def omega(self) -> tuple[float, float]:
         """Returns the angular frequency of each joint (rad/s)."""

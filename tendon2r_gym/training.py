@@ -29,7 +29,6 @@ from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 from stable_baselines3.common.vec_env import VecEnv
 
 from tendon2r_gym import observation
-from tendon2r_gym.config import PPO_CONFIG, load_yaml
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.learned import (
     PPOPolicy,
@@ -39,6 +38,7 @@ from tendon2r_gym.learned import (
 )
 from tendon2r_gym.metrics import tracking_metrics
 from tendon2r_gym.policies import PDPolicy
+from tendon2r_gym.presets import PPO_CONFIG, load_yaml
 from tendon2r_gym.rollout import rollouts
 from tendon2r_gym.runs import CHECKPOINT_PREFIX, RUN_META, RunFolder, model_files
 from tendon2r_gym.validation import check_keys, integer, invalid, mapping, number

@@ -100,3 +100,18 @@ def pair(
     if not all(math.isfinite(v) and lo <= v <= hi for v in out):
         raise invalid(field, value, allowed)
     return out  # type: ignore[return-value]
+
+
+def real_array(field: str, value: Any, shape: tuple[int, ...], allowed: str) -> np.ndarray:
+    """Returns ``value`` as a float64 array of ``shape`` with finite entries, or raises naming
+    ``field`` (strings, mappings, complex numbers and bools are refused)."""
+    try:
+        arr = np.asarray(value)
+    except Exception:  # noqa: BLE001 (anything numpy cannot read is invalid)
+        raise invalid(field, value, allowed) from None
+    if arr.dtype.kind not in "fiu" or arr.shape != shape:
+        raise invalid(field, value, allowed)
+    arr = arr.astype(np.float64)
+    if not np.isfinite(arr).all():
+        raise invalid(field, value, allowed)
+    return arr

@@ -3,7 +3,8 @@
 ``gym.make_vec("Tendon2R-v0", num_envs=N, vectorization_mode="vector_entry_point")`` returns
 :class:`Tendon2RVectorEnv`.  One MjModel and N simulations are stepped by MuJoCo's batch API
 (C threads, results bit-identical to one MjData per simulation); the observation, reward,
-reference and divergence checks are batched numpy over the N arms.  The same seeds give the
+reference and divergence checks are tendon2r_gym.task's formulas on numpy arrays over the N
+arms.  The same seeds give the
 same trajectories, observations and rewards as N single envs (``gym.make``), bit for bit.
 
 Gymnasium 1.x conventions: ``autoreset_mode`` NEXT_STEP by default (SAME_STEP on request,
@@ -13,7 +14,6 @@ which SB3's adapter uses), per-env ``info`` arrays with their ``_key`` masks, tr
 
 from __future__ import annotations
 
-import math
 import os
 from typing import Any
 
@@ -26,18 +26,14 @@ from gymnasium.vector.utils import batch_space
 from mujoco import batch as mj_batch
 
 from tendon2r_gym import observation as obs_layout
-from tendon2r_gym.config import merge_reference
-from tendon2r_gym.env import (
-    _DIVERGENCE_WARNINGS,
-    DIVERGED_PAST_LIMIT,
-    DIVERGED_SPEED,
-    RAD_PER_DEG,
-    _log_error,
-)
+from tendon2r_gym.actuation import cond_of_rows
+from tendon2r_gym.env import DIVERGENCE_WARNINGS
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.model import build_model, tendon_name
+from tendon2r_gym.ops import BATCH
 from tendon2r_gym.reference import Reference
-from tendon2r_gym.validation import boolean, integer, invalid
+from tendon2r_gym.task import RESET_INFO_KEYS, Task, reference_params
+from tendon2r_gym.validation import boolean, integer, invalid, real_array
 
 
 class Tendon2RVectorEnv(VectorEnv):
@@ -95,18 +91,15 @@ class Tendon2RVectorEnv(VectorEnv):
         first = self.model.sensor(f"force_{tendon_name(0)}").adr[0]
         self._sensors = b.bind("sensordata")
         self._force = slice(first, first + n_act)
-        self._warn_ids = [int(w) for w in _DIVERGENCE_WARNINGS]
-        q_lo, q_hi = cfg.mechanism.joint_range_rad
-        self._q_lo, self._q_hi = q_lo, q_hi
-        self._div_lo, self._div_hi = q_lo - DIVERGED_PAST_LIMIT, q_hi + DIVERGED_PAST_LIMIT
-        self._offsets = np.arange(1, cfg.preview_steps + 1) * cfg.preview_dt
-        self._w = tuple(cfg.reward_scales[k] for k in ("tracking", "ctrl", "divergence"))
-        self._log_norm = 2.0 * math.log1p((180.0 / cfg.tracking_sigma_deg) ** 2)
+        self._ten_J = b.bind("ten_J")
+        self._J_rows = _sparse_rows(self.model)
+        self._warn_ids = [int(w) for w in DIVERGENCE_WARNINGS]
+        self.task = Task(cfg)
 
         n = self.num_envs
         self._rngs = [seeding.np_random()[0] for _ in range(n)]
         self._refs: list[Reference] = [cfg.reference] * n
-        self._amp, self._bias, self._omega, self._phase = (np.zeros((n, 2)) for _ in range(4))
+        self._ref = np.zeros((8, n))  # reference_params of each arm, one row per number
         self._set_references(np.arange(n), [cfg.reference] * n)
         self._steps = np.zeros(n, dtype=np.int64)
         self._warn_count = np.zeros(n, dtype=np.int64)
@@ -120,8 +113,7 @@ class Tendon2RVectorEnv(VectorEnv):
     def _set_references(self, ids: np.ndarray, refs: list[Reference]) -> None:
         for i, ref in zip(ids, refs, strict=True):
             self._refs[i] = ref
-            self._amp[i], self._bias[i] = ref._amp, ref._bias
-            self._omega[i], self._phase[i] = ref._omega, ref._phase
+            self._ref[:, i] = reference_params(ref)
 
     # -- reset ---------------------------------------------------------------------------------
     def reset(
@@ -131,10 +123,15 @@ class Tendon2RVectorEnv(VectorEnv):
         Gymnasium's SyncVectorEnv does.  ``options={"reference": {...}}`` fixes the reference,
         as on the single env."""
         n = self.num_envs
+        fixed = self.task.reference_option(options)
         mask = np.ones(n, dtype=bool)
         if options and "reset_mask" in options:
             mask = np.asarray(options["reset_mask"], dtype=bool)
+            if mask.shape != (n,):
+                raise invalid("options['reset_mask']", options["reset_mask"], f"{n} booleans")
         if isinstance(seed, (list, tuple)):
+            if len(seed) != n:
+                raise invalid("seed", seed, f"None, an int, or a list of {n} ints or None")
             seeds = list(seed)
         else:
             seeds = [None if seed is None else seed + i for i in range(n)]
@@ -142,73 +139,51 @@ class Tendon2RVectorEnv(VectorEnv):
         for i in ids:
             if seeds[i] is not None:
                 self._rngs[i], _ = seeding.np_random(seeds[i])
-        fixed = None
-        if options and "reference" in options:
-            fixed = Reference.from_dict(
-                merge_reference(self.config.reference.to_dict(), options["reference"])
-            )
-            if problems := fixed.workspace_violations(self.mechanism):
-                raise ValueError(f"options['reference'] leaves the workspace: {problems}")
         self._reset_ids(ids, fixed)
         if self._stagger:
             self._steps[ids] = (ids * self.max_episode_steps) // n
         obs = self._observe()
         self._last_obs[ids] = obs[ids]
-        info = self._reset_info(ids)
-        return obs.copy(), info
+        return obs.copy(), self._reset_info(ids)
 
     def _reset_ids(self, ids: np.ndarray, fixed: Reference | None = None) -> None:
         """Resets arms ``ids`` as Tendon2REnv.reset_model does, with each arm's own RNG."""
         if len(ids) == 0:
             return
-        cfg, ranges = self.config, self.config.reference_ranges
-        refs = []
-        for i in ids:
-            if fixed is not None:
-                refs.append(fixed)
-            elif ranges is not None:
-                refs.append(ranges.sample(self._rngs[i], self.mechanism))
-            else:
-                refs.append(cfg.reference)
+        task = self.task
+        refs = [task.episode_reference(self._rngs[i], fixed) for i in ids]
         self._set_references(ids, refs)
         self.batch.reset(ids, stage=mujoco.mjtStage.mjSTAGE_NONE.value)
-        noise = cfg.reset_noise_scale
         for i, ref in zip(ids, refs, strict=True):
-            rng = self._rngs[i]
-            q = ref.q(0.0) + rng.uniform(-noise, noise, 2)
-            qdot = ref.qdot(0.0) + rng.uniform(-noise, noise, 2)
-            self._qpos[i] = np.clip(q, self._q_lo, self._q_hi)
-            self._qvel[i] = qdot
+            self._qpos[i], self._qvel[i] = task.initial_state(self._rngs[i], ref)
         self.batch.forward(ids)
         self._steps[ids] = 0
         self._warn_count[ids] = self._warnings()[ids]
         self._needs_reset[ids] = False
 
-    def _reset_info(self, ids: np.ndarray) -> dict[str, Any]:
-        mask = np.zeros(self.num_envs, dtype=bool)
-        mask[ids] = True
-        return {
-            "force_need_N": np.full(self.num_envs, self.config.force_need),
-            "_force_need_N": mask,
-        }
+    def _reset_info(self, ids: np.ndarray, info: dict[str, Any] | None = None) -> dict[str, Any]:
+        """Adds the single env's reset info of arms ``ids`` to ``info``, as Gymnasium's vector
+        envs batch it (``_key`` masks, a mapping per nested dict)."""
+        info = {} if info is None else info
+        for i in ids:
+            row = self.task.reset_info(self._refs[i], float(self._time[i]))
+            info = self._add_info(info, row, int(i))
+        return info
 
     # -- step ----------------------------------------------------------------------------------
     def step(
         self, actions: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         n, n_act = self.num_envs, self.single_action_space.shape[0]
-        a = np.asarray(actions, dtype=np.float64)
-        if a.shape != (n, n_act):
-            raise ValueError(f"actions have shape {a.shape}; allowed: ({n}, {n_act}) in [-1, 1]")
-        if not np.isfinite(a).all():
-            raise ValueError(f"actions = {a.tolist()} are not all finite; allowed: [-1, 1]")
-        a = a.clip(-1.0, 1.0)
+        allowed = f"({n}, {n_act}) finite real numbers in [-1, 1]; values outside are clipped"
+        a = real_array("actions", actions, (n, n_act), allowed).clip(-1.0, 1.0)
         terminated = np.zeros(n, dtype=bool)
         truncated = np.zeros(n, dtype=bool)
         # NEXT_STEP: arms that ended last step are reset now and report the reset observation.
         resetting = self._needs_reset.copy()
-        if resetting.any():
-            self._reset_ids(np.flatnonzero(resetting))
+        reset_ids = np.flatnonzero(resetting)
+        if len(reset_ids):
+            self._reset_ids(reset_ids)
             ids = active = np.flatnonzero(~resetting)
         else:  # the common step: every arm, without index arrays
             ids, active = None, slice(None)
@@ -228,10 +203,14 @@ class Tendon2RVectorEnv(VectorEnv):
         terminated[active] = diverged[active]
         # As Gymnasium's TimeLimit: truncated at the step limit, terminated or not.
         truncated[active] = self._steps[active] >= self.max_episode_steps
-        info = self._step_info(obs, terms, diverged, ~resetting)
+        # As SyncVectorEnv: step info for the arms that stepped, reset info for the others.
+        info = self._step_info(obs, terms, diverged, ~resetting) if len(reset_ids) < n else {}
+        if len(reset_ids):  # as SyncVectorEnv: a resetting arm reports its reset info
+            info = self._reset_info(reset_ids, info)
         done = terminated | truncated
         self._last_obs[:] = obs
         if self.autoreset_mode == AutoresetMode.SAME_STEP and done.any():
+            obs = obs.copy()  # info holds views of the final observations
             ids = np.flatnonzero(done)
             info["final_obs"] = np.full(n, None, dtype=object)
             for i in ids:
@@ -249,17 +228,13 @@ class Tendon2RVectorEnv(VectorEnv):
         return self.batch.warning[:, self._warn_ids, 1].sum(axis=1)  # (lastinfo, number)
 
     def _check_divergence(self, active: np.ndarray | slice, failed: np.ndarray) -> np.ndarray:
-        """Per arm: a new MuJoCo instability warning, a failed call, a joint far past its limit
-        or too fast, or a non-finite state; a diverged arm is left in a finite state."""
+        """Per arm: a new MuJoCo instability warning, a failed call, or a state outside the
+        task's domain; a diverged arm is left in a finite state."""
         warn = self._warnings()
         q, w = self._qpos, self._qvel
         with np.errstate(invalid="ignore"):
-            bad = (
-                (warn > self._warn_count)
-                | failed
-                | ~np.all((q > self._div_lo) & (q < self._div_hi), axis=1)
-                | ~np.all(np.abs(w) < DIVERGED_SPEED, axis=1)
-            )
+            out = self.task.out_of_domain(BATCH, q[:, 0], q[:, 1], w[:, 0], w[:, 1])
+        bad = (warn > self._warn_count) | failed | out
         self._warn_count[:] = warn
         mask = np.zeros(self.num_envs, dtype=bool)
         mask[active] = bad[active]
@@ -269,67 +244,38 @@ class Tendon2RVectorEnv(VectorEnv):
         return mask
 
     def _observe(self) -> np.ndarray:
-        """The observations of every arm, written by the named slices of
-        tendon2r_gym.observation, with the same floating-point operations as
-        Tendon2REnv._get_obs (numpy's float64 sin and cos round as math's do; tested)."""
-        m, L = self.mechanism, obs_layout
+        """The observations of every arm (tendon2r_gym.task.Task.observation on arrays)."""
         q, w = self._qpos, self._qvel
-        out = np.empty((self.num_envs, self.single_observation_space.shape[0]))
-        out[:, L.Q], out[:, L.DQ] = q, w
-        arg = self._omega * self._time[:, None] + self._phase  # (N, 2)
-        q_des = self._amp * np.sin(arg) + self._bias
-        out[:, L.Q_DES] = q_des
-        out[:, L.DQ_DES] = self._amp * self._omega * np.cos(arg)
-        e = out[:, L.ERROR] = q_des - q
-        out[:, L.ERROR_LOG] = _log_errors(e)
-        angle = np.empty((self.num_envs, 2))  # link c, link b
-        angle[:, 0] = q[:, 0]
-        angle[:, 1] = q[:, 0] + q[:, 1]
-        cos, sin = np.cos(angle), np.sin(angle)
-        (c1, c12), (s1, s12) = cos.T, sin.T
-        w1, w12 = w[:, 0], w[:, 0] + w[:, 1]
-        out[:, L.EFFECTOR_POS] = np.stack(
-            [m.a + m.c * c1 + m.b * c12, m.c * s1 + m.b * s12], axis=1
+        parts = self.task.observation(
+            BATCH, q[:, 0], q[:, 1], w[:, 0], w[:, 1], self._time, tuple(self._ref)
         )
-        out[:, L.EFFECTOR_VEL] = np.stack(
-            [-m.c * s1 * w1 - m.b * s12 * w12, m.c * c1 * w1 + m.b * c12 * w12], axis=1
-        )
-        # q_des(t + k dt) for every k at once: (N, P, 2), stored k by k, A then B.
-        ahead = arg[:, None, :] + self._omega[:, None, :] * self._offsets[None, :, None]
-        preview = self._amp[:, None, :] * np.sin(ahead) + self._bias[:, None, :]
-        out[:, L.preview_slice(len(self._offsets))] = preview.reshape(self.num_envs, -1)
-        return out
+        return np.stack(parts, axis=1)
 
     def _rewards(
         self, obs: np.ndarray, a: np.ndarray, diverged: np.ndarray
     ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-        w_track, w_ctrl, w_div = self._w
-        e = obs[:, obs_layout.ERROR] / RAD_PER_DEG
-        if self.config.tracking_form == "log":
-            sig = self.config.tracking_sigma_deg
-            u = e / sig  # math.log1p, as the single env: numpy's may differ in the last bit
-            logs = np.fromiter(map(math.log1p, (u * u).ravel().tolist()), float, u.size)
-            logs = logs.reshape(e.shape)
-            tracking = 1.0 - (logs[:, 0] + logs[:, 1]) / self._log_norm
-        else:
-            tracking = -(e[:, 0] * e[:, 0] + e[:, 1] * e[:, 1])
-        terms = {
-            "tracking": w_track * tracking,
-            "ctrl": -w_ctrl * np.sum(a * a, axis=1),
-            "divergence": np.where(diverged, -w_div, 0.0),
-        }
-        return sum(terms.values()), terms
+        e = obs[:, obs_layout.ERROR]
+        terms = self.task.reward_terms(BATCH, e[:, 0], e[:, 1], list(a.T), diverged)
+        return self.task.scale(terms)
+
+    def _moment_arm_cond(self) -> np.ndarray:
+        """cond(J) of every arm, from the batch's sparse ten_J (as the single env's info)."""
+        J = self._ten_J
+        rows = [tuple(0.0 if k is None else J[:, k] for k in row) for row in self._J_rows]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return cond_of_rows(BATCH, rows)
 
     def _step_info(
         self, obs: np.ndarray, terms: dict[str, np.ndarray], diverged: np.ndarray, mask: np.ndarray
     ) -> dict[str, Any]:
-        values = {
-            **{f"reward_{k}": v for k, v in terms.items()},
-            "tracking_error_deg": obs[:, obs_layout.ERROR] / RAD_PER_DEG,
-            "tendon_tension": -self._sensors[:, self._force],
-            "time": self._time.copy(),
-            "diverged": diverged,
-        }
+        values = self.task.step_info(
+            obs,
+            terms,
+            -self._sensors[:, self._force],
+            self._moment_arm_cond(),
+            self._time.copy(),
+            diverged,
+        )
         info: dict[str, Any] = {}
         for key, value in values.items():
             info[key], info[f"_{key}"] = value, mask.copy()
@@ -352,7 +298,14 @@ def default_nthread(num_envs: int) -> int:
     return max(1, min(cpus or 1, num_envs // ARMS_PER_THREAD))
 
 
-def _log_errors(e: np.ndarray) -> np.ndarray:
-    """The single env's ``_log_error`` on every entry of e (math.log1p, bit for bit: numpy's
-    log1p may differ in the last bit)."""
-    return np.fromiter(map(_log_error, e.ravel().tolist()), float, e.size).reshape(e.shape)
+def _sparse_rows(model: mujoco.MjModel) -> list[tuple[int | None, ...]]:
+    """Returns, per tendon and joint, the index of its entry in MuJoCo's sparse ten_J (None
+    where the tendon does not span that joint: its moment arm is 0)."""
+    rows = []
+    for k in range(model.ntendon):
+        entries: list[int | None] = [None] * model.nv
+        start = model.ten_J_rowadr[k]
+        for idx in range(start, start + model.ten_J_rownnz[k]):
+            entries[model.ten_J_colind[idx]] = int(idx)
+        rows.append(tuple(entries))
+    return rows

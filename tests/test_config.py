@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from tendon2r_gym import EnvConfig
-from tendon2r_gym.actuation import FORCE_HEADROOM
-from tendon2r_gym.config import PRESET_DIR, list_presets, load_yaml
+from tendon2r_gym.env_config import FORCE_HEADROOM
 from tendon2r_gym.evaluation import evaluate
+from tendon2r_gym.presets import PRESET_DIR, list_presets, load_yaml
 
 #: The course mechanism of the issue: it needs about 0.8 N, more than the old fixed 0.5 N.
 COURSE_ARM = """\

@@ -14,8 +14,8 @@ import yaml
 
 from tendon2r_gym.bundle import bundle_meta, bundle_runs, bundled_model
 from tendon2r_gym.cli import resolve_train, train_main
-from tendon2r_gym.config import PPO_CONFIG
 from tendon2r_gym.learned import PPOPolicy
+from tendon2r_gym.presets import PPO_CONFIG
 from tendon2r_gym.runs import RunFolder
 from tendon2r_gym.training import load_hyperparams
 

@@ -6,7 +6,7 @@ and why pull-only tendons need three.
 
 cond(J) near 1 means the tendons drive both joints equally well.  The margin (deg) is pi minus
 the largest angular gap between the moment-arm rows: > 0 where pull-only tendons can produce
-any joint torque (tendon2r_gym.actuation.positive_span); two tendons never reach it.
+any joint torque (tendon2r_gym.routing.positive_span); two tendons never reach it.
 """
 
 from __future__ import annotations
@@ -23,8 +23,8 @@ import numpy as np  # noqa: E402
 
 from tendon2r_gym.actuation import ActuationAnalysis  # noqa: E402
 from tendon2r_gym.env_config import EnvConfig  # noqa: E402
-from tendon2r_gym.mechanism import ROUTINGS  # noqa: E402
 from tendon2r_gym.model import build_model  # noqa: E402
+from tendon2r_gym.routing import ROUTINGS  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> dict:

@@ -1,0 +1,248 @@
+"""The task of Tendon2R-v0, written once: observation, reward terms, divergence, reset and info.
+
+dm_control's Physics/Task split: the envs own the physics (one MjData in Tendon2REnv, N
+simulations of ``mujoco.batch`` in Tendon2RVectorEnv) and call :class:`Task` for every formula
+of the task.  Each formula is plain arithmetic on per-joint quantities, run on Python floats
+with :data:`tendon2r_gym.ops.SCALAR` (the single env) or on arrays over N arms with
+:data:`~tendon2r_gym.ops.BATCH` (the vector env), so the two envs agree bit for bit.
+
+Reward terms come back unscaled, keyed like ``reward_scales``, and are scaled once
+(mujoco_playground's ``scales``): a new term is one entry of :data:`TERMS` and one line of
+:meth:`Task.reward_terms`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from tendon2r_gym import observation as L
+from tendon2r_gym.ops import Ops
+from tendon2r_gym.presets import merge_reference
+from tendon2r_gym.reference import Reference
+from tendon2r_gym.validation import invalid
+
+if TYPE_CHECKING:
+    from tendon2r_gym.env_config import EnvConfig
+
+#: Degrees from radians as e / RAD_PER_DEG, in every env (numpy's np.degrees rounds
+#: differently from this in the last bit).
+RAD_PER_DEG = math.pi / 180.0
+DIVERGED_PAST_LIMIT = 0.5  # rad past a joint limit that counts as diverged
+#: A joint speed that counts as diverged (rad/s): bang-bang commands at 10x the default force
+#: limit reach about 500 rad/s.
+DIVERGED_SPEED = 1e4
+
+#: Reward terms: name -> (default weight, what the unscaled term is).  reward = sum of weight *
+#: term; each scaled term is in ``info`` as ``reward_<name>``.
+TERMS: dict[str, tuple[float, str]] = {
+    "tracking": (
+        1.0,
+        'with ``tracking_form="log"`` (default, for learning from scratch): ``1 - sum(log(1 + '
+        "(e / sigma)^2)) / (2 log(1 + (180 / sigma)^2))`` with the errors e in deg and sigma = "
+        "``tracking_sigma_deg``: in [0, 1] for abs(e) <= 180 deg, 1 on the reference, quadratic "
+        'near it and logarithmic far from it.  ``"quadratic"`` (what the residual entries train '
+        "on, with reward normalization): ``-sum(e^2)`` in deg^2, steep far from the reference",
+    ),
+    "ctrl": (0.001, "``-sum(action^2)`` on the clipped action (for pull-only, -1 is slack)"),
+    "divergence": (10.0, "-1 on the step where the physics diverges, else 0"),
+}
+REWARD_SCALES: dict[str, float] = {name: weight for name, (weight, _) in TERMS.items()}
+TRACKING_FORMS = ("quadratic", "log")
+
+#: Keys of ``info`` after every step, in both envs (the vector env adds Gymnasium's masks).
+STEP_INFO_KEYS = (
+    *(f"reward_{k}" for k in TERMS),
+    "q",
+    "q_des",
+    "tracking_error_deg",
+    "tendon_tension",
+    "moment_arm_cond",
+    "effector_pos",
+    "time",
+    "diverged",
+)
+RESET_INFO_KEYS = ("reference", "time", "force_need_N", "max_tendon_force_N")
+
+
+def reference_params(ref: Reference) -> tuple[float, ...]:
+    """Returns (amp_A, amp_B, omega_A, omega_B, phase_A, phase_B, bias_A, bias_B) in rad and
+    rad/s: the per-joint numbers :meth:`Task.observation` reads."""
+    return (
+        *ref.amp_rad.tolist(),
+        *ref.omega_array.tolist(),
+        *ref.phase_rad.tolist(),
+        *ref.bias_rad.tolist(),
+    )
+
+
+def rewards_table() -> str:
+    """Returns the docstring list of the reward terms (the env's docstring embeds it)."""
+    return "\n".join(f"- ``{k}`` (weight {w:g}): {doc}." for k, (w, doc) in TERMS.items())
+
+
+class Task:
+    """Every formula of the task, for one EnvConfig (see the module docstring)."""
+
+    def __init__(self, config: EnvConfig) -> None:
+        self.config = config
+        mech = config.mechanism
+        self.a, self.b, self.c = mech.a, mech.b, mech.c
+        self.q_lo, self.q_hi = mech.joint_range_rad
+        # Soft joint limits let a joint overshoot a little; this far past them (NaN included)
+        # the simulation has left its valid domain.
+        self.div_lo, self.div_hi = self.q_lo - DIVERGED_PAST_LIMIT, self.q_hi + DIVERGED_PAST_LIMIT
+        self.scales = dict(config.reward_scales)
+        self.offsets = [k * config.preview_dt for k in range(1, config.preview_steps + 1)]
+        self.log_form = config.tracking_form == "log"
+        self.sigma = config.tracking_sigma_deg
+        self.log_norm = 2.0 * math.log1p((180.0 / self.sigma) ** 2)
+        self.obs_size = L.size(config.preview_steps)
+
+    # -- reset -----------------------------------------------------------------------------------
+    def reference_option(self, options: Any) -> Reference | None:
+        """Returns the reference fixed by ``reset(options={"reference": {...}})`` (Reference
+        fields over the nominal one; it must fit the workspace), or None."""
+        if options is None:
+            return None
+        if not isinstance(options, Mapping):
+            raise invalid("options", options, "None or a mapping, e.g. {'reference': {...}}")
+        if "reference" not in options:
+            return None
+        value = options["reference"]
+        if isinstance(value, Reference):
+            ref = value
+        elif isinstance(value, Mapping):
+            ref = Reference.from_dict(merge_reference(self.config.reference.to_dict(), value))
+        else:
+            raise invalid(
+                "options['reference']",
+                value,
+                "a Reference or a mapping of Reference fields (amp_deg, bias_deg, freq_hz, "
+                "omega_rad_s, phase_deg)",
+            )
+        if problems := ref.workspace_violations(self.config.mechanism):
+            raise invalid(
+                "options['reference']",
+                ref.to_dict(),
+                f"a reference inside the workspace, but it leaves it: {problems}",
+            )
+        return ref
+
+    def episode_reference(self, rng: np.random.Generator, fixed: Reference | None) -> Reference:
+        """Returns the episode's reference: ``fixed``, else a draw from ``reference_ranges``,
+        else the nominal one."""
+        if fixed is not None:
+            return fixed
+        ranges = self.config.reference_ranges
+        if ranges is not None:
+            return ranges.sample(rng, self.config.mechanism)
+        return self.config.reference
+
+    def initial_state(self, rng: np.random.Generator, ref: Reference) -> tuple[np.ndarray, ...]:
+        """Returns (q, dq) on the reference at t = 0 plus uniform noise in
+        [-reset_noise_scale, reset_noise_scale], q clipped to the joint range."""
+        noise = self.config.reset_noise_scale
+        q = ref.q(0.0) + rng.uniform(-noise, noise, 2)
+        qdot = ref.qdot(0.0) + rng.uniform(-noise, noise, 2)
+        return np.clip(q, self.q_lo, self.q_hi), qdot
+
+    def reset_info(self, ref: Reference, time: float) -> dict[str, Any]:
+        """Returns the info of a reset (one arm)."""
+        return {
+            "reference": ref.to_dict(),
+            "time": time,
+            "force_need_N": self.config.force_need,
+            "max_tendon_force_N": self.config.mechanism.max_tendon_force,
+        }
+
+    # -- observation -----------------------------------------------------------------------------
+    def observation(
+        self, ops: Ops, q1: Any, q2: Any, w1: Any, w2: Any, t: Any, ref: Sequence[Any]
+    ) -> list[Any]:
+        """Returns the observation's entries in the order of tendon2r_gym.observation (q, dq,
+        q_des, dq_des, error, error_log, effector_pos, effector_vel, preview), from the joint
+        angles and speeds, the time and :func:`reference_params`."""
+        amp1, amp2, om1, om2, ph1, ph2, bias1, bias2 = ref
+        a, b, c = self.a, self.b, self.c
+        c1, s1 = ops.cos(q1), ops.sin(q1)
+        q12 = q1 + q2
+        c12, s12 = ops.cos(q12), ops.sin(q12)
+        w12 = w1 + w2
+        arg1, arg2 = om1 * t + ph1, om2 * t + ph2
+        qd1, qd2 = amp1 * ops.sin(arg1) + bias1, amp2 * ops.sin(arg2) + bias2
+        e1, e2 = qd1 - q1, qd2 - q2
+        scale = L.ERROR_LOG_SCALE
+        obs = [
+            q1, q2, w1, w2,
+            qd1, qd2, amp1 * om1 * ops.cos(arg1), amp2 * om2 * ops.cos(arg2),
+            e1, e2,
+            ops.copysign(ops.log1p(abs(e1) / scale), e1),
+            ops.copysign(ops.log1p(abs(e2) / scale), e2),
+            a + c * c1 + b * c12, c * s1 + b * s12,  # effector x, z
+            -c * s1 * w1 - b * s12 * w12, c * c1 * w1 + b * c12 * w12,  # effector velocity
+        ]  # fmt: skip
+        for dt in self.offsets:
+            obs.append(amp1 * ops.sin(arg1 + om1 * dt) + bias1)
+            obs.append(amp2 * ops.sin(arg2 + om2 * dt) + bias2)
+        return obs
+
+    # -- reward ----------------------------------------------------------------------------------
+    def reward_terms(
+        self, ops: Ops, e1: Any, e2: Any, action: Sequence[Any], diverged: Any
+    ) -> dict[str, Any]:
+        """Returns the unscaled reward terms (keys of TERMS) from the tracking errors (rad), the
+        clipped action (one value, or one column of N values, per tendon) and divergence."""
+        e1, e2 = e1 / RAD_PER_DEG, e2 / RAD_PER_DEG
+        if self.log_form:
+            u1, u2 = e1 / self.sigma, e2 / self.sigma
+            tracking = 1.0 - (ops.log1p(u1 * u1) + ops.log1p(u2 * u2)) / self.log_norm
+        else:
+            tracking = -(e1 * e1 + e2 * e2)
+        effort = 0.0  # in tendon order, as numpy's sum over a few entries
+        for x in action:
+            effort += x * x
+        return {"tracking": tracking, "ctrl": -effort, "divergence": ops.where(diverged, -1.0, 0.0)}
+
+    def scale(self, terms: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
+        """Returns (reward, scaled terms): each term times its weight, and their sum."""
+        scaled = {k: self.scales[k] * v for k, v in terms.items()}
+        return sum(scaled.values()), scaled
+
+    # -- divergence ------------------------------------------------------------------------------
+    def out_of_domain(self, ops: Ops, q1: Any, q2: Any, w1: Any, w2: Any) -> Any:
+        """Returns whether the state has left the simulation's valid domain: a joint far past
+        its limit or faster than DIVERGED_SPEED, or a non-finite state (NaN fails every test)."""
+        lo, hi, fast = self.div_lo, self.div_hi, DIVERGED_SPEED
+        inside = (
+            (lo < q1) & (q1 < hi) & (lo < q2) & (q2 < hi) & (abs(w1) < fast) & (abs(w2) < fast)
+        )
+        return ops.not_(inside)
+
+    # -- info ------------------------------------------------------------------------------------
+    def step_info(
+        self,
+        obs: np.ndarray,
+        scaled: Mapping[str, Any],
+        tension: np.ndarray,
+        cond: Any,
+        time: Any,
+        diverged: Any,
+    ) -> dict[str, Any]:
+        """Returns the info of a step (keys STEP_INFO_KEYS) from the observation (one, or N
+        rows), the scaled reward terms, the tendon tensions (N, positive pulling), the
+        moment-arm condition number, the time and divergence."""
+        return {
+            **{f"reward_{k}": v for k, v in scaled.items()},
+            "q": obs[..., L.Q],
+            "q_des": obs[..., L.Q_DES],
+            "tracking_error_deg": obs[..., L.ERROR] / RAD_PER_DEG,
+            "tendon_tension": tension,
+            "moment_arm_cond": cond,
+            "effector_pos": obs[..., L.EFFECTOR_POS],
+            "time": time,
+            "diverged": diverged,
+        }
