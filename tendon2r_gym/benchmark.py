@@ -19,9 +19,9 @@ from typing import Any
 import numpy as np
 
 from tendon2r_gym.bundle import bundle_meta, bundled_model, training_summary
-from tendon2r_gym.evaluation import evaluate
+from tendon2r_gym.evaluation import BASELINE, evaluate, names
 from tendon2r_gym.plots import plot_trace
-from tendon2r_gym.runs import BEST, RunFolder, model_files
+from tendon2r_gym.runs import RUN_META, RunFolder, model_files
 
 #: Learned variants: label -> (bundle suffix, hyperparameter entry used to train on your arm).
 LEARNED = {
@@ -61,7 +61,7 @@ def compare(
     """Returns the rows of one env: PD, CT, and per learned label its primary model and the
     mean +- std (ddof 0) over all its training seeds."""
     rows = []
-    for policy in ("pd", "ct"):
+    for policy in names(BASELINE):
         rows.append(_row(name, policy, policy, env_kwargs, seeds, None, plots))
         _tick(progress)
     for label, models in learned.items():
@@ -143,26 +143,29 @@ def _tick(progress: Any) -> None:
 
 
 def verdicts(rows: list[dict[str, Any]]) -> list[str]:
-    """Returns, per env and learned row, whether its RMS is <= PD's on both joints."""
+    """Returns, per env and learned row, whether its RMS is <= PD's on both joints, and its
+    worst-joint ratio to every other baseline of the registry."""
     lines = []
+    baselines = names(BASELINE)
     for name in dict.fromkeys(r["env"] for r in rows):
         by = {r["policy"]: r for r in rows if r["env"] == name and "rms_deg" in r}
         if "pd" not in by:
             continue
         for label, r in by.items():
-            if not label.startswith("ppo"):
+            if label in baselines:
                 continue
-            wins = all(p <= d for p, d in zip(r["rms_deg"], by["pd"]["rms_deg"], strict=True))
-            ct = by.get("ct", {}).get("rms_deg")
-            vs_ct = (
-                f"; {max(p / c for p, c in zip(r['rms_deg'], ct, strict=True)):.1f}x CT"
-                if ct
-                else ""
+            pd = by["pd"]["rms_deg"]
+            wins = all(p <= d for p, d in zip(r["rms_deg"], pd, strict=True))
+            ratios = "".join(
+                f"; {max(p / c for p, c in zip(r['rms_deg'], by[b]['rms_deg'], strict=True)):.1f}x"
+                f" {b.upper()}"
+                for b in baselines
+                if b != "pd" and b in by
             )
             lines.append(
-                f"- {name}, {label}: RMS {_fmt(r['rms_deg'])} vs PD {_fmt(by['pd']['rms_deg'])}"
+                f"- {name}, {label}: RMS {_fmt(r['rms_deg'])} vs PD {_fmt(pd)}"
                 f" deg: {'<= PD on both joints' if wins else 'WORSE than PD on at least one joint'}"
-                f"{vs_ct}; trained {r['train_steps']} steps in {r['train_wall_s']} s"
+                f"{ratios}; trained {r['train_steps']} steps in {r['train_wall_s']} s"
                 + (f" (slowest seed {r['train_wall_s_max']} s)" if "train_wall_s_max" in r else "")
             )
     return lines
@@ -314,9 +317,9 @@ def held_out() -> list[dict[str, Any]]:
     if meta is None:
         return [{"policy": "ppo", "missing": "no bundled random_reference model"}]
     model = bundled_model("random_reference")
-    env_kwargs = RunFolder(model.parent).read_json("run.json")["env_kwargs"]
+    env_kwargs = RunFolder(model.parent).read_json(RUN_META)["env_kwargs"]
     rows = []
-    for policy in ("pd", "ppo"):
+    for policy in ("pd", "ppo"):  # PD is the baseline that needs no knowledge of the reference
         errs = [
             evaluate(policy, env_kwargs, [i], model if policy == "ppo" else None,
                      options={"reference": ref})[0]["rms_deg"]
@@ -344,25 +347,22 @@ def benchmark_own_arm(
     from tqdm.auto import tqdm
 
     from tendon2r_gym.env_config import EnvConfig
-    from tendon2r_gym.training import check_hyperparams, load_hyperparams, train_seeds
+    from tendon2r_gym.training import Experiment, Hyperparams
 
     env_kwargs = {"preset": env_config}
     config = EnvConfig.make(env_config)  # every error before any training
     cfgs = {}
     for label, (_, entry) in LEARNED.items():
-        cfg = load_hyperparams(entry, env_config=env_config)
-        if train_steps is not None:
-            cfg["total_timesteps"] = train_steps
-        check_hyperparams(cfg)
-        cfgs[label] = cfg
+        hp = Hyperparams.from_entry(entry, env_config=env_config)
+        cfgs[label] = hp if train_steps is None else hp.replace(total_timesteps=train_steps)
     out.mkdir(parents=True, exist_ok=True)
     learned: dict[str, list[Path]] = {}
     with tqdm(total=len(cfgs) * len(seeds) * 2 + 2, desc="benchmark", unit="task") as bar:
-        for label, cfg in cfgs.items():
-            base = run_dir / label.replace(" ", "_")
+        for label, hp in cfgs.items():
+            exp = Experiment(hp, run_dir / label.replace(" ", "_"), seeds, command)
             bar.set_postfix_str(f"training {label}")
-            train_seeds(cfg, base, seeds, command, resume=True)
-            learned[label] = [model_files(base / f"seed_{s}" / BEST)[0] for s in seeds]
+            exp.train(resume=True)
+            learned[label] = [model_files(exp.run_folder(s).best)[0] for s in seeds]
             bar.update(len(seeds))
         bar.set_postfix_str("evaluating")
         name = Path(env_config).stem

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from tendon2r_gym.presets import MODELS_DIR
-from tendon2r_gym.runs import BEST, BUNDLE_FILES, RunFolder
+from tendon2r_gym.runs import BEST, BUNDLE_FILES, SUMMARY, RunFolder, seed_dir
 from tendon2r_gym.validation import invalid
 
 BUNDLE_META = "bundle.json"
@@ -35,15 +35,15 @@ def bundle_runs(run_dirs: list[Path], name: str, command: str, root: Path = MODE
         missing = [f for f in BUNDLE_FILES if not run.file(f).is_file()]
         if missing:
             raise FileNotFoundError(f"run folder {run.path} lacks {missing}; was it finished?")
-        summaries.append(run.read_json("summary.json"))
+        summaries.append(run.read_json(SUMMARY))
     dest = root / name
     if dest.exists():
         shutil.rmtree(dest)
     for run, summary in zip(runs, summaries, strict=True):
-        seed_dir = dest / f"seed_{summary['seed']}"
-        seed_dir.mkdir(parents=True)
+        folder = seed_dir(dest, summary["seed"])
+        folder.mkdir(parents=True)
         for f in BUNDLE_FILES:
-            shutil.copy2(run.file(f), seed_dir / f)
+            shutil.copy2(run.file(f), folder / f)
     meta = {
         "name": name,
         "seeds": [s["seed"] for s in summaries],
@@ -79,9 +79,9 @@ def bundled_model(name: str, seed: int | None = None, root: Path = MODELS_DIR) -
     seed = meta["primary_seed"] if seed is None else seed
     if seed not in meta["seeds"]:
         raise invalid(f"seed of bundle {name!r}", seed, f"one of {meta['seeds']}")
-    return root / name / f"seed_{seed}" / f"{BEST}.zip"
+    return seed_dir(root / name, seed) / f"{BEST}.zip"
 
 
 def training_summary(model_path: Path) -> dict[str, Any]:
     """Returns the summary.json (timesteps, wall time, ...) beside a bundled model."""
-    return RunFolder(Path(model_path).parent).read_json("summary.json")
+    return RunFolder(Path(model_path).parent).read_json(SUMMARY)

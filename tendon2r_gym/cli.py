@@ -24,6 +24,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
+from tendon2r_gym.evaluation import names as policy_names
+from tendon2r_gym.runs import seed_dirs
+from tendon2r_gym.training.hyperparams import VEC_ENVS
+
+if typing.TYPE_CHECKING:
+    from tendon2r_gym.training import Experiment
+
 A = TypeVar("A")
 
 
@@ -49,8 +56,9 @@ def parse(cls: type[A], argv: list[str] | None, doc: str | None = None) -> A:
         flag = "--" + f.name.replace("_", "-")
         default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
         kw: dict[str, Any] = {"help": f.metadata.get("help", ""), "default": default}
-        if "choices" in f.metadata:
-            kw["choices"] = f.metadata["choices"]
+        if "choices" in f.metadata:  # a tuple, or a function that returns the registry's names
+            choices = f.metadata["choices"]
+            kw["choices"] = tuple(choices() if callable(choices) else choices)
         if kind is bool:
             parser.add_argument(flag, action="store_true", help=kw["help"])
         elif typing.get_origin(kind) is list:
@@ -84,50 +92,58 @@ class TrainArgs:
 
     tendon2r-train --hyperparams default --seeds 0 1 2 --bundle default
     tendon2r-train --env-config my_arm.yaml --hyperparams default_scratch
-    tendon2r-train --run-dir runs/default --seeds 0 1 2 --resume      # after Ctrl-C or a crash
+    tendon2r-train --run-dir runs/default --resume      # after Ctrl-C or a crash
+
+    --resume continues the run recorded in --run-dir: its config.yaml (budget and overrides
+    included) with only this command's override flags on top; --hyperparams, --config and
+    --env-config choose the hyperparameters of a new run only.
     """
 
-    hyperparams: str = arg("default", "entry of the hyperparameter file")
+    hyperparams: str = arg("default", "entry of the hyperparameter file (a new run)")
     config: str | None = arg(None, "hyperparameter file (default: configs/ppo.yaml)")
     env_config: str | None = arg(None, "preset name or experiment file: the env to train on")
-    total_timesteps: int | None = arg(None, "overrides the entry")
-    n_envs: int | None = arg(None, "overrides the entry")
-    vec_env: str | None = arg(None, "overrides the entry", choices=("native", "subproc", "dummy"))
-    seeds: list[int] = arg([0], "one run folder per seed")
+    total_timesteps: int | None = arg(None, "overrides the entry (or the resumed run)")
+    n_envs: int | None = arg(None, "overrides the entry (or the resumed run)")
+    vec_env: str | None = arg(None, "overrides the entry (or the resumed run)", choices=VEC_ENVS)
+    seeds: list[int] | None = arg(None, "one run folder per seed (default 0, or the resumed ones)")
     run_dir: str | None = arg(None, "default runs/<hyperparams>; seeds go in seed_<n>/")
-    resume: bool = arg(False, "continue from the newest readable state of each run")
+    resume: bool = arg(False, "continue the recorded run from its newest readable state")
     bundle: str | None = arg(None, "copy the best models into the bundled models under NAME")
     progress_bar: bool = arg(False, "also on whenever stderr is a terminal")
 
 
-def resolve_train(args: TrainArgs) -> dict[str, Any]:
-    """Returns the validated hyperparameters of a train command."""
+def experiment(args: TrainArgs, command: str = "") -> Experiment:
+    """Returns the experiment of a train command: a new one from the entry, or the recorded
+    one under --run-dir with --resume."""
     from tendon2r_gym.presets import PPO_CONFIG
-    from tendon2r_gym.training import check_hyperparams, load_hyperparams
+    from tendon2r_gym.training import Experiment, Hyperparams
 
-    cfg = load_hyperparams(args.hyperparams, args.config or PPO_CONFIG, args.env_config)
-    for key in ("total_timesteps", "n_envs", "vec_env"):
-        if getattr(args, key) is not None:
-            cfg[key] = getattr(args, key)
-    check_hyperparams(cfg)
-    return cfg
+    base = Path(args.run_dir or f"runs/{args.hyperparams}")
+    overrides = {
+        k: getattr(args, k)
+        for k in ("total_timesteps", "n_envs", "vec_env")
+        if getattr(args, k) is not None
+    }
+    progress = args.progress_bar or sys.stderr.isatty()
+    if args.resume and seed_dirs(base):
+        return Experiment.resume(base, args.seeds, command, progress, **overrides)
+    hp = Hyperparams.from_entry(args.hyperparams, args.config or PPO_CONFIG, args.env_config)
+    if overrides:
+        hp = hp.replace(**overrides)
+    return Experiment(hp, base, args.seeds or [0], command, progress)
 
 
 def train_main(argv: list[str] | None = None) -> dict[str, Any]:
     from tendon2r_gym.bundle import bundle_runs
     from tendon2r_gym.runs import command_line
-    from tendon2r_gym.training import train_seeds
 
     args = parse(TrainArgs, argv)
-    cfg = resolve_train(args)
-    base = Path(args.run_dir or f"runs/{args.hyperparams}")
     command = command_line(argv, "tendon2r-train")
-    agg = train_seeds(
-        cfg, base, args.seeds, command, args.resume, args.progress_bar or sys.stderr.isatty()
-    )
+    exp = experiment(args, command)
+    agg = exp.train(resume=args.resume)
     print(json.dumps({k: v for k, v in agg.items() if k != "runs"}), flush=True)
     if args.bundle:
-        runs = [base / f"seed_{s}" for s in args.seeds]
+        runs = [exp.run_folder(s).path for s in exp.seeds]
         print("bundled into", bundle_runs(runs, args.bundle, command), flush=True)
     return agg
 
@@ -142,7 +158,7 @@ class EvaluateArgs:
     tendon2r-evaluate --policy ct --env-config my_arm.yaml --plots figs --video run.mp4
     """
 
-    policy: str = arg("pd", "policy to run", choices=("pd", "ct", "ppo"))
+    policy: str = arg("pd", "policy to run", choices=policy_names)
     model: str | None = arg(None, "PPO model zip (default: the bundle named like the preset)")
     bundle: str | None = arg(None, "bundled PPO to use instead of --model")
     env_config: str = arg("default", "preset name or experiment file")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -22,12 +23,32 @@ def _ppo(env: gym.Env, model: str | Path | None) -> Policy:
     return PPOPolicy.load(model, env)
 
 
-#: Policy name -> (factory(env, model), whether it takes a model).  A new policy is one entry.
-POLICIES: dict[str, tuple[Callable[[gym.Env, Any], Policy], bool]] = {
-    "pd": (lambda env, _: PDPolicy.from_env(env), False),
-    "ct": (lambda env, _: ComputedTorquePolicy.from_env(env), False),
-    "ppo": (_ppo, True),
+BASELINE, LEARNED = "baseline", "learned"
+
+
+@dataclass(frozen=True)
+class PolicyEntry:
+    """One policy of the registry: its label in tables, its kind (a model-based baseline, or a
+    learned policy that the benchmark compares with the baselines), and its factory."""
+
+    label: str
+    kind: str
+    factory: Callable[[gym.Env, Any], Policy]  # (env, model file or None) -> policy
+    takes_model: bool = False
+
+
+#: The policy registry: the CLI's choices, the benchmark's rows and its verdicts derive from it.
+#: A new baseline is its class (tendon2r_gym.policies) and one line here.
+POLICIES: dict[str, PolicyEntry] = {
+    "pd": PolicyEntry("PD", BASELINE, lambda env, _: PDPolicy.from_env(env)),
+    "ct": PolicyEntry("CT", BASELINE, lambda env, _: ComputedTorquePolicy.from_env(env)),
+    "ppo": PolicyEntry("PPO", LEARNED, _ppo, takes_model=True),
 }
+
+
+def names(kind: str | None = None) -> list[str]:
+    """Returns the registered policy names (of one kind), in registry order."""
+    return [k for k, v in POLICIES.items() if kind is None or v.kind == kind]
 
 
 def resolve_model(
@@ -36,13 +57,13 @@ def resolve_model(
     """Returns the model file a policy needs: ``model``, or the primary seed of ``bundle``, or
     of the bundle named like the env's preset.  Raises for a model given to a policy that
     takes none."""
-    if not _entry(policy)[1]:
+    if not _entry(policy).takes_model:
         if model is not None or bundle is not None:
             raise invalid(
                 "model" if model is not None else "bundle",
                 str(model or bundle),
                 f"nothing: policy {policy!r} uses no model (only "
-                f"{[k for k, v in POLICIES.items() if v[1]]} do)",
+                f"{[k for k, v in POLICIES.items() if v.takes_model]} do)",
             )
         return None
     if model is not None:
@@ -55,10 +76,10 @@ def resolve_model(
 
 def make_policy(name: str, env: gym.Env, model: str | Path | None = None) -> Policy:
     """Returns the policy ``name`` for ``env`` (a learned one loads ``model``)."""
-    return _entry(name)[0](env, model)
+    return _entry(name).factory(env, model)
 
 
-def _entry(name: str) -> tuple[Callable[[gym.Env, Any], Policy], bool]:
+def _entry(name: str) -> PolicyEntry:
     """Returns the POLICIES entry of ``name``, or raises naming the allowed ones."""
     if name not in POLICIES:
         raise invalid("policy", name, f"one of {sorted(POLICIES)}")

@@ -171,8 +171,9 @@ class PDPolicy(_TendonController):
 class ComputedTorquePolicy(_TendonController):
     """Inverse dynamics of the full model plus PD: the 'perfect model' reference.
     tau = ID(q, dq, ddq_des + kp e + kd de), with ddq_des = -w^2 (q_des - bias) exact for the
-    sinusoidal ``reference``.  It knows the reference, so it is a bound, not a deployable
-    baseline."""
+    sinusoidal reference.  It knows the reference, so it is a bound, not a deployable baseline:
+    :meth:`reset` reads each episode's reference from the env's reset info (one env, or every
+    arm of a vector env), which ``rollout`` and ``rollouts`` pass it."""
 
     def __init__(
         self,
@@ -182,18 +183,39 @@ class ComputedTorquePolicy(_TendonController):
         gains: Gains | None = None,
     ) -> None:
         super().__init__(mechanism, ctrl_dt, gains)
-        self.reference = reference
-        self._w2 = np.asarray(reference.omega) ** 2
-        self._bias = np.radians(reference.bias_deg)
+        self._set_references([reference])
 
     @classmethod
     def from_env(cls, env: Any, **kwargs: Any) -> ComputedTorquePolicy:
         env = env.unwrapped
         return cls(env.mechanism, env.ctrl_dt, env.reference, **kwargs)
 
+    def _set_references(self, refs: list[Reference]) -> None:
+        self.references = refs
+        self._w2 = np.array([r.omega_array**2 for r in refs])  # (1 or N, 2)
+        self._bias = np.array([r.bias_rad for r in refs])
+
+    def reset(self, info: dict[str, Any]) -> None:
+        """Follows the episode's reference: ``info`` is a reset info of Tendon2R-v0 (its
+        ``reference`` fields) or of its vector env (one reference per arm)."""
+        fields = info["reference"]
+        if "_reference" not in info:  # one env
+            self._set_references([Reference.from_dict(fields)])
+            return
+        names = [k for k in fields if not k.startswith("_")]  # a vector env's masks start so
+        n = len(info["_reference"])
+        self._set_references(
+            [Reference.from_dict({k: list(fields[k][i]) for k in names}) for i in range(n)]
+        )
+
     def _torque(self, obs: np.ndarray, M: np.ndarray) -> np.ndarray:
         """Joint torques from mj_inverse, one configuration at a time (CT is an evaluation
         bound, not a training-time controller)."""
+        if len(self._w2) not in (1, len(obs)):
+            raise ValueError(
+                f"observations of {len(obs)} arms is invalid; allowed: 1 or the {len(self._w2)} "
+                "arms of the last reset (call reset(info) with the vector env's reset info)"
+            )
         ddq_des = -self._w2 * (obs[:, Q_DES] - self._bias)
         qacc = (
             ddq_des

@@ -11,6 +11,9 @@ import numpy as np
 
 
 class Policy(Protocol):
+    """SB3's ``predict``.  A policy may also have ``reset(info)``: the rollouts call it with
+    each reset's info (computed torque reads the episode's reference there)."""
+
     def predict(
         self,
         observation: np.ndarray,
@@ -45,20 +48,9 @@ def rollout(
     render: bool = False,
 ) -> Trace:
     """Runs one deterministic episode of ``policy`` on ``env`` from ``reset(seed=seed)``."""
-    obs, _ = env.reset(seed=seed, options=options)
-    rows: dict[str, list] = {
-        k: []
-        for k in (
-            "time",
-            "q",
-            "q_des",
-            "error_deg",
-            "tendon_tension",
-            "action",
-            "effector_pos",
-            "reward",
-        )
-    }
+    obs, info = env.reset(seed=seed, options=options)
+    _start_episode(policy, info)
+    rows: dict[str, list] = {k: [] for k in _FIELDS}
     frames = [env.render()] if render else None
     done, diverged = False, False
     while not done:
@@ -66,14 +58,7 @@ def rollout(
         obs, reward, terminated, truncated, info = env.step(action)
         done = terminated or truncated
         diverged = diverged or bool(info["diverged"])
-        rows["time"].append(info["time"])
-        rows["q"].append(info["q"])
-        rows["q_des"].append(info["q_des"])
-        rows["error_deg"].append(info["tracking_error_deg"])
-        rows["tendon_tension"].append(info["tendon_tension"])
-        rows["action"].append(np.clip(action, -1, 1))
-        rows["effector_pos"].append(info["effector_pos"])
-        rows["reward"].append(reward)
+        _record(rows, info, action, reward)
         if render:
             frames.append(env.render())
     return Trace(
@@ -93,13 +78,13 @@ def rollouts(
     """Runs one deterministic episode per seed, all at once on the native vector env (one arm
     per seed, the policy called on the batch of observations).  Each episode equals
     ``rollout`` on ``gym.make("Tendon2R-v0", **env_kwargs)`` with that seed, bit for bit."""
-    from tendon2r_gym import observation as L
     from tendon2r_gym.vector_env import Tendon2RVectorEnv
 
     n = len(seeds)
     envs = Tendon2RVectorEnv(n, **env_kwargs)
     try:
-        obs, _ = envs.reset(seed=list(seeds), options=options)
+        obs, info = envs.reset(seed=list(seeds), options=options)
+        _start_episode(policy, info)
         rows: dict[str, list] = {k: [] for k in _FIELDS}
         live = np.ones(n, dtype=bool)  # the arm's episode is still running
         length = np.zeros(n, dtype=int)
@@ -108,14 +93,7 @@ def rollouts(
             action, _ = policy.predict(obs, deterministic=True)
             action = np.asarray(action, dtype=np.float64).reshape(n, -1)
             obs, reward, terminated, truncated, info = envs.step(action)
-            rows["time"].append(info["time"])
-            rows["q"].append(obs[:, L.Q])
-            rows["q_des"].append(obs[:, L.Q_DES])
-            rows["error_deg"].append(info["tracking_error_deg"])
-            rows["tendon_tension"].append(info["tendon_tension"])
-            rows["action"].append(np.clip(action, -1, 1))
-            rows["effector_pos"].append(obs[:, L.EFFECTOR_POS])
-            rows["reward"].append(reward)
+            _record(rows, info, action, reward)
             diverged |= live & info["diverged"]
             length += live
             live &= ~(terminated | truncated)
@@ -130,4 +108,27 @@ def rollouts(
     ]
 
 
-_FIELDS = ("time", "q", "q_des", "error_deg", "tendon_tension", "action", "effector_pos", "reward")
+def _start_episode(policy: Policy, info: dict[str, Any]) -> None:
+    reset = getattr(policy, "reset", None)
+    if callable(reset):
+        reset(info)
+
+
+#: Trace fields read from a step's info (the same keys in the single and the vector env).
+_FROM_INFO = {
+    "time": "time",
+    "q": "q",
+    "q_des": "q_des",
+    "error_deg": "tracking_error_deg",
+    "tendon_tension": "tendon_tension",
+    "effector_pos": "effector_pos",
+}
+_FIELDS = (*_FROM_INFO, "action", "reward")
+
+
+def _record(rows: dict[str, list], info: dict[str, Any], action: Any, reward: Any) -> None:
+    """Appends one step (of one env, or of every arm) to the trace rows."""
+    for field, key in _FROM_INFO.items():
+        rows[field].append(info[key])
+    rows["action"].append(np.clip(action, -1, 1))
+    rows["reward"].append(reward)

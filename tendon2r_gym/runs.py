@@ -29,21 +29,41 @@ from typing import Any
 import yaml
 
 RUN_META = "run.json"
+CONFIG = "config.yaml"
+COMMAND = "command.txt"
 BEST = "best_model"
+BEST_METRICS = "best_metrics.json"
+EVALUATIONS = "evaluations.json"
+PD_EVAL = "pd_eval.json"
+SUMMARY = "summary.json"
 LAST = "last_model"
 CHECKPOINTS = "checkpoints"
 CHECKPOINT_PREFIX = "rl_model"
+TENSORBOARD = "tb"
+#: Beside the seed folders of a multi-seed command.
+SEEDS_SUMMARY = "seeds_summary.json"
 #: The small files a bundle keeps (no checkpoints, no TensorBoard logs).
 BUNDLE_FILES = (
     f"{BEST}.zip",
     f"{BEST}_vecnormalize.pkl",
     RUN_META,
-    "best_metrics.json",
-    "evaluations.json",
-    "summary.json",
-    "config.yaml",
-    "command.txt",
+    BEST_METRICS,
+    EVALUATIONS,
+    SUMMARY,
+    CONFIG,
+    COMMAND,
 )
+
+
+def seed_dir(base: str | Path, seed: int) -> Path:
+    """Returns the run folder of one seed of a multi-seed command: ``base/seed_<n>``."""
+    return Path(base) / f"seed_{seed}"
+
+
+def seed_dirs(base: str | Path) -> list[Path]:
+    """Returns the seed run folders under ``base`` that hold a recorded config, by seed."""
+    found = [p for p in Path(base).glob("seed_*") if (p / CONFIG).is_file()]
+    return sorted(found, key=lambda p: int(p.name.removeprefix("seed_")))
 
 
 def model_files(stem: Path) -> tuple[Path, Path]:
@@ -86,6 +106,16 @@ class RunFolder:
     def checkpoints(self) -> Path:
         return self.path / CHECKPOINTS
 
+    @property
+    def tensorboard(self) -> Path:
+        return self.path / TENSORBOARD
+
+    @property
+    def seed(self) -> int | None:
+        """Returns the seed of a ``seed_<n>`` folder (None for another name)."""
+        name = self.path.name
+        return int(name.removeprefix("seed_")) if name.startswith("seed_") else None
+
     def file(self, name: str) -> Path:
         return self.path / name
 
@@ -102,12 +132,17 @@ class RunFolder:
 
     def write_config(self, cfg: dict[str, Any]) -> None:
         self.path.mkdir(parents=True, exist_ok=True)
-        self.file("config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
+        self.file(CONFIG).write_text(yaml.safe_dump(cfg, sort_keys=False))
+
+    def read_config(self) -> dict[str, Any] | None:
+        """Returns the recorded hyperparameters (config.yaml), or None."""
+        path = self.file(CONFIG)
+        return yaml.safe_load(path.read_text()) if path.is_file() else None
 
     def record_command(self, command: str, resume: bool) -> None:
         """Starts command.txt with the original command; a resume appends its own line."""
         self.path.mkdir(parents=True, exist_ok=True)
-        path = self.file("command.txt")
+        path = self.file(COMMAND)
         if resume and path.is_file():
             with open(path, "a") as f:
                 f.write(f"# resumed: {command}\n")
@@ -116,11 +151,11 @@ class RunFolder:
 
     def train_command(self) -> str:
         """Returns the command that started the run (the first line of command.txt)."""
-        return self.file("command.txt").read_text().splitlines()[0]
+        return self.file(COMMAND).read_text().splitlines()[0]
 
     def append_evaluation(self, row: dict[str, Any]) -> None:
-        rows = self.read_json("evaluations.json") or []
-        self.write_json("evaluations.json", [*rows, row])
+        rows = self.read_json(EVALUATIONS) or []
+        self.write_json(EVALUATIONS, [*rows, row])
 
     def checkpoint_candidates(self) -> list[tuple[Path, Path]]:
         """Returns every saved (zip, pkl) pair of the run, newest first: last_model (written on

@@ -9,7 +9,7 @@ same trajectories, observations and rewards as N single envs (``gym.make``), bit
 
 Gymnasium 1.x conventions: ``autoreset_mode`` NEXT_STEP by default (SAME_STEP on request,
 which SB3's adapter uses), per-env ``info`` arrays with their ``_key`` masks, truncation after
-``episode_duration / ctrl_dt`` steps.  :class:`SB3VecEnv` exposes it to Stable-Baselines3.
+``episode_duration / ctrl_dt`` steps.  tendon2r_gym.vector_env_sb3 exposes it to Stable-Baselines3.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.model import build_model, tendon_name
 from tendon2r_gym.ops import BATCH
 from tendon2r_gym.reference import Reference
-from tendon2r_gym.task import RESET_INFO_KEYS, Task, reference_params
+from tendon2r_gym.task import Task, reference_params
 from tendon2r_gym.validation import boolean, integer, invalid, real_array
 
 

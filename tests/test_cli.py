@@ -7,7 +7,11 @@ import sys
 
 import pytest
 
-from tendon2r_gym.cli import benchmark_main, evaluate_main
+from tendon2r_gym import evaluation
+from tendon2r_gym.benchmark import LEARNED, compare
+from tendon2r_gym.cli import EvaluateArgs, benchmark_main, evaluate_main, parse
+from tendon2r_gym.evaluation import BASELINE, PolicyEntry, names
+from tendon2r_gym.policies import PDPolicy
 
 ARM = """\
 mechanism: {R1: 0.025, R2: 0.049, a: 0.068, b: 0.056, c: 0.091}
@@ -72,7 +76,7 @@ def test_benchmark_on_bundled_models(tmp_path):
     assert "| default | pd |" in md and "quoted" in md
     labels = {(r["env"], r["policy"]) for r in result["rows"]}
     for env in ("default", "report_002"):
-        for policy in ("pd", "ct", "ppo scratch", "ppo residual"):
+        for policy in (*names(BASELINE), *LEARNED):
             assert (env, policy) in labels
     assert all("rms_deg" in r for r in result["rows"]), "every bundled model loads and runs"
     assert json.loads((tmp_path / "benchmark.json").read_text())["rows"]
@@ -87,9 +91,25 @@ def test_benchmark_on_your_own_arm(tmp_path):
          "--out", str(out), "--run-dir", str(tmp_path / "runs")]
     )  # fmt: skip
     policies = [r["policy"] for r in result["rows"]]
-    assert policies == ["pd", "ct", "ppo scratch", "ppo residual"]
+    assert policies == [*names(BASELINE), *LEARNED]
     assert result["force_need_N"] > 0.5, "the course arm needs more than the old 0.5 N"
     md = (out / "benchmark.md").read_text()
     assert "| my_arm | pd |" in md and "needs" in md
     assert (out / "plots" / "my_arm" / "pd" / "tracking.png").is_file()
     assert (tmp_path / "runs" / "ppo_scratch" / "seed_0" / "run.json").is_file()
+
+
+def test_a_new_baseline_is_one_registry_line(monkeypatch):
+    """A policy added to the registry is a CLI choice, a benchmark row and a verdict's
+    baseline, with no other change."""
+
+    class Gentle(PDPolicy):  # a stand-in baseline: PD at half the torque
+        def _torque(self, obs, M):
+            return 0.5 * super()._torque(obs, M)
+
+    entry = PolicyEntry("gentle PD", BASELINE, lambda env, _: Gentle.from_env(env))
+    monkeypatch.setitem(evaluation.POLICIES, "gentle", entry)
+    assert parse(EvaluateArgs, ["--policy", "gentle"]).policy == "gentle"
+    rows = compare("default", {"preset": "default", "episode_duration": 0.05}, {}, [0], None)
+    assert [r["policy"] for r in rows] == ["pd", "ct", "gentle"]
+    assert rows[2]["rms_deg"] != rows[0]["rms_deg"]

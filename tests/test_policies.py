@@ -163,5 +163,5 @@ def test_residual_wrapper_with_zero_residual_is_pd():
         obs_p, *_ = plain.step(pd.predict(obs_p)[0])
     np.testing.assert_array_equal(obs_w, obs_p)
     for bad in (np.array([np.nan, 0.0]), np.zeros(3)):
-        with pytest.raises(ValueError, match=r"action = .* allowed: finite real numbers of shape \(2,\)"):
+        with pytest.raises(ValueError, match=r"action = .* allowed: finite real numbers of shape"):
             wrapped.step(bad)

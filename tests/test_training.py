@@ -13,18 +13,18 @@ import pytest
 import yaml
 
 from tendon2r_gym.bundle import bundle_meta, bundle_runs, bundled_model
-from tendon2r_gym.cli import resolve_train, train_main
+from tendon2r_gym.cli import TrainArgs, experiment, parse, train_main
 from tendon2r_gym.learned import PPOPolicy
 from tendon2r_gym.presets import PPO_CONFIG
 from tendon2r_gym.runs import RunFolder
-from tendon2r_gym.training import load_hyperparams
+from tendon2r_gym.training import Hyperparams
 
 
 def _tiny(tmp_path, residual=0.5, steps=256, **extra):
-    cfg = load_hyperparams("default")
-    cfg["env_kwargs"] = {"preset": "default", "episode_duration": 0.1}
-    cfg["ppo"].update(n_steps=64, batch_size=64, n_epochs=1)
-    cfg.update(
+    base = Hyperparams.from_entry("default")
+    hp = base.replace(
+        env_kwargs={"preset": "default", "episode_duration": 0.1},
+        ppo={**base.ppo, "n_steps": 64, "batch_size": 64, "n_epochs": 1},
         residual_scale=residual,
         total_timesteps=steps,
         n_envs=2,
@@ -34,7 +34,7 @@ def _tiny(tmp_path, residual=0.5, steps=256, **extra):
         **extra,
     )
     path = tmp_path / "ppo.yaml"
-    path.write_text(yaml.safe_dump({"tiny": cfg}))
+    path.write_text(yaml.safe_dump({"tiny": hp.to_dict()}))
     return path
 
 
@@ -110,12 +110,8 @@ def test_train_on_an_experiment_file(tmp_path):
         "reference: {amp_deg: [10, 10], freq_hz: [1, 1], bias_deg: [0, 0]}\n"
         "episode_duration: 0.1\n"
     )
-    args_cfg = resolve_train(
-        __import__("tendon2r_gym.cli", fromlist=["TrainArgs"]).TrainArgs(
-            hyperparams="default", env_config=str(arm)
-        )
-    )
-    assert args_cfg["env_kwargs"]["preset"] == str(arm)
+    hp = experiment(TrainArgs(hyperparams="default", env_config=str(arm))).hyperparams
+    assert hp.env_kwargs["preset"] == str(arm)
     config = _tiny(tmp_path)
     run = tmp_path / "run"
     train_main(["--config", str(config), "--hyperparams", "tiny", "--env-config", str(arm),
@@ -134,17 +130,28 @@ def test_train_on_an_experiment_file(tmp_path):
     ],
 )
 def test_bad_train_arguments_are_rejected(override, match):
-    from tendon2r_gym.cli import TrainArgs, parse
-
     with pytest.raises(ValueError, match=match):
-        resolve_train(parse(TrainArgs, ["--config", str(PPO_CONFIG), *override]))
+        experiment(parse(TrainArgs, ["--config", str(PPO_CONFIG), *override]))
 
 
-def _start_training(tmp_path, seeds, steps):
+@pytest.mark.parametrize(
+    ("field", "value", "match"),
+    [("total_timesteps", 0, "total_timesteps = 0"), ("eval_seeds", [], "eval_seeds"),
+     ("vec_env", "gpu", "vec_env = 'gpu'"), ("zero_obs", ["qq"], "did you mean 'q'"),
+     ("residual_scale", -1, "residual_scale = -1"), ("env_kwargs", {"ctrl_dt": -1}, "ctrl_dt")],
+)  # fmt: skip
+def test_hyperparams_are_validated_once_naming_the_field(field, value, match):
+    with pytest.raises(ValueError, match=match):
+        Hyperparams.from_entry("default").replace(**{field: value})
+    with pytest.raises(ValueError, match="unknown key 'totl_timesteps'"):
+        Hyperparams.from_dict({**Hyperparams.from_entry("default").to_dict(), "totl_timesteps": 1})
+
+
+def _start_training(tmp_path, seeds, steps, *more):
     config = _tiny(tmp_path, steps=steps, checkpoint_minutes=0.005)
     cmd = [sys.executable, "-c", "from tendon2r_gym.cli import train; train()", "--config",
            str(config), "--hyperparams", "tiny", "--run-dir", str(tmp_path / "run"), "--seeds",
-           *map(str, seeds)]  # fmt: skip
+           *map(str, seeds), *more]  # fmt: skip
     env = {**os.environ, "MUJOCO_GL": "egl"}
     return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
 
@@ -157,10 +164,13 @@ def _wait_for(path, proc, timeout=120):
         time.sleep(0.1)
 
 
-def test_ctrl_c_stops_every_seed_and_saves(tmp_path):
+def test_ctrl_c_stops_every_seed_and_saves_and_resume_keeps_the_overrides(tmp_path):
     """SIGINT during seed 0 of two: exit 130, last_model and summary saved, seed 1 never
-    starts, seeds_summary.json written."""
-    proc = _start_training(tmp_path, [0, 1], steps=10**7)
+    starts, seeds_summary.json written.  A resume without the flags continues the run that was
+    started: its seeds, and the budget and n_envs overridden on the first command."""
+    proc = _start_training(
+        tmp_path, [0, 1], 256, "--total-timesteps", "10000000", "--n-envs", "3"
+    )
     _wait_for(tmp_path / "run" / "seed_0" / "evaluations.json", proc)
     proc.send_signal(signal.SIGINT)
     out = proc.communicate(timeout=120)[0].decode()
@@ -171,6 +181,17 @@ def test_ctrl_c_stops_every_seed_and_saves(tmp_path):
     assert not (tmp_path / "run" / "seed_1").exists()
     agg = json.loads((tmp_path / "run" / "seeds_summary.json").read_text())
     assert agg["finished"] == []
+    resumed = experiment(parse(TrainArgs, ["--run-dir", str(tmp_path / "run"), "--resume"]))
+    assert resumed.hyperparams.total_timesteps == 10**7, "not the entry's 256"
+    assert resumed.hyperparams.n_envs == 3 and resumed.seeds == [0]
+    extended = experiment(
+        parse(TrainArgs, ["--run-dir", str(tmp_path / "run"), "--resume", "--seeds", "0", "1",
+                          "--total-timesteps", "512"])
+    )  # fmt: skip
+    assert extended.hyperparams.total_timesteps == 512 and extended.seeds == [0, 1]
+    assert extended.hyperparams.n_envs == 3
+    done = extended.train(resume=True)
+    assert done["finished"] == [0, 1] and all(r["timesteps"] >= 512 for r in done["runs"])
 
 
 def test_sigkill_loses_little_thanks_to_timed_checkpoints(tmp_path):

@@ -135,7 +135,7 @@ def test_sb3_adapter_steps_like_dummy_vec_env():
     from stable_baselines3.common.env_util import make_vec_env
 
     from tendon2r_gym.learned import make_training_env
-    from tendon2r_gym.training import SB3VecEnv
+    from tendon2r_gym.vector_env_sb3 import SB3VecEnv
 
     kwargs = {"preset": "default", "episode_duration": 0.01}
     native = SB3VecEnv(Tendon2RVectorEnv(3, autoreset_mode="SameStep", **kwargs), 0.5)

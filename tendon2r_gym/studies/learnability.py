@@ -12,14 +12,16 @@ evaluation that beat PD.  The table therefore shows what each choice costs.
 from __future__ import annotations
 
 import argparse
-import copy
 import json
 import multiprocessing
 import shlex
 import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from tendon2r_gym.training import Hyperparams
 
 import numpy as np
 
@@ -57,35 +59,40 @@ ROWS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
 }  # fmt: skip
 
 
-def row_config(name: str, steps: int) -> dict[str, Any]:
+def row_config(name: str, steps: int) -> Hyperparams:
     """Returns the hyperparameters of a study row."""
-    from tendon2r_gym.training import load_hyperparams
+    from tendon2r_gym.training import Hyperparams
 
-    _, env_kwargs, hp = ROWS[name]
-    hp = dict(hp)
-    cfg = copy.deepcopy(load_hyperparams(hp.pop("entry", "default_scratch")))
-    cfg["env_kwargs"].update(env_kwargs)
-    cfg["total_timesteps"] = steps
-    rollout = cfg["n_envs"] * cfg["ppo"]["n_steps"]
-    cfg["eval_freq"] = max(steps // 10, rollout)  # ten evaluations, at most one per rollout
-    for key, value in hp.items():
+    _, env_kwargs, knobs = ROWS[name]
+    knobs = dict(knobs)
+    base = Hyperparams.from_entry(knobs.pop("entry", "default_scratch"))
+    changes: dict[str, Any] = {
+        "env_kwargs": {**base.env_kwargs, **env_kwargs},
+        "total_timesteps": steps,
+        # ten evaluations, at most one per rollout
+        "eval_freq": max(steps // 10, base.rollout_steps),
+        "policy_kwargs": dict(base.policy_kwargs),
+        "normalize": dict(base.normalize),
+        "ppo": dict(base.ppo),
+    }
+    for key, value in knobs.items():
         if key in ("log_std_init", "net_arch"):
-            cfg["policy_kwargs"][key] = value
+            changes["policy_kwargs"][key] = value
         elif key == "normalize":
-            cfg["normalize"].update(value)
+            changes["normalize"].update(value)
         elif key == "zero_obs":
-            cfg["zero_obs"] = value
+            changes["zero_obs"] = value
         else:
-            cfg["ppo"][key] = value
-    return cfg
+            changes["ppo"][key] = value
+    return base.replace(**changes)
 
 
 def _run(name: str, seed: int, steps: int, root: str) -> dict[str, Any]:
-    from tendon2r_gym.runs import RunFolder
-    from tendon2r_gym.training import TrainSpec, train
+    from tendon2r_gym.runs import RunFolder, seed_dir
+    from tendon2r_gym.training import train_run
 
-    run = RunFolder(Path(root) / name / f"seed_{seed}")
-    summary = train(TrainSpec(row_config(name, steps), run, seed, command=f"learnability {name}"))
+    run = RunFolder(seed_dir(Path(root) / name, seed))
+    summary = train_run(row_config(name, steps), run, seed, command=f"learnability {name}")
     return {"row": name, **{k: v for k, v in summary.items() if k != "segments"}}
 
 

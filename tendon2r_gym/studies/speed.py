@@ -239,25 +239,27 @@ def ppo_throughput(setup: dict[str, Any], timesteps: int, eval_freq: int) -> dic
 def _train_child(spec: dict[str, Any]) -> None:
     """Runs in the child process of ppo_throughput: trains and prints the summary as JSON."""
     from tendon2r_gym.runs import RunFolder
-    from tendon2r_gym.training import TrainSpec, load_hyperparams, train
+    from tendon2r_gym.training import Hyperparams, train_run
 
-    cfg = load_hyperparams("default")
+    hp = Hyperparams.from_entry("default")
     setup = dict(spec["setup"])
+    ppo = dict(hp.ppo)
     for key in ("n_steps", "batch_size"):
         if key in setup:
-            cfg["ppo"][key] = setup.pop(key)
-    cfg.update(setup, total_timesteps=spec["timesteps"])
+            ppo[key] = setup.pop(key)
+    changes = {**setup, "ppo": ppo, "total_timesteps": spec["timesteps"]}
     if spec["eval_freq"]:
-        cfg["eval_freq"] = spec["eval_freq"]
-    summary = train(TrainSpec(cfg, RunFolder(spec["run"]), command="bench_speed"))
+        changes["eval_freq"] = spec["eval_freq"]
+    hp = hp.replace(**changes)
+    summary = train_run(hp, RunFolder(spec["run"]), command="bench_speed")
     keep = ("timesteps", "wall_time_s", "steps_per_s", "first_beat_pd", "best_rms_deg")
     out = {k: summary[k] for k in keep}
     out.update(
-        n_envs=cfg["n_envs"],
-        n_steps=cfg["ppo"]["n_steps"],
-        batch_size=cfg["ppo"]["batch_size"],
-        vec_env=cfg["vec_env"],
-        eval_freq=cfg["eval_freq"],
+        n_envs=hp.n_envs,
+        n_steps=hp.ppo["n_steps"],
+        batch_size=hp.ppo["batch_size"],
+        vec_env=hp.vec_env,
+        eval_freq=hp.eval_freq,
     )
     print(json.dumps(out), flush=True)
 

@@ -1,0 +1,180 @@
+"""The SB3 callbacks of a training run: tracking logs, evaluation by tracking RMS (the best
+model), timed checkpoints, and a clean stop on Ctrl-C or SIGTERM."""
+
+from __future__ import annotations
+
+import signal
+import time
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
+
+from tendon2r_gym.learned import PPOPolicy
+from tendon2r_gym.metrics import tracking_metrics
+from tendon2r_gym.policies import PDPolicy
+from tendon2r_gym.rollout import rollouts
+from tendon2r_gym.runs import BEST_METRICS, CHECKPOINT_PREFIX, PD_EVAL, RunFolder, model_files
+
+
+class TrackingLogCallback(BaseCallback):
+    """Logs the training envs' absolute tracking errors (deg) to TensorBoard."""
+
+    def _on_step(self) -> bool:
+        errs = [info["tracking_error_deg"] for info in self.locals["infos"]]
+        e = np.abs(np.asarray(errs))
+        self.logger.record_mean("train/abs_error_deg_A", float(e[:, 0].mean()))
+        self.logger.record_mean("train/abs_error_deg_B", float(e[:, 1].mean()))
+        return True
+
+
+class TimedCheckpointCallback(CheckpointCallback):
+    """SB3's CheckpointCallback (model + VecNormalize every ``save_freq`` calls), also every
+    ``minutes`` of wall time, so that a SIGKILL loses little."""
+
+    def __init__(self, save_freq: int, save_path: str, minutes: float) -> None:
+        super().__init__(
+            save_freq, save_path, name_prefix=CHECKPOINT_PREFIX, save_vecnormalize=True
+        )
+        self.period_s = 60.0 * minutes
+        self._last_save = time.monotonic()
+
+    def _on_step(self) -> bool:
+        due = time.monotonic() - self._last_save >= self.period_s
+        if due or self.n_calls % self.save_freq == 0:
+            self._last_save = time.monotonic()
+            self.n_calls, saved = self.save_freq, self.n_calls  # makes the parent save now
+            super()._on_step()
+            self.n_calls = saved
+        return True
+
+
+class TrackingEvalCallback(BaseCallback):
+    """Every ``eval_freq`` env steps, rolls the deterministic policy out on fixed seeds and keeps
+    the model with the lowest mean tracking RMS (over joints) as ``best_model``.  Each
+    evaluation is appended to evaluations.json with the cumulative wall time, and the first
+    one that beats PD on both joints is noted.
+
+    SB3's EvalCallback ranks by mean episode reward, which mixes in the control cost, and does
+    not save the VecNormalize statistics with the best model; this one ranks by the benchmark's
+    own metric and saves both."""
+
+    def __init__(
+        self,
+        env_kwargs: dict[str, Any],
+        seeds: list[int],
+        eval_freq: int,
+        run: RunFolder,
+        residual_scale: float,
+        wall_offset_s: float = 0.0,
+        verbose: int = 1,
+    ) -> None:
+        super().__init__(verbose)
+        self.env_kwargs, self.seeds, self.eval_freq = env_kwargs, seeds, eval_freq
+        self.run, self.residual_scale = run, residual_scale
+        best = run.read_json(BEST_METRICS)
+        self.best_rms = float(np.mean(best["rms_deg"])) if best else float("inf")
+        self._last_eval = 0
+        self._start = time.perf_counter() - wall_offset_s
+        # One env, built once: its mechanism and control period define the PD baseline and
+        # the PD inside a residual policy (the rollouts run on the vector env).
+        self._env = gym.make("Tendon2R-v0", **self.env_kwargs)
+        self.pd_rms = run.read_json(PD_EVAL)
+        if self.pd_rms is None:
+            pd_metrics = tracking_metrics(
+                rollouts(PDPolicy.from_env(self._env), self.env_kwargs, seeds)
+            )
+            self.pd_rms = pd_metrics["rms_deg"]
+            run.write_json(PD_EVAL, self.pd_rms)
+
+    def _on_training_start(self) -> None:
+        self._last_eval = self.num_timesteps
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps - self._last_eval >= self.eval_freq:
+            self._last_eval = self.num_timesteps
+            self.evaluate()
+        return True
+
+    def _on_training_end(self) -> None:
+        if self.num_timesteps > self._last_eval:
+            self.evaluate()
+
+    def evaluate(self) -> dict[str, Any]:
+        policy = PPOPolicy(
+            self.model, self.model.get_vec_normalize_env(), self.residual_scale, self._env
+        )
+        metrics = tracking_metrics(rollouts(policy, self.env_kwargs, self.seeds))
+        rms = float(np.mean(metrics["rms_deg"]))
+        self.logger.record("eval/rms_deg_A", metrics["rms_deg"][0])
+        self.logger.record("eval/rms_deg_B", metrics["rms_deg"][1])
+        self.logger.record("eval/rms_deg_mean", rms)
+        wall = round(time.perf_counter() - self._start, 1)
+        beats = all(p <= d for p, d in zip(metrics["rms_deg"], self.pd_rms, strict=True))
+        self.run.append_evaluation(
+            {
+                "timesteps": self.num_timesteps,
+                "wall_time_s": wall,
+                "rms_deg": metrics["rms_deg"],
+                "beats_pd": beats,
+            }
+        )
+        if rms < self.best_rms:
+            self.best_rms = rms
+            save_model(self.model, self.run.best)
+            self.run.write_json(BEST_METRICS, {"timesteps": self.num_timesteps, **metrics})
+        if self.verbose:
+            print(
+                f"[eval] {self.num_timesteps} steps, {wall} s: RMS {_fmt(metrics['rms_deg'])} "
+                f"deg (PD {_fmt(self.pd_rms)}; best mean {self.best_rms:.4f})",
+                flush=True,
+            )
+        return metrics
+
+
+def _fmt(pair: list[float]) -> str:
+    return " / ".join(f"{v:.4f}" for v in pair)
+
+
+
+class StopOnSignal(BaseCallback):
+    """Ctrl-C (SIGINT) or SIGTERM during ``learn`` asks training to stop at the next env step,
+    so that no signal lands inside torch or MuJoCo; a second signal interrupts at once."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.stopped = False
+        self._old: dict[int, Any] = {}
+
+    def _request(self, signum: int, frame: Any) -> None:
+        self.stopped = True
+        for sig, old in self._old.items():  # a second signal acts at once
+            signal.signal(sig, old)
+
+    def __enter__(self) -> StopOnSignal:
+        try:
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._old[sig] = signal.signal(sig, self._request)
+        except ValueError:  # not the main thread: signals stay as they are
+            self._old.clear()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+
+    def _on_step(self) -> bool:
+        return not self.stopped
+
+
+
+def save_model(model: Any, stem: Path) -> None:
+    """Saves ``stem.zip`` and ``stem_vecnormalize.pkl``."""
+    zip_path, stats = model_files(stem)
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    model.save(zip_path)
+    venv = model.get_vec_normalize_env()
+    if venv is not None:
+        venv.save(str(stats))

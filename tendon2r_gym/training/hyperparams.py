@@ -1,0 +1,125 @@
+"""The hyperparameters of one training run: a typed dataclass, validated once.
+
+An entry of the hyperparameter file (``configs/ppo.yaml``, package data) is read with
+:meth:`Hyperparams.from_entry`; a run folder's ``config.yaml`` with :meth:`Hyperparams.from_dict`.
+Both go through the same validation, and :meth:`Hyperparams.replace` validates overrides again,
+so nothing downstream checks a value twice.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from tendon2r_gym import observation
+from tendon2r_gym.env_config import EnvConfig
+from tendon2r_gym.presets import PPO_CONFIG, load_yaml
+from tendon2r_gym.validation import check_keys, integer, invalid, mapping, number
+
+VEC_ENVS = ("native", "subproc", "dummy")
+
+
+@dataclass(frozen=True)
+class Hyperparams:
+    """One entry of configs/ppo.yaml (see the comments there for each field)."""
+
+    env_kwargs: dict[str, Any]  # Tendon2R-v0 kwargs (a preset or experiment file and overrides)
+    total_timesteps: int
+    n_envs: int
+    eval_seeds: list[int]
+    eval_freq: int  # env steps between evaluations
+    checkpoint_freq: int  # env steps between checkpoints
+    residual_scale: float = 0.0  # > 0: residual on PD (command = PD + scale * action)
+    vec_env: str = "subproc"  # native, subproc or dummy
+    torch_threads: int = 1
+    ppo: dict[str, Any] = field(default_factory=dict)  # SB3 PPO keyword arguments
+    policy_kwargs: dict[str, Any] = field(default_factory=dict)
+    normalize: dict[str, Any] = field(default_factory=dict)  # VecNormalize keyword arguments
+    checkpoint_minutes: float = 2.0  # and a checkpoint at least this often (wall time)
+    zero_obs: tuple[str, ...] = ()  # observation entries to blank out (ablations)
+
+    def __post_init__(self) -> None:
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
+        set_("env_kwargs", mapping("env_kwargs", self.env_kwargs))
+        integer("total_timesteps", self.total_timesteps, 1, 10**10)
+        integer("n_envs", self.n_envs, 1, 1024)
+        integer("torch_threads", self.torch_threads, 1, 256)
+        set_("residual_scale", number("residual_scale", self.residual_scale, 0.0, 2.0))
+        integer("eval_freq", self.eval_freq, 1, 10**10)
+        integer("checkpoint_freq", self.checkpoint_freq, 1, 10**10)
+        set_(
+            "checkpoint_minutes",
+            number("checkpoint_minutes", self.checkpoint_minutes, 0.0, lo_open=True),
+        )
+        if isinstance(self.eval_seeds, (str, bytes)) or not hasattr(self.eval_seeds, "__iter__"):
+            raise invalid("eval_seeds", self.eval_seeds, "a list of integer seeds")
+        set_("eval_seeds", [integer("eval_seeds", s, 0, 2**32 - 1) for s in self.eval_seeds])
+        if not self.eval_seeds:
+            raise invalid("eval_seeds", self.eval_seeds, "one or more integer seeds")
+        zero = tuple(self.zero_obs or ())
+        check_keys("zero_obs", zero, observation.SLICES)
+        set_("zero_obs", zero)
+        if self.vec_env not in VEC_ENVS:
+            raise invalid("vec_env", self.vec_env, f"one of {VEC_ENVS}")
+        for name in ("ppo", "policy_kwargs", "normalize"):
+            set_(name, mapping(name, getattr(self, name)))
+        EnvConfig.make(**self.env_kwargs)  # the env kwargs, before any worker starts
+
+    # -- construction --------------------------------------------------------------------------
+    @classmethod
+    def from_dict(cls, values: dict[str, Any], where: str = "hyperparameters") -> Hyperparams:
+        """Builds from a mapping with the fields as keys (an entry, or a run's config.yaml)."""
+        values = copy.deepcopy(mapping(where, values))
+        check_keys(where, values, keys())
+        missing = [f.name for f in dataclasses.fields(cls) if _required(f) and f.name not in values]
+        if missing:
+            raise invalid(where, sorted(values), f"a mapping that also has {missing}")
+        return cls(**values)
+
+    @classmethod
+    def from_entry(
+        cls, name: str = "default", path: str | Path = PPO_CONFIG, env_config: str | None = None
+    ) -> Hyperparams:
+        """Returns entry ``name`` of a hyperparameter file.  ``env_config`` (a preset name or
+        experiment-file path) replaces the entry's env preset, keeping its other env kwargs."""
+        table = load_yaml(path)
+        if name not in table:
+            raise invalid("hyperparams", name, f"an entry of {path}: {sorted(table)}")
+        values = mapping(f"{path}: {name}", table[name])
+        if env_config is not None:
+            env_kwargs = {**mapping("env_kwargs", values.get("env_kwargs")), "preset": env_config}
+            values = {**values, "env_kwargs": env_kwargs}
+        return cls.from_dict(values, f"{path}: {name}")
+
+    def replace(self, **changes: Any) -> Hyperparams:
+        """Returns a validated copy with the named fields changed."""
+        return Hyperparams.from_dict({**self.to_dict(), **changes})
+
+    def to_dict(self) -> dict[str, Any]:
+        """Returns plain YAML-friendly values (what a run's config.yaml holds)."""
+        out = copy.deepcopy(dataclasses.asdict(self))
+        out["zero_obs"] = list(self.zero_obs)
+        return out
+
+    # -- derived quantities ----------------------------------------------------------------------
+    @property
+    def gamma(self) -> float:
+        """Returns PPO's discount (also VecNormalize's, for reward normalization)."""
+        return float(self.ppo.get("gamma", 0.99))
+
+    @property
+    def rollout_steps(self) -> int:
+        """Returns the env steps per PPO update: n_envs x n_steps."""
+        return self.n_envs * int(self.ppo.get("n_steps", 2048))
+
+
+def keys() -> list[str]:
+    """Returns the keys a hyperparameter entry may hold."""
+    return [f.name for f in dataclasses.fields(Hyperparams)]
+
+
+def _required(f: dataclasses.Field) -> bool:
+    return f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING

@@ -1,0 +1,321 @@
+"""The run owner (rl_zoo3's ExperimentManager): one training command, its seeds and folders.
+
+:class:`Experiment` trains one run per seed in ``base/seed_<n>/`` (names from
+tendon2r_gym.runs) and survives interruption:
+- Ctrl-C (or SIGTERM) stops training at the next env step (StopOnSignal), saves
+  ``last_model`` and the summary, then raises KeyboardInterrupt, so a multi-seed command stops
+  as a whole (exit code 130) after writing the summary of the seeds that finished;
+- checkpoints are taken every ``checkpoint_freq`` steps and every ``checkpoint_minutes``;
+- :meth:`Experiment.resume` continues the run that was started: the hyperparameters recorded
+  in its folder (budget and overrides included), never the entry's current defaults, from the
+  newest readable saved state (a corrupt one is skipped with a warning);
+- ``summary.json`` adds up steps and wall time over every segment, and command.txt keeps the
+  original command with one line per resume.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tendon2r_gym.env_config import EnvConfig
+from tendon2r_gym.learned import make_training_env, observation_layout
+from tendon2r_gym.runs import (
+    BEST_METRICS,
+    CONFIG,
+    EVALUATIONS,
+    PD_EVAL,
+    RUN_META,
+    SEEDS_SUMMARY,
+    SUMMARY,
+    RunFolder,
+    seed_dir,
+    seed_dirs,
+)
+from tendon2r_gym.training.callbacks import (
+    StopOnSignal,
+    TimedCheckpointCallback,
+    TrackingEvalCallback,
+    TrackingLogCallback,
+    save_model,
+)
+from tendon2r_gym.training.hyperparams import Hyperparams
+from tendon2r_gym.validation import invalid
+
+
+@dataclass
+class Experiment:
+    """One training command: hyperparameters, the seeds, their base folder, the command."""
+
+    hyperparams: Hyperparams
+    base: Path
+    seeds: list[int]
+    command: str = ""
+    progress_bar: bool = False
+
+    @classmethod
+    def resume(
+        cls,
+        base: str | Path,
+        seeds: list[int] | None = None,
+        command: str = "",
+        progress_bar: bool = False,
+        **overrides: Any,
+    ) -> Experiment:
+        """Returns the experiment recorded in ``base``: the hyperparameters of its seed
+        folders' config.yaml, with only the ``overrides`` given now on top (its seeds, unless
+        ``seeds``)."""
+        recorded = seed_dirs(base)
+        if not recorded:
+            raise invalid("run_dir", str(base), "a folder with seed_<n>/config.yaml to resume")
+        hp = recorded_hyperparams(RunFolder(recorded[0]))
+        if overrides:
+            hp = hp.replace(**overrides)
+        seeds = seeds if seeds is not None else [RunFolder(p).seed for p in recorded]
+        return cls(hp, Path(base), list(seeds), command, progress_bar)
+
+    def run_folder(self, seed: int) -> RunFolder:
+        return RunFolder(seed_dir(self.base, seed))
+
+    def train(self, resume: bool = False) -> dict[str, Any]:
+        """Trains one run per seed (continuing those with a saved state if ``resume``) and
+        writes SEEDS_SUMMARY.  A Ctrl-C stops them all: the summary of the finished seeds is
+        written, then it re-raises."""
+        results: list[dict[str, Any]] = []
+        try:
+            for seed in self.seeds:
+                run = self.run_folder(seed)
+                resume_this = resume and bool(run.checkpoint_candidates())
+                results.append(
+                    train_run(
+                        self.hyperparams, run, seed, resume_this, self.command, self.progress_bar
+                    )
+                )
+        finally:
+            agg = seeds_summary(self.seeds, results)
+            RunFolder(self.base).write_json(SEEDS_SUMMARY, agg)
+        return agg
+
+
+def recorded_hyperparams(run: RunFolder) -> Hyperparams:
+    """Returns the hyperparameters a run was started with (its config.yaml)."""
+    values = run.read_config()
+    if values is None:
+        raise invalid("run folder", str(run.path), f"a run folder with a {CONFIG}")
+    values.pop("seed", None)  # older runs recorded it there (run.json has it)
+    return Hyperparams.from_dict(values, str(run.file(CONFIG)))
+
+
+# -- one run -----------------------------------------------------------------------------------
+def make_vec_env(hp: Hyperparams, seed: int) -> Any:
+    """Returns the training VecEnv: the native vector env (one process, batched physics and PD)
+    with SB3's VecMonitor, or SB3's make_vec_env with Subproc/Dummy."""
+    from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+    if hp.vec_env == "native":
+        from tendon2r_gym.vector_env_sb3 import make_native
+
+        return make_native(hp.n_envs, hp.env_kwargs, hp.residual_scale, hp.zero_obs, seed)
+    subproc = hp.vec_env == "subproc" and hp.n_envs > 1
+    return sb3_make_vec_env(
+        make_training_env,
+        n_envs=hp.n_envs,
+        seed=seed,
+        env_kwargs={
+            "env_kwargs": hp.env_kwargs,
+            "residual_scale": hp.residual_scale,
+            "zero_obs": hp.zero_obs,
+        },
+        vec_env_cls=SubprocVecEnv if subproc else DummyVecEnv,
+    )
+
+
+def _load_newest(run: RunFolder, venv: Any) -> tuple[Any, Any]:
+    """Returns (PPO, VecNormalize) from the newest readable saved state of the run; a corrupt
+    one is skipped with a warning."""
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    candidates = run.checkpoint_candidates()
+    if not candidates:
+        raise FileNotFoundError(f"resume: no last_model or checkpoint in {run.path}")
+    for zip_path, stats in candidates:
+        try:
+            vecnorm = VecNormalize.load(str(stats), venv)
+            model = PPO.load(zip_path, env=vecnorm, device="cpu")
+        except Exception as e:  # noqa: BLE001 (any unreadable file: try the one before)
+            warnings.warn(f"resume: skipping unreadable {zip_path.name} ({e!r})", stacklevel=2)
+            continue
+        print(f"resuming from {zip_path} at {model.num_timesteps} steps", flush=True)
+        return model, vecnorm
+    raise FileNotFoundError(f"resume: every saved state in {run.path} is unreadable")
+
+
+def train_run(
+    hp: Hyperparams,
+    run: RunFolder,
+    seed: int = 0,
+    resume: bool = False,
+    command: str = "",
+    progress_bar: bool = False,
+) -> dict[str, Any]:
+    """Trains one run; returns its summary.  Ctrl-C saves, writes the summary, re-raises."""
+    import torch
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.callbacks import CallbackList
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    env_config = EnvConfig.make(**hp.env_kwargs)
+    previous = run.read_json(SUMMARY) if resume else None
+    run.write_config(hp.to_dict())
+    run.record_command(command, resume)
+    run.write_json(
+        RUN_META,
+        {
+            "residual_scale": hp.residual_scale,
+            "seed": seed,
+            "env_kwargs": hp.env_kwargs,
+            "env_config": {
+                **env_config.to_dict(),
+                "observation": observation_layout(env_config.preview_steps),
+            },
+        },
+    )
+    torch.set_num_threads(hp.torch_threads)
+    venv = make_vec_env(hp, seed)
+    if resume:
+        model, vecnorm = _load_newest(run, venv)
+    else:
+        vecnorm = VecNormalize(venv, gamma=hp.gamma, **hp.normalize)
+        model = PPO(
+            "MlpPolicy",
+            vecnorm,
+            seed=seed,
+            device="cpu",
+            verbose=0,
+            tensorboard_log=str(run.tensorboard),
+            policy_kwargs=hp.policy_kwargs,
+            **hp.ppo,
+        )
+    callbacks = [
+        TrackingLogCallback(),
+        TrackingEvalCallback(
+            hp.env_kwargs,
+            hp.eval_seeds,
+            hp.eval_freq,
+            run,
+            hp.residual_scale,
+            wall_offset_s=previous["wall_time_s"] if previous else 0.0,
+        ),
+        TimedCheckpointCallback(
+            max(hp.checkpoint_freq // hp.n_envs, 1), str(run.checkpoints), hp.checkpoint_minutes
+        ),
+    ]
+    start_steps = int(model.num_timesteps)
+    remaining = hp.total_timesteps - start_steps
+    start = time.perf_counter()
+    interrupted = False
+    stop = StopOnSignal()
+    try:
+        with stop:
+            if remaining > 0:
+                model.learn(
+                    remaining,
+                    callback=CallbackList([stop, *callbacks]),
+                    reset_num_timesteps=not resume,
+                    progress_bar=progress_bar,
+                    tb_log_name="ppo",
+                )
+        if stop.stopped:
+            raise KeyboardInterrupt("signal")
+    except KeyboardInterrupt:
+        interrupted = True
+        print(f"interrupted at {model.num_timesteps} steps; resume with --resume", flush=True)
+        raise
+    finally:
+        save_model(model, run.last)  # Ctrl-C or a crash keeps the last state
+        _close(vecnorm)
+        summary = _write_summary(
+            run, seed, command, previous, start_steps, model, start, interrupted
+        )
+    return summary
+
+
+def first_beat_pd(run: RunFolder) -> dict[str, Any] | None:
+    """Returns the first evaluation of a run that beat PD on both joints, or None."""
+    for row in run.read_json(EVALUATIONS) or []:
+        if row["beats_pd"]:
+            return {"timesteps": row["timesteps"], "wall_time_s": row["wall_time_s"]}
+    return None
+
+
+def _write_summary(
+    run: RunFolder,
+    seed: int,
+    command: str,
+    previous: dict[str, Any] | None,
+    start_steps: int,
+    model: Any,
+    start: float,
+    interrupted: bool,
+) -> dict[str, Any]:
+    """Writes summary.json: this segment appended to the earlier ones, totals summed."""
+    wall = time.perf_counter() - start
+    steps = int(model.num_timesteps)
+    segment = {
+        "command": command,
+        "start_timesteps": start_steps,
+        "end_timesteps": steps,
+        "wall_time_s": round(wall, 1),
+        "interrupted": interrupted,
+    }
+    segments = [*(previous or {}).get("segments", []), segment]
+    total_wall = round(sum(s["wall_time_s"] for s in segments), 1)
+    best = run.read_json(BEST_METRICS) or {}
+    summary = {
+        "seed": seed,
+        "timesteps": steps,
+        "wall_time_s": total_wall,
+        "steps_per_s": round(
+            sum(s["end_timesteps"] - s["start_timesteps"] for s in segments)
+            / max(total_wall, 1e-9),
+            1,
+        ),
+        "interrupted": interrupted,
+        "best_rms_deg": best.get("rms_deg"),
+        "best_timesteps": best.get("timesteps"),
+        "pd_eval_rms_deg": run.read_json(PD_EVAL),
+        "first_beat_pd": first_beat_pd(run),
+        "segments": segments,
+    }
+    run.write_json(SUMMARY, summary)
+    print(json.dumps({k: v for k, v in summary.items() if k != "segments"}), flush=True)
+    return summary
+
+
+def _close(vecnorm: Any) -> None:
+    try:
+        vecnorm.close()
+    except (BrokenPipeError, EOFError, ConnectionResetError):  # workers already gone (Ctrl-C)
+        pass
+
+
+def seeds_summary(seeds: list[int], results: list[dict[str, Any]]) -> dict[str, Any]:
+    """Returns mean +- std (ddof 0) of the finished runs' best RMS."""
+    done = [r for r in results if r.get("best_rms_deg") is not None]
+    out: dict[str, Any] = {"seeds": seeds, "finished": [r["seed"] for r in done], "runs": results}
+    if done:
+        rms = np.array([r["best_rms_deg"] for r in done], dtype=float)
+        out.update(
+            rms_deg_mean=rms.mean(0).tolist(),
+            rms_deg_std=rms.std(0).tolist(),
+            wall_time_s_mean=float(np.mean([r["wall_time_s"] for r in done])),
+        )
+    return out

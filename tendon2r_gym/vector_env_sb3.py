@@ -1,0 +1,95 @@
+"""Stable-Baselines3's VecEnv API over the native vector env (tendon2r_gym.vector_env)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.vec_env import VecEnv
+
+from tendon2r_gym import observation
+from tendon2r_gym.learned import residual_command
+from tendon2r_gym.policies import PDPolicy
+from tendon2r_gym.validation import invalid
+
+
+class SB3VecEnv(VecEnv):
+    """Stable-Baselines3's VecEnv API over the native vector env (tendon2r_gym.vector_env) in
+    Gymnasium's SAME_STEP autoreset mode: ``terminal_observation`` and ``TimeLimit.truncated``
+    go in each env's info, as SB3's own VecEnvs put them.  With ``residual_scale > 0`` it
+    also adds the agent's action to a batched PD command (one numpy call for all arms)."""
+
+    def __init__(
+        self, venv: Any, residual_scale: float = 0.0, zero_obs: tuple[str, ...] = ()
+    ) -> None:
+        from gymnasium.vector import AutoresetMode
+
+        if venv.autoreset_mode != AutoresetMode.SAME_STEP:
+            raise invalid("autoreset_mode", venv.autoreset_mode, "SAME_STEP for SB3")
+        super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
+        self.venv, self.residual_scale = venv, residual_scale
+        self.pd = PDPolicy(venv.mechanism, venv.ctrl_dt) if residual_scale > 0 else None
+        self._mask = observation.mask(zero_obs, venv.single_observation_space.shape[0])
+        self._raw: np.ndarray | None = None
+        self._actions: np.ndarray | None = None
+
+    def reset(self) -> np.ndarray:
+        seeds = list(self._seeds)
+        self._raw, _ = self.venv.reset(seed=seeds if any(s is not None for s in seeds) else None)
+        self._reset_seeds()
+        self._reset_options()
+        return self._raw * self._mask
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = np.asarray(actions)
+
+    def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
+        actions = self._actions
+        if self.pd is not None:
+            base, _ = self.pd.predict(self._raw)
+            actions = residual_command(base, actions, self.residual_scale)
+        obs, rewards, terminated, truncated, info = self.venv.step(actions)
+        dones = terminated | truncated
+        keys = [k for k in info if not k.startswith("_") and k != "final_obs"]
+        infos: list[dict[str, Any]] = [{k: info[k][i] for k in keys} for i in range(self.num_envs)]
+        for i in range(self.num_envs):  # as SB3's DummyVecEnv: on every step
+            infos[i]["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
+        for i in np.flatnonzero(dones):
+            infos[i]["terminal_observation"] = info["final_obs"][i] * self._mask
+        self._raw = obs
+        return obs * self._mask, rewards.astype(np.float32), dones, infos
+
+    def close(self) -> None:
+        self.venv.close()
+
+    def get_attr(self, attr_name: str, indices: Any = None) -> list[Any]:
+        return [getattr(self.venv, attr_name)] * len(self._get_indices(indices))
+
+    def set_attr(self, attr_name: str, value: Any, indices: Any = None) -> None:
+        setattr(self.venv, attr_name, value)
+
+    def env_method(self, method_name: str, *args: Any, indices: Any = None, **kw: Any) -> list:
+        return [getattr(self.venv, method_name)(*args, **kw)] * len(self._get_indices(indices))
+
+    def env_is_wrapped(self, wrapper_class: type, indices: Any = None) -> list[bool]:
+        return [False] * len(self._get_indices(indices))
+
+
+
+def make_native(
+    n_envs: int,
+    env_kwargs: dict[str, Any],
+    residual_scale: float = 0.0,
+    zero_obs: tuple[str, ...] = (),
+    seed: int | None = None,
+) -> VecEnv:
+    """Returns the native vector env for SB3 training: N arms in one process with staggered
+    first episodes, batched PD for a residual, and SB3's VecMonitor."""
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    from tendon2r_gym.vector_env import Tendon2RVectorEnv
+
+    native = Tendon2RVectorEnv(n_envs, autoreset_mode="SameStep", stagger=True, **env_kwargs)
+    venv = SB3VecEnv(native, residual_scale, zero_obs)
+    venv.seed(seed)
+    return VecMonitor(venv)
