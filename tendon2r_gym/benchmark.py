@@ -21,6 +21,7 @@ import numpy as np
 from tendon2r_gym.bundle import bundle_meta, bundled_model, training_summary
 from tendon2r_gym.evaluation import BASELINE, evaluate, names
 from tendon2r_gym.plots import plot_trace
+from tendon2r_gym.presets import DATA_DIR
 from tendon2r_gym.runs import RUN_META, RunFolder, model_files
 
 #: Learned variants: label -> (bundle suffix, hyperparameter entry used to train on your arm).
@@ -96,7 +97,7 @@ def _row(
     if model is not None:
         s = training_summary(model)
         row.update(
-            model=str(model),
+            model=shown_path(model),
             train_seed=s["seed"],
             train_steps=s["timesteps"],
             train_wall_s=s["wall_time_s"],
@@ -105,6 +106,17 @@ def _row(
     if plots is not None:
         plot_trace(traces[0], plots / name / label.replace(" ", "_"), f"{label} on {name}")
     return row
+
+
+def shown_path(path: Path) -> str:
+    """Returns a model path as recorded in benchmark.json: relative to the package for a
+    bundled model (``tendon2r_gym/data/models/...``), else relative to the working folder when
+    it is inside it, else absolute; never the machine's absolute path of the package."""
+    path = Path(path).resolve()
+    for root, prefix in ((DATA_DIR.parent, "tendon2r_gym"), (Path.cwd(), ".")):
+        if path.is_relative_to(root):
+            return str(Path(prefix) / path.relative_to(root))
+    return str(path)
 
 
 def _spread(name: str, label: str, per_seed: list[dict[str, Any]]) -> dict[str, Any]:

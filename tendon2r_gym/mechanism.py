@@ -29,6 +29,18 @@ from tendon2r_gym.routing import Sides
 from tendon2r_gym.validation import boolean, check_keys, invalid, is_number, mapping, number
 
 INTEGRATORS = ("Euler", "RK4", "implicit", "implicitfast")
+#: Upper bounds of the size and mass fields: a desk-top arm (the course's links are 0.03 to
+#: 0.095 m, its pulleys 0.011 to 0.047 m), with a wide margin; a 1 km link diverges at once.
+LIMITS = {
+    "R1": 1.0,  # m
+    "R2": 1.0,
+    "a": 1.0,
+    "b": 1.0,
+    "c": 1.0,
+    "density": 1e5,  # kg/m^3 (osmium: 2.3e4)
+    "link_radius": 0.1,  # m
+    "pulley_thickness": 0.1,
+}
 #: ``max_tendon_force: auto`` sizes the force limit from the reference (Tendon2REnv does it).
 AUTO = "auto"
 
@@ -73,8 +85,8 @@ class Mechanism:
 
     def __post_init__(self) -> None:
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
-        for name in ("R1", "R2", "a", "b", "c", "density", "link_radius", "pulley_thickness"):
-            set_(name, number(f"Mechanism.{name}", getattr(self, name), 0.0, lo_open=True))
+        for name, hi in LIMITS.items():
+            set_(name, number(f"Mechanism.{name}", getattr(self, name), 0.0, hi, lo_open=True))
         if self.max_tendon_force != AUTO:
             set_(
                 "max_tendon_force",

@@ -21,6 +21,7 @@ import mujoco
 import numpy as np
 
 from tendon2r_gym.mechanism import Mechanism
+from tendon2r_gym.validation import invalid
 
 JOINTS = ("A", "B")
 CAMERA = "side"
@@ -225,8 +226,18 @@ def motor_name(i: int) -> str:
 
 
 def build_model(mech: Mechanism) -> mujoco.MjModel:
-    """Returns the compiled MuJoCo model of the mechanism."""
-    return build_spec(mech).compile()
+    """Returns the compiled MuJoCo model of the mechanism; a mechanism MuJoCo cannot compile
+    (a massless link, degenerate inertia) raises a ValueError naming the mass fields."""
+    try:
+        return build_spec(mech).compile()
+    except ValueError as e:  # MuJoCo's compiler message names its element, not our field
+        fields = {k: getattr(mech, k) for k in ("density", "link_radius", "pulley_thickness")}
+        raise invalid(
+            "Mechanism mass fields",
+            fields,
+            "values that give every moving link a mass and an inertia MuJoCo can integrate "
+            f"(its compiler says: {str(e).splitlines()[0]})",
+        ) from None
 
 
 def to_xml(mech: Mechanism) -> str:

@@ -210,16 +210,25 @@ class Tendon2RVectorEnv(VectorEnv):
         done = terminated | truncated
         self._last_obs[:] = obs
         if self.autoreset_mode == AutoresetMode.SAME_STEP and done.any():
+            # As SyncVectorEnv: a finished arm reports its last step in final_obs and
+            # final_info, then its reset observation and reset info.
             obs = obs.copy()  # info holds views of the final observations
             ids = np.flatnonzero(done)
+            final = {k: v.copy() for k, v in info.items() if not k.startswith("_")}
+            final.update({f"_{k}": done.copy() for k in list(final)})
+            for key in list(info):
+                if key.startswith("_"):
+                    info[key] = info[key] & ~done
             info["final_obs"] = np.full(n, None, dtype=object)
             for i in ids:
                 info["final_obs"][i] = obs[i].copy()
             info["_final_obs"] = done.copy()
+            info["final_info"], info["_final_info"] = final, done.copy()
             self._reset_ids(ids)
             fresh = self._observe()
             obs[ids] = fresh[ids]
             self._last_obs[ids] = fresh[ids]
+            info = self._reset_info(ids, _without_empty(info))
         else:
             self._needs_reset = done
         return obs.copy(), rewards, terminated, truncated, info
@@ -296,6 +305,13 @@ def default_nthread(num_envs: int) -> int:
     least one, at most the CPUs this process may run on."""
     cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     return max(1, min(cpus or 1, num_envs // ARMS_PER_THREAD))
+
+
+def _without_empty(info: dict[str, Any]) -> dict[str, Any]:
+    """Returns info without the keys that no arm has (all-False masks), as Gymnasium's vector
+    envs never create them."""
+    empty = {k[1:] for k, v in info.items() if k.startswith("_") and not np.any(v)}
+    return {k: v for k, v in info.items() if k not in empty and k.removeprefix("_") not in empty}
 
 
 def _sparse_rows(model: mujoco.MjModel) -> list[tuple[int | None, ...]]:

@@ -50,11 +50,11 @@ class SB3VecEnv(VecEnv):
             actions = residual_command(base, actions, self.residual_scale)
         obs, rewards, terminated, truncated, info = self.venv.step(actions)
         dones = terminated | truncated
-        keys = [k for k in info if not k.startswith("_") and k != "final_obs"]
-        infos: list[dict[str, Any]] = [{k: info[k][i] for k in keys} for i in range(self.num_envs)]
+        infos = [_arm_info(info, i) for i in range(self.num_envs)]
         for i in range(self.num_envs):  # as SB3's DummyVecEnv: on every step
             infos[i]["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
-        for i in np.flatnonzero(dones):
+        for i in np.flatnonzero(dones):  # the last step's info, then SB3's terminal observation
+            infos[i].update(_arm_info(info["final_info"], i))
             infos[i]["terminal_observation"] = info["final_obs"][i] * self._mask
         self._raw = obs
         return obs * self._mask, rewards.astype(np.float32), dones, infos
@@ -93,3 +93,12 @@ def make_native(
     venv = SB3VecEnv(native, residual_scale, zero_obs)
     venv.seed(seed)
     return VecMonitor(venv)
+
+
+def _arm_info(info: dict[str, Any], i: int) -> dict[str, Any]:
+    """Returns arm i's entries of a Gymnasium vector info (the keys whose mask holds i)."""
+    return {
+        k: (_arm_info(v, i) if isinstance(v, dict) else v[i])
+        for k, v in info.items()
+        if not k.startswith("_") and k not in ("final_obs", "final_info") and info[f"_{k}"][i]
+    }

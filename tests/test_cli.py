@@ -79,6 +79,8 @@ def test_benchmark_on_bundled_models(tmp_path):
         for policy in (*names(BASELINE), *LEARNED):
             assert (env, policy) in labels
     assert all("rms_deg" in r for r in result["rows"]), "every bundled model loads and runs"
+    models = [r["model"] for r in result["rows"] if "model" in r]
+    assert models and all(m.startswith("tendon2r_gym/data/models/") for m in models), models
     assert json.loads((tmp_path / "benchmark.json").read_text())["rows"]
 
 

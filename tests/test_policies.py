@@ -2,14 +2,18 @@
 
 import json
 
+import gymnasium as gym
+import mujoco
 import numpy as np
 import pytest
 
 from tendon2r_gym import Tendon2REnv
 from tendon2r_gym.cli import evaluate_main
 from tendon2r_gym.evaluation import evaluate
+from tendon2r_gym.metrics import tracking_metrics
 from tendon2r_gym.observation import ERROR, Q_DES
 from tendon2r_gym.policies import ComputedTorquePolicy, Gains, PDPolicy
+from tendon2r_gym.rollout import rollout, rollouts
 
 
 def test_pd_removes_a_step_error():
@@ -25,10 +29,37 @@ def test_pd_removes_a_step_error():
     assert np.all(np.abs(np.degrees(obs[ERROR])) < 0.01 * start)
 
 
-def test_pd_never_reads_the_env_state():
+@pytest.mark.parametrize("policy", [PDPolicy, ComputedTorquePolicy])
+def test_baselines_never_read_the_env_state(policy):
+    """The action depends on the observation only: scrambling the env's MjData after the
+    observation changes nothing."""
     env = Tendon2REnv()
-    pd = PDPolicy.from_env(env)
-    assert pd.model is not env.model and pd.data is not env.data
+    ctrl = policy.from_env(env)
+    assert ctrl.model is not env.model and ctrl.data is not env.data
+    obs, _ = env.reset(seed=0)
+    for _ in range(5):
+        obs, *_ = env.step(ctrl.predict(obs)[0])
+    before, _ = ctrl.predict(obs)
+    env.data.qpos[:], env.data.qvel[:] = 1.0, -5.0
+    mujoco.mj_forward(env.model, env.data)
+    np.testing.assert_array_equal(ctrl.predict(obs)[0], before)
+
+
+def test_ct_follows_each_episodes_reference_under_reference_ranges():
+    """CT reads the episode's reference from the reset info: on random references it tracks
+    as on fixed ones (it used to track the nominal reference and reach 0.05 deg)."""
+    ranges = {"amp_deg": [[5, 25], [5, 20]], "freq_hz": [[0.5, 3], [0.5, 3]],
+              "bias_deg": [[-10, 10], [-15, 5]]}  # fmt: skip
+    kwargs = {"preset": "default", "reference_ranges": ranges, "episode_duration": 1.0}
+    env = gym.make("Tendon2R-v0", **kwargs)
+    ct = ComputedTorquePolicy.from_env(env)
+    traces = rollouts(ct, kwargs, [0, 1, 2])
+    fixed = []
+    for seed in (0, 1, 2):
+        drawn = env.reset(seed=seed)[1]["reference"]
+        fixed.append(tracking_metrics([rollout(ct, env, 0, {"reference": drawn})])["rms_deg"])
+    ranged = tracking_metrics(traces)["rms_deg"]
+    assert max(ranged) <= 2 * max(max(f) for f in fixed) and max(ranged) < 0.01, (ranged, fixed)
 
 
 def test_pd_action_is_bounded_and_batched():

@@ -118,3 +118,24 @@ def test_tendon_names_follow_the_routing():
     m = build_model(Mechanism(routing="n_plus_1", max_tendon_force=1.0))
     assert [m.tendon(tendon_name(i)).name for i in range(3)] == ["tendon1", "tendon2", "tendon3"]
     assert m.actuator(motor_name(2)).trnid[0] == m.tendon("tendon3").id
+
+
+FOUR = [[1, 1], [1, -1], [-1, 0], [-1, 1]]  # four tendons: distribute's general branch
+
+
+def test_four_pull_only_tendons_distribute_exactly_and_track():
+    """With 4 tendons the null space is 2-D: the tensions still give the asked joint torques
+    exactly, keep the pretension, and PD tracks without a pushing tendon."""
+    mech = Mechanism(routing=FOUR, pull_only=True, max_tendon_force=1.0, pretension=0.03)
+    analysis = ActuationAnalysis(build_model(mech))
+    rng = np.random.default_rng(0)
+    for q in rng.uniform(-1.2, 1.2, (20, 2)):
+        J = analysis.moment_arms(q)
+        assert J.shape == (4, 2)
+        tau = rng.normal(0.0, 1e-3, 2)
+        t = distribute(J, tau, pull_only=True, pretension=0.03)
+        np.testing.assert_allclose(-J.T @ t, tau, atol=1e-12)
+        assert t.min() == pytest.approx(0.03)
+    metrics, _ = evaluate("pd", {"preset": "pull_only", "mechanism": {"routing": FOUR}}, [0])
+    assert max(metrics["rms_deg"]) <= 0.3 and metrics["negative_tension_steps"] == 0
+    assert len(metrics["rms_tension_N"]) == 4

@@ -80,13 +80,24 @@ BAD_ENV_KWARGS = [
     ({"mechanism": {"joint_damping": 0.01}}, r"joint_damping = 0.01.*implicitfast"),
     ({"mechanism": {"tendon_damping": 10}}, r"tendon_damping = 10.*sim_dt"),
     ({"mechanism": {"tendon_stiffness": 1e5}}, r"tendon_stiffness = 100000.0.*sim_dt"),
+    ({"mechanism": {"b": 1e6}}, r"Mechanism.b = 1000000.0 is invalid; allowed: .*\(0, 1\]"),
+    ({"mechanism": {"c": 1e6}}, r"Mechanism.c = 1000000.0 is invalid"),
+    ({"mechanism": {"R1": 1e-9}}, r"Mechanism.link_radius = 0.002 is invalid; .*pulley radius"),
+    ({"mechanism": {"density": 1e-12}}, r"Mechanism mass fields = .*density.*allowed: .*mass"),
+    ({"mechanism": {"link_radius": 1e-9, "R1": 1e-8}}, r"Mechanism mass fields = .*mjMINVAL"),
 ]
 
 
 @pytest.mark.parametrize(("kwargs", "match"), BAD_ENV_KWARGS)
 def test_bad_env_kwargs_raise_a_clear_error_at_construction(kwargs, match, monkeypatch):
     built = []
-    monkeypatch.setattr(Tendon2REnv, "_initialize_simulation", lambda self: built.append(1))
+    build = Tendon2REnv._initialize_simulation
+
+    def spy(self):  # builds as usual: a late failure still raises, but after the spy saw it
+        built.append(1)
+        return build(self)
+
+    monkeypatch.setattr(Tendon2REnv, "_initialize_simulation", spy)
     with pytest.raises(ValueError, match=match) as err:
         gym.make("Tendon2R-v0", **kwargs)
     assert "allowed" in str(err.value) or "did you mean" in str(err.value)
@@ -166,7 +177,7 @@ def _diverges(mech: Mechanism) -> bool:
 )  # fmt: skip
 def test_stability_criterion_on_both_sides(field, integrator):
     limit = _limit(field, integrator)
-    below = {"integrator": integrator, field: 0.5 * limit}
+    below = {"integrator": integrator, field: 0.5 * limit, "max_tendon_force": 0.5}
     env = gym.make("Tendon2R-v0", mechanism=below)
     env.reset(seed=0)
     for _ in range(200):

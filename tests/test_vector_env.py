@@ -21,12 +21,15 @@ def _native(n, **kw):
      (3, 1, {"tracking_form": "quadratic"}), (3, 1, {"preset": "report_002", "ctrl_dt": 0.002}),
      (17, 2, {"preview_steps": 6}), (9, None, {"preview_steps": 0})],
 )  # fmt: skip
-def test_same_seeds_same_trajectories_as_single_envs_bit_for_bit(n, nthread, kwargs):
-    """Observations, rewards, terminations, truncations and infos equal a SyncVectorEnv of
-    gym.make envs exactly, through several autoresets, with any number of MuJoCo threads."""
-    native = _native(n, episode_duration=0.03, nthread=nthread, **kwargs)
+@pytest.mark.parametrize("mode", ["NextStep", "SameStep"])
+def test_same_seeds_same_trajectories_as_single_envs_bit_for_bit(n, nthread, kwargs, mode):
+    """Observations, rewards, terminations, truncations and infos (every key, reset info and
+    final_info included) equal a SyncVectorEnv of gym.make envs exactly, through several
+    autoresets in both autoreset modes, with any number of MuJoCo threads."""
+    native = _native(n, episode_duration=0.03, nthread=nthread, autoreset_mode=mode, **kwargs)
     sync = gym.make_vec("Tendon2R-v0", num_envs=n, vectorization_mode="sync",
-                        episode_duration=0.03, **kwargs)  # fmt: skip
+                        episode_duration=0.03, vector_kwargs={"autoreset_mode": mode},
+                        **kwargs)  # fmt: skip
     assert isinstance(native.unwrapped, Tendon2RVectorEnv)
     np.testing.assert_array_equal(native.reset(seed=11)[0], sync.reset(seed=11)[0])
     rng = np.random.default_rng(0)
@@ -44,6 +47,10 @@ def _assert_same_info(ours: dict, theirs: dict) -> None:
     for key, value in theirs.items():
         if isinstance(value, dict):
             _assert_same_info(ours[key], value)
+        elif key == "final_obs":
+            mask = theirs["_final_obs"]
+            for x, y in zip(ours[key][mask], value[mask], strict=True):
+                np.testing.assert_array_equal(x, y)
         elif key.startswith("_"):
             np.testing.assert_array_equal(ours[key], value, err_msg=key)
         else:

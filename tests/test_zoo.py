@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import yaml
 
 CONF = Path(__file__).resolve().parent.parent / "configs" / "rl_zoo3" / "ppo.yml"
 
@@ -27,3 +28,18 @@ def test_rl_zoo3_trains_with_our_hyperparameter_file(tmp_path, env_id):
             "ResidualPDWrapper"
             in (tmp_path / "ppo" / f"{env_id}_1" / env_id / "config.yml").read_text()
         )
+
+
+def test_the_zoo_file_is_generated_from_ours():
+    """configs/rl_zoo3/ppo.yml is zoo_file() of configs/ppo.yaml: the same env kwargs, PPO
+    settings, normalization and budget (python scripts/export_zoo.py rewrites it)."""
+    from tendon2r_gym.training import Hyperparams
+    from tendon2r_gym.training.zoo import ENTRIES, zoo_file
+
+    assert CONF.read_text() == zoo_file()
+    zoo = yaml.safe_load(CONF.read_text())
+    for env_id, name in ENTRIES.items():
+        hp = Hyperparams.from_entry(name)
+        assert zoo[env_id]["env_kwargs"] == hp.env_kwargs
+        assert zoo[env_id]["n_timesteps"] == hp.total_timesteps
+        assert ("env_wrapper" in zoo[env_id]) == (hp.residual_scale > 0)

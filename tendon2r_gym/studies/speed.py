@@ -7,8 +7,10 @@ same run; vector envs; PPO training throughput; peak memory.
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import os
+import subprocess
 import sys
 import threading
 import time
@@ -50,6 +52,63 @@ def time_env_step(env: gym.Env, n: int) -> float:
         steps += min(500, n - steps)
         u.reset()
     return total / n
+
+
+def _checkout_child(steps: int, num_envs: int, seconds: float) -> dict[str, float]:
+    """Runs in a child whose ``tendon2r_gym`` is another checkout's: the single env's overhead
+    and the native vector env's steps/s at ``num_envs`` arms, timed by this module's code."""
+    import gymnasium as gym
+    import numpy as np
+
+
+    env = gym.make("Tendon2R-v0")
+    raw, step = time_raw_physics(env, steps), time_env_step(env, steps)
+    envs = gym.make_vec("Tendon2R-v0", num_envs=num_envs, vectorization_mode="vector_entry_point")
+    envs.reset(seed=0)
+    rng = np.random.default_rng(0)
+    actions = [rng.uniform(-1, 1, envs.action_space.shape) for _ in range(64)]
+    count, start = 0, time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        envs.step(actions[count % 64])
+        count += 1
+    rate = count * num_envs / (time.perf_counter() - start)
+    return {
+        "overhead_us": 1e6 * (step - raw),
+        "env_step_us": 1e6 * step,
+        "native_steps_per_s": rate,
+    }
+
+
+def compare_checkouts(
+    checkouts: dict[str, str], steps: int, num_envs: int, seconds: float, repeats: int
+) -> dict[str, dict[str, float]]:
+    """Times each checkout (label -> source folder holding its tendon2r_gym) in fresh child
+    processes, in rounds; per figure, the best of ``repeats``."""
+    code = "\n".join(
+        [
+            "import json, sys, time",
+            "import mujoco",
+            inspect.getsource(time_raw_physics),
+            inspect.getsource(time_env_step),
+            inspect.getsource(_checkout_child),
+            f"print(json.dumps(_checkout_child({steps}, {num_envs}, {seconds})))",
+        ]
+    )
+    best: dict[str, dict[str, float]] = {}
+    for _ in range(repeats):
+        for label, src in checkouts.items():
+            env = {**os.environ, "PYTHONPATH": str(Path(src).resolve())}
+            out = subprocess.run(
+                [sys.executable, "-c", code], env=env, cwd=src, capture_output=True, text=True,
+                check=True,
+            ).stdout
+            run = json.loads(out.strip().splitlines()[-1])
+            mine = best.setdefault(label, {})
+            for key, value in run.items():
+                better = max if key == "native_steps_per_s" else min
+                mine[key] = better(mine.get(key, value), value)
+            print("checkout", label, run, flush=True)
+    return best
 
 
 #: Vector-env backends: (name, factory(num_envs) -> object with reset/step, SB3-style?).
@@ -338,7 +397,41 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--num-envs", type=int, nargs="+", default=[1, 8, 16, 64, 256])
     p.add_argument("--max-processes", type=int, default=8, help="largest N for async/subproc")
     p.add_argument("--out", default="results", help="folder for speed.md and speed.json")
+    p.add_argument(
+        "--compare",
+        nargs="+",
+        default=[],
+        metavar="LABEL=SRC",
+        help="also time other checkouts (a folder holding their tendon2r_gym, e.g. a git "
+        "worktree) against this one, in the same run: single-env overhead and native N = 64",
+    )
+    p.add_argument("--only-compare", action="store_true", help="skip every other measurement")
     args = p.parse_args(argv)
+    if args.compare or args.only_compare:
+        here = str(Path(__file__).resolve().parents[2])
+        checkouts = dict(item.split("=", 1) for item in args.compare)
+        checkouts["this checkout"] = here
+        cmp = compare_checkouts(checkouts, args.steps, 64, args.vector_seconds, args.repeats)
+        lines = [
+            "| checkout | env.step (us) | overhead (us) | native N = 64 (steps/s) |",
+            "|---|---|---|---|",
+            *(
+                f"| {k} | {v['env_step_us']:.1f} | {v['overhead_us']:.1f} | "
+                f"{v['native_steps_per_s']:.0f} |"
+                for k, v in cmp.items()
+            ),
+        ]
+        print("\n".join(lines), flush=True)
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        command = command_line(argv, "python scripts/bench_speed.py")
+        (out / "speed_compare.json").write_text(json.dumps({"command": command, **cmp}, indent=1))
+        (out / "speed_compare.md").write_text(
+            f"# Speed of checkouts\n\nProduced by `{command}` (best of {args.repeats}, "
+            "taken in rounds, each in a fresh process).\n\n" + "\n".join(lines) + "\n"
+        )
+        if args.only_compare:
+            return cmp
     command = command_line(argv, "python scripts/bench_speed.py")
     result: dict = {"mujoco": mujoco.__version__, "gymnasium": gym.__version__}
     # Every timing is the best of --repeats, taken in rounds over all the settings, so that a

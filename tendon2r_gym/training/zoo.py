@@ -1,0 +1,57 @@
+"""rl_zoo3's hyperparameter file, generated from ours (configs/ppo.yaml), so that the zoo
+trains what the benchmark trains: the same env kwargs, PPO settings, normalization and budget.
+
+    python scripts/export_zoo.py        # writes configs/rl_zoo3/ppo.yml
+
+rl_zoo3 keys its entries by env id, so the residual entry uses a second id of the same env
+(Tendon2RResidual-v0) and adds our wrapper with the zoo's ``env_wrapper``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from tendon2r_gym.presets import PPO_CONFIG
+from tendon2r_gym.training.hyperparams import Hyperparams
+
+#: Zoo env id -> our entry.
+ENTRIES = {"Tendon2R-v0": "default_scratch", "Tendon2RResidual-v0": "default"}
+WRAPPER = "tendon2r_gym.learned.ResidualPDWrapper"
+
+HEADER = """\
+# GENERATED from configs/ppo.yaml by `python scripts/export_zoo.py`; edit that file instead
+# (tests/test_zoo.py checks that this one is up to date).
+#   python -m rl_zoo3.train --algo ppo --env Tendon2R-v0 --gym-packages tendon2r_gym \\
+#       --conf-file configs/rl_zoo3/ppo.yml
+#   python -m rl_zoo3.train --algo ppo --env Tendon2RResidual-v0 --gym-packages tendon2r_gym \\
+#       --conf-file configs/rl_zoo3/ppo.yml
+# The zoo runs SB3's DummyVecEnv with the same n_envs x n_steps as our native vector env.
+"""
+
+
+def zoo_entry(hp: Hyperparams) -> dict[str, Any]:
+    """Returns one rl_zoo3 entry with the hyperparameters of ``hp``."""
+    entry: dict[str, Any] = {
+        "env_kwargs": hp.env_kwargs,
+        "n_envs": hp.n_envs,
+        "n_timesteps": float(hp.total_timesteps),
+        "policy": "MlpPolicy",
+        **hp.ppo,
+        # the zoo's VecNormalize, with PPO's discount as ours
+        "normalize": {**hp.normalize, "gamma": hp.gamma},
+        "policy_kwargs": hp.policy_kwargs,
+    }
+    if hp.residual_scale > 0:
+        entry["env_wrapper"] = [{WRAPPER: {"residual_scale": hp.residual_scale}}]
+    return entry
+
+
+def zoo_file(path: str | Path = PPO_CONFIG) -> str:
+    """Returns the text of the rl_zoo3 hyperparameter file."""
+    table = {
+        env_id: zoo_entry(Hyperparams.from_entry(name, path)) for env_id, name in ENTRIES.items()
+    }
+    return HEADER + yaml.safe_dump(table, sort_keys=False)
