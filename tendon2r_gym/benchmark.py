@@ -174,13 +174,24 @@ def verdicts(rows: list[dict[str, Any]]) -> list[str]:
                 for b in baselines
                 if b != "pd" and b in by
             )
+            smooth = ""
+            if "rms_tension_N" in r and "rms_tension_N" in by["pd"]:
+                smooth = (
+                    f"; tension {_ratio(r, by['pd'], 'rms_tension_N'):.1f}x PD's, tension rate "
+                    f"{_ratio(r, by['pd'], 'rms_tension_rate_N_per_s'):.0f}x PD's"
+                )
             lines.append(
                 f"- {name}, {label}: RMS {_fmt(r['rms_deg'])} vs PD {_fmt(pd)}"
                 f" deg: {'<= PD on both joints' if wins else 'WORSE than PD on at least one joint'}"
-                f"{ratios}; trained {r['train_steps']} steps in {r['train_wall_s']} s"
+                f"{ratios}{smooth}; trained {r['train_steps']} steps in {r['train_wall_s']} s"
                 + (f" (slowest seed {r['train_wall_s_max']} s)" if "train_wall_s_max" in r else "")
             )
     return lines
+
+
+def _ratio(row: dict[str, Any], pd: dict[str, Any], key: str) -> float:
+    """Returns a row's RMS over tendons of ``key`` divided by PD's."""
+    return float(np.sqrt(np.mean(np.square(row[key]))) / np.sqrt(np.mean(np.square(pd[key]))))
 
 
 def _beat(value: Any) -> str:
@@ -193,20 +204,21 @@ def table(rows: list[dict[str, Any]], quoted: dict[str, tuple] | None = None) ->
     """Returns the markdown table of benchmark rows."""
     lines = [
         "| env | policy | RMS error A / B (deg) | max error (deg) | RMS tension (N) | peak "
-        "tension (N) | steps pushing | saturated | train steps | train wall (s) | first beat PD "
-        "(steps / wall) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "tension (N) | RMS tension rate (N/s) | steps pushing | saturated | train steps | train "
+        "wall (s) | first beat PD (steps / wall) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name in dict.fromkeys(r["env"] for r in rows):
         for r in (r for r in rows if r["env"] == name):
             if "missing" in r:
-                lines.append(f"| {name} | {r['policy']} | {r['missing']} |" + " |" * 8)
+                lines.append(f"| {name} | {r['policy']} | {r['missing']} |" + " |" * 9)
                 continue
             std = f" ± {_fmt(r['rms_deg_std'])}" if "rms_deg_std" in r else ""
             learned = "train_steps" in r
             lines.append(
                 f"| {name} | {r['policy']} | {_fmt(r['rms_deg'])}{std} | {_fmt(r['max_deg'], 3)} "
                 f"| {_fmt(r.get('rms_tension_N'))} | {_fmt(r.get('max_tension_N'))} | "
+                f"{_fmt(r.get('rms_tension_rate_N_per_s'), 2)} | "
                 f"{r.get('negative_tension_steps', '')} | {_fmt(r.get('saturated_fraction'), 3)} | "
                 f"{r.get('train_steps', '')} | {r.get('train_wall_s', '')} | "
                 f"{_beat(r.get('first_beat_pd')) if learned else ''} |"
@@ -214,7 +226,7 @@ def table(rows: list[dict[str, Any]], quoted: dict[str, tuple] | None = None) ->
         if quoted and name in quoted:
             label, rms, mx = quoted[name]
             lines.append(
-                f"| {name} | *quoted: {label}* | {_fmt(rms, 2)} | {_fmt(mx, 2)} |" + " |" * 7
+                f"| {name} | *quoted: {label}* | {_fmt(rms, 2)} | {_fmt(mx, 2)} |" + " |" * 8
             )
     return lines
 
@@ -222,6 +234,7 @@ def table(rows: list[dict[str, Any]], quoted: dict[str, tuple] | None = None) ->
 NOTES = [
     "Per joint (A / B): RMS and max tracking error over all steps of all episodes (the same",
     "seeds for every policy). Per tendon: RMS and peak tension (N, positive pulling), and the",
+    "RMS rate of change of each tension (N/s: smoothness, what a motor must follow), the",
     "steps where some tendon pushed (negative tension); then the fraction of saturated steps.",
     "`ppo scratch` is plain PPO driving the motors (residual_scale 0); `ppo residual` adds",
     "its action to the PD command. The row without a seed count is the primary training",

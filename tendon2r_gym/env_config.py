@@ -33,6 +33,8 @@ from tendon2r_gym.validation import boolean, check_keys, integer, invalid, mappi
 #: ``max_tendon_force: auto`` is this many times the peak force that inverse dynamics of the
 #: reference needs: PD's feedback and the start-up transient need room above feed-forward.
 FORCE_HEADROOM = 2.0
+#: The least motion ``auto`` sizes the force limit for (per joint, about the reference's bias).
+AUTO_FLOOR = {"amp_deg": (10.0, 10.0), "freq_hz": (1.0, 1.0)}
 
 
 @dataclass(frozen=True)
@@ -152,10 +154,13 @@ class EnvConfig:
         object.__setattr__(self, "force_need", need)
         limit = self.mechanism.max_tendon_force
         if limit == AUTO:
+            # A slow or constant reference needs almost no force, but feedback still does: the
+            # limit never falls below the need of AUTO_FLOOR's motion about the same bias.
+            floor = Reference(bias_deg=self.reference.bias_deg, **AUTO_FLOOR)
+            floor_need = _physics(self.mechanism.replace(max_tendon_force=1.0), (floor,))
+            auto = FORCE_HEADROOM * max(need, floor_need)
             object.__setattr__(
-                self,
-                "mechanism",
-                self.mechanism.replace(max_tendon_force=float(f"{FORCE_HEADROOM * need:.3g}")),
+                self, "mechanism", self.mechanism.replace(max_tendon_force=float(f"{auto:.3g}"))
             )
         elif limit < need:
             warnings.warn(

@@ -13,18 +13,24 @@ SATURATION = 0.999  # |normalized command| at or above this counts as saturated
 
 def tracking_metrics(traces: Sequence[Trace]) -> dict[str, list[float] | float | int]:
     """Returns per-joint RMS and max error (deg), per-tendon RMS, peak and least tension (N),
-    the steps with a negative (pushing) tension and the fraction of saturated steps, over all
-    steps of all episodes, plus per-episode RMS errors."""
+    the RMS rate of change of each tension (N/s, smoothness), the steps with a negative
+    (pushing) tension and the fraction of saturated steps, over all steps of all episodes,
+    plus per-episode RMS errors."""
     err = np.concatenate([t.error_deg for t in traces])
     tension = np.concatenate([t.tendon_tension for t in traces])
     action = np.concatenate([t.action for t in traces])
     per_episode = np.array([np.sqrt(np.mean(t.error_deg**2, axis=0)) for t in traces])
+    # Smoothness: how fast each tension changes (N/s, so that it does not depend on ctrl_dt).
+    rate = np.concatenate(
+        [np.diff(t.tendon_tension, axis=0) / np.diff(t.time)[:, None] for t in traces]
+    )
     return {
         "rms_deg": np.sqrt(np.mean(err**2, axis=0)).tolist(),
         "max_deg": np.max(np.abs(err), axis=0).tolist(),
         "rms_tension_N": np.sqrt(np.mean(tension**2, axis=0)).tolist(),
         "max_tension_N": np.max(np.abs(tension), axis=0).tolist(),
         "min_tension_N": np.min(tension, axis=0).tolist(),
+        "rms_tension_rate_N_per_s": np.sqrt(np.mean(rate**2, axis=0)).tolist(),
         "negative_tension_steps": int(np.sum(np.any(tension < 0, axis=1))),
         "saturated_fraction": np.mean(np.abs(action) >= SATURATION, axis=0).tolist(),
         "episode_rms_deg_mean": per_episode.mean(axis=0).tolist(),

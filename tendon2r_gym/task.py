@@ -51,7 +51,11 @@ TERMS: dict[str, tuple[float, str]] = {
     "divergence": (10.0, "-1 on the step where the physics diverges, else 0"),
 }
 REWARD_SCALES: dict[str, float] = {name: weight for name, (weight, _) in TERMS.items()}
-TRACKING_FORMS = ("quadratic", "log")
+TRACKING_FORMS = ("quadratic", "log", "multiscale")
+#: Error scales of the "multiscale" tracking reward, as multiples of tracking_sigma_deg: one
+#: log kernel per decade, so that its gradient stays useful from tens of degrees down to
+#: 0.01 deg (the "log" form alone is flat below about sigma / 10).
+MULTISCALE = (0.01, 0.1, 1.0, 10.0)
 
 #: Keys of ``info`` after every step, in both envs (the vector env adds Gymnasium's masks).
 STEP_INFO_KEYS = (
@@ -100,6 +104,13 @@ class Task:
         self.log_form = config.tracking_form == "log"
         self.sigma = config.tracking_sigma_deg
         self.log_norm = 2.0 * math.log1p((180.0 / self.sigma) ** 2)
+        # "multiscale": (1 / sigma_k, 2 K log(1 + (180 / sigma_k)^2)) per scale
+        n = len(MULTISCALE)
+        self.kernels = [
+            (1.0 / (k * self.sigma), 2.0 * n * math.log1p((180.0 / (k * self.sigma)) ** 2))
+            for k in MULTISCALE
+        ]
+        self.form = config.tracking_form
         self.obs_size = L.size(config.preview_steps)
 
     # -- reset -----------------------------------------------------------------------------------
@@ -200,6 +211,11 @@ class Task:
         if self.log_form:
             u1, u2 = e1 / self.sigma, e2 / self.sigma
             tracking = 1.0 - (ops.log1p(u1 * u1) + ops.log1p(u2 * u2)) / self.log_norm
+        elif self.form == "multiscale":
+            tracking = 1.0
+            for inv, norm in self.kernels:
+                u1, u2 = e1 * inv, e2 * inv
+                tracking -= (ops.log1p(u1 * u1) + ops.log1p(u2 * u2)) / norm
         else:
             tracking = -(e1 * e1 + e2 * e2)
         effort = 0.0  # in tendon order, as numpy's sum over a few entries

@@ -116,7 +116,8 @@ def test_observation_entries_match_the_physics():
     np.testing.assert_allclose(obs[L.preview_slice(3)], preview)
     assert obs.shape == (L.size(3),)
     # Push-pull: motor force = action * limit along the tendon; tension is minus that.
-    assert env.unwrapped.tendon_tensions() == pytest.approx(-np.array([0.3, -0.2]) * 0.5)
+    limit = env.unwrapped.mechanism.max_tendon_force
+    assert env.unwrapped.tendon_tensions() == pytest.approx(-np.array([0.3, -0.2]) * limit)
 
 
 def test_same_seed_same_episode_bit_for_bit():

@@ -17,7 +17,12 @@ from tendon2r_gym.rollout import rollout, rollouts
 
 
 def test_pd_removes_a_step_error():
-    env = Tendon2REnv(reference={"amp_deg": [0, 0], "bias_deg": [10, -10]}, episode_duration=0.3)
+    # A step needs far more force than tracking a smooth reference: the limit is given.
+    env = Tendon2REnv(
+        reference={"amp_deg": [0, 0], "bias_deg": [10, -10]},
+        mechanism={"max_tendon_force": 0.5},
+        episode_duration=0.3,
+    )
     obs, _ = env.reset(seed=0)
     env.set_state(np.zeros(2), np.zeros(2))  # 10 deg away from the set point on both joints
     obs = env._get_obs()

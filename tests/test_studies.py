@@ -46,10 +46,10 @@ def test_learnability_study_end_to_end(tmp_path):
 
 def test_learnability_rows_change_what_they_say():
     landed = learnability.row_config("landed_reward", 1000)
-    assert landed["env_kwargs"]["tracking_form"] == "quadratic"
-    assert landed["normalize"]["norm_reward"] is True
-    assert learnability.row_config("net_256", 1000)["policy_kwargs"]["net_arch"] == [256, 256]
-    assert learnability.row_config("defaults", 1000)["total_timesteps"] == 1000
+    assert landed.env_kwargs["tracking_form"] == "quadratic"
+    assert landed.normalize["norm_reward"] is True
+    assert learnability.row_config("net_256", 1000).policy_kwargs["net_arch"] == [256, 256]
+    assert learnability.row_config("defaults", 1000).total_timesteps == 1000
 
 
 def test_default_time_step_is_the_study_recommendation():

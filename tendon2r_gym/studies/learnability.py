@@ -52,6 +52,15 @@ ROWS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
     "ctrl_dt_2ms": ("control period 2 ms (the prototype's)", {"ctrl_dt": 0.002}, {}),
     "gamma_0.99": ("gamma 0.99", {}, {"gamma": 0.99}),
     "net_256": ("network 256 x 256", {}, {"net_arch": [256, 256]}),
+    "multiscale_plain": ("plain PPO, the multiscale reward", {"tracking_form": "multiscale"},
+                         {}),
+    "multiscale_residual": ("residual PPO (entry `default`), the multiscale reward, "
+                            "normalized", {"tracking_form": "multiscale", "reward_scales": {}},
+                            {"entry": "default"}),
+    "multiscale_residual_raw": ("residual PPO (entry `default`), the multiscale reward, "
+                                "not normalized",
+                                {"tracking_form": "multiscale", "reward_scales": {}},
+                                {"entry": "default", "normalize": {"norm_reward": False}}),
     "residual_quadratic": ("residual PPO (entry `default`): quadratic reward, normalized", {},
                            {"entry": "default"}),
     "residual_log": ("residual PPO with the bounded log reward of the env's defaults",

@@ -1,0 +1,132 @@
+"""Arm sweep: does learning hold off the presets it was tuned on?
+
+    python scripts/arm_sweep.py                  # results/arm_sweep.md and .json
+    python scripts/arm_sweep.py --arms default --train-steps 2048 --out /tmp/x   # smoke
+
+Arms: the bundled presets, the example arm (configs/examples/my_arm.yaml) and ``--n-random``
+arms drawn with ``--arm-seed`` from the course's ranges by tendon2r_gym.arms.draw_arms.  Each
+arm is written as an experiment file and run through the same code path as
+``tendon2r-benchmark --env-config ARM.yaml``: plain and residual PPO trained with the shipped
+hyperparameters (one seed, no per-arm tuning), then PD, CT and both on the same episodes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from tendon2r_gym.arms import draw_arms
+from tendon2r_gym.benchmark import benchmark_own_arm
+from tendon2r_gym.presets import load_yaml, preset_path
+from tendon2r_gym.runs import command_line
+
+PRESETS = ("default", "report_002", "pull_only")
+EXAMPLE = Path(__file__).resolve().parents[2] / "configs" / "examples" / "my_arm.yaml"
+
+
+def arm_files(folder: Path, n_random: int, arm_seed: int) -> dict[str, Path]:
+    """Writes every arm of the sweep as an experiment file; returns name -> path."""
+    folder.mkdir(parents=True, exist_ok=True)
+    arms: dict[str, dict[str, Any]] = {p: load_yaml(preset_path(p)) for p in PRESETS}
+    if EXAMPLE.is_file():
+        arms["my_arm"] = load_yaml(EXAMPLE)
+    for i, arm in enumerate(draw_arms(arm_seed, n_random)):
+        arms[f"course_{i}"] = arm
+    paths = {}
+    for name, content in arms.items():
+        path = folder / f"{name}.yaml"
+        path.write_text(yaml.safe_dump(content, sort_keys=False))
+        paths[name] = path
+    return paths
+
+
+def _verdict(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    by = {r["policy"]: r for r in rows if "rms_deg" in r}
+    pd = by["pd"]["rms_deg"]
+    out = {"pd": pd, "ct": by["ct"]["rms_deg"]}
+    for label in ("ppo scratch", "ppo residual"):
+        r = by.get(label)
+        out[label] = None if r is None else {
+            "rms_deg": r["rms_deg"],
+            "beats_pd": all(p <= d for p, d in zip(r["rms_deg"], pd, strict=True)),
+            "tension_rate_x_pd": float(
+                sum(x * x for x in r["rms_tension_rate_N_per_s"]) ** 0.5
+                / sum(x * x for x in by["pd"]["rms_tension_rate_N_per_s"]) ** 0.5
+            ),
+        }
+    return out
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    p.add_argument("--n-random", type=int, default=8, help="random course arms")
+    p.add_argument("--arm-seed", type=int, default=2027, help="seed of the random arms")
+    p.add_argument("--arms", nargs="+", default=None, help="only these arms (names)")
+    p.add_argument("--train-steps", type=int, default=None, help="default: the entries' own")
+    p.add_argument("--episodes", type=int, default=3)
+    p.add_argument("--out", default="results")
+    p.add_argument("--run-dir", default="runs/arm_sweep")
+    args = p.parse_args(argv)
+    command = command_line(argv, "python scripts/arm_sweep.py")
+    out, runs = Path(args.out), Path(args.run_dir)
+    paths = arm_files(runs / "arms", args.n_random, args.arm_seed)
+    if args.arms:
+        paths = {k: v for k, v in paths.items() if k in args.arms}
+    result: dict[str, Any] = {"command": command, "arms": {}}
+    for name, path in paths.items():
+        bench = benchmark_own_arm(
+            str(path), args.train_steps, [0], args.episodes, runs / "reports" / name,
+            runs / name, command,
+        )  # fmt: skip
+        result["arms"][name] = {
+            "env_config": bench["env_config"],
+            **_verdict(bench["rows"]),
+        }
+        write(result, out)
+    return result
+
+
+def write(result: dict[str, Any], out: Path) -> None:
+    """Writes arm_sweep.json and arm_sweep.md."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "arm_sweep.json").write_text(json.dumps(result, indent=1))
+    fmt = lambda v: " / ".join(f"{x:.3f}" for x in v)  # noqa: E731
+
+    def cell(v: dict[str, Any] | None) -> str:
+        if v is None:
+            return "-"
+        mark = "<= PD" if v["beats_pd"] else "**WORSE**"
+        return f"{fmt(v['rms_deg'])} ({mark}; rate {v['tension_rate_x_pd']:.0f}x PD)"
+
+    arms = result["arms"]
+    lines = [
+        "# Arm sweep: PD, CT, plain and residual PPO on every arm",
+        "",
+        f"Produced by `{result['command']}`. One training seed per arm, the shipped "
+        "hyperparameters (configs/ppo.yaml `default_scratch` and `default`), no per-arm tuning;",
+        "RMS tracking error (deg, joint A / B) on evaluation seeds 0-2; `rate`: the RMS rate of",
+        "change of the tendon tensions, as a multiple of PD's. Action mode: tension.",
+        "",
+        "| arm | PD | CT | plain PPO | residual PPO |",
+        "|---|---|---|---|---|",
+        *(
+            f"| {name} | {fmt(a['pd'])} | {fmt(a['ct'])} | {cell(a['ppo scratch'])} | "
+            f"{cell(a['ppo residual'])} |"
+            for name, a in arms.items()
+        ),
+        "",
+    ]
+    for label in ("ppo scratch", "ppo residual"):
+        done = [a[label] for a in arms.values() if a[label] is not None]
+        wins = sum(v["beats_pd"] for v in done)
+        lines.append(f"- {label}: <= PD on both joints on {wins} of {len(done)} arms.")
+    (out / "arm_sweep.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines), flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,147 @@
+"""Hyperparameter sensitivity: does plain PPO still beat PD with settings nobody tuned for us?
+
+    python scripts/sensitivity.py                 # results/sensitivity.md and .json
+    python scripts/sensitivity.py --steps 2048 --variants defaults --out /tmp/x   # smoke
+
+Each variant is the shipped plain-PPO entry (configs/ppo.yaml ``default_scratch``) with one
+knob changed, trained on the ``default`` preset with one seed and the entry's budget.  A
+variant passes if its best model is <= PD on both joints (on the eval seeds).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing
+import tempfile
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+ENTRY = "default_scratch"
+
+def _policy(**kw: Any) -> Any:
+    return lambda h: {"policy_kwargs": {**h.policy_kwargs, **kw}}
+
+
+def _ppo(**kw: Any) -> Any:
+    return lambda h: {"ppo": {**h.ppo, **kw}}
+
+
+def _scaled(key: str, factor: float, cast: type = float) -> Any:
+    return lambda h: {"ppo": {**h.ppo, key: cast(h.ppo[key] * factor)}}
+
+
+def _normalize(**kw: Any) -> Any:
+    return lambda h: {"normalize": {**h.normalize, **kw}}
+
+
+#: Variant -> (what changes, function of the entry -> changed fields).
+VARIANTS: dict[str, tuple[str, Any]] = {
+    "defaults": ("the shipped entry", lambda h: {}),
+    "log_std_-1.5": ("log_std_init -1.5", _policy(log_std_init=-1.5)),
+    "log_std_-0.5": ("log_std_init -0.5", _policy(log_std_init=-0.5)),
+    "log_std_0": ("log_std_init 0", _policy(log_std_init=0.0)),
+    "norm_reward_on": ("reward normalization on", _normalize(norm_reward=True)),
+    "norm_reward_off": ("reward normalization off", _normalize(norm_reward=False)),
+    "8x512": ("8 envs x 512 steps", lambda h: {"n_envs": 8, "ppo": {**h.ppo, "n_steps": 512}}),
+    "64x64": ("64 envs x 64 steps", lambda h: {"n_envs": 64, "ppo": {**h.ppo, "n_steps": 64}}),
+    "batch_x0.25": ("batch size x 0.25", _scaled("batch_size", 0.25, int)),
+    "batch_x4": ("batch size x 4", _scaled("batch_size", 4, int)),
+    "epochs_5": ("n_epochs 5", _ppo(n_epochs=5)),
+    "epochs_20": ("n_epochs 20", _ppo(n_epochs=20)),
+    "lr_x0.3": ("learning rate x 0.3", _scaled("learning_rate", 0.3)),
+    "lr_x3": ("learning rate x 3", _scaled("learning_rate", 3.0)),
+    "gamma_0.95": ("gamma 0.95", _ppo(gamma=0.95)),
+    "gamma_0.99": ("gamma 0.99", _ppo(gamma=0.99)),
+    "net_64": ("network 64 x 64", _policy(net_arch=[64, 64])),
+    "net_256": ("network 256 x 256", _policy(net_arch=[256, 256])),
+}
+
+
+def variant(name: str, steps: int | None) -> Any:
+    """Returns the hyperparameters of a variant; None if it equals the shipped entry (a knob
+    already at that value)."""
+    from tendon2r_gym.training import Hyperparams
+
+    base = Hyperparams.from_entry(ENTRY)
+    hp = base.replace(**VARIANTS[name][1](base))
+    if name != "defaults" and hp == base:
+        return None
+    if steps is not None:
+        hp = hp.replace(total_timesteps=steps, eval_freq=max(steps // 10, hp.rollout_steps))
+    return hp
+
+
+def _run(name: str, steps: int | None, root: str) -> dict[str, Any]:
+    from tendon2r_gym.runs import RunFolder, seed_dir
+    from tendon2r_gym.training import train_run
+
+    run = RunFolder(seed_dir(Path(root) / name, 0))
+    summary = train_run(variant(name, steps), run, 0, command=f"sensitivity {name}")
+    return {"variant": name, **{k: v for k, v in summary.items() if k != "segments"}}
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    from tendon2r_gym.runs import command_line
+
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    p.add_argument("--steps", type=int, default=None, help="default: the entry's budget")
+    p.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    p.add_argument("--jobs", type=int, default=2)
+    p.add_argument("--out", default="results")
+    p.add_argument("--run-dir", default=None, help="keep the runs here (default: a temp dir)")
+    args = p.parse_args(argv)
+    command = command_line(argv, "python scripts/sensitivity.py")
+    names = [n for n in args.variants if variant(n, args.steps) is not None]
+    skipped = [n for n in args.variants if n not in names]
+    with tempfile.TemporaryDirectory() as tmp:
+        root = args.run_dir or tmp
+        with ProcessPoolExecutor(
+            args.jobs, mp_context=multiprocessing.get_context("spawn")
+        ) as pool:
+            runs = list(pool.map(_run, names, [args.steps] * len(names), [root] * len(names)))
+    result = {"command": command, "entry": ENTRY, "runs": runs, "same_as_shipped": skipped}
+    write(result, Path(args.out))
+    return result
+
+
+def write(result: dict[str, Any], out: Path) -> None:
+    """Writes sensitivity.json and sensitivity.md."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "sensitivity.json").write_text(json.dumps(result, indent=1))
+    fmt = lambda v: " / ".join(f"{x:.3f}" for x in v)  # noqa: E731
+    rows = []
+    passed = 0
+    variants = [r for r in result["runs"] if r["variant"] != "defaults"]
+    for r in result["runs"]:
+        ok = all(p <= d for p, d in zip(r["best_rms_deg"], r["pd_eval_rms_deg"], strict=True))
+        passed += ok and r["variant"] != "defaults"
+        rows.append(
+            f"| {r['variant']} | {VARIANTS[r['variant']][0]} | {fmt(r['best_rms_deg'])} | "
+            f"{fmt(r['pd_eval_rms_deg'])} | {'yes' if ok else '**no**'} | {r['timesteps']} | "
+            f"{r['wall_time_s']:.0f} |"
+        )
+    lines = [
+        "# Hyperparameter sensitivity of plain PPO",
+        "",
+        f"Produced by `{result['command']}`: the `{result['entry']}` entry with one knob "
+        "changed per row, the `default` preset, seed 0; best RMS on the eval seeds.",
+        "",
+        "| variant | change | best RMS A / B (deg) | PD (deg) | beats PD | steps | wall (s) |",
+        "|---|---|---|---|---|---|---|",
+        *rows,
+        "",
+        f"Variants that beat PD on both joints: **{passed} of {len(variants)}** "
+        f"({100 * passed / max(len(variants), 1):.0f}%; target >= 80%).",
+    ]
+    if result["same_as_shipped"]:
+        lines.append(
+            f"Not run, equal to the shipped entry: {', '.join(result['same_as_shipped'])}."
+        )
+    (out / "sensitivity.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines), flush=True)
+
+
+if __name__ == "__main__":
+    main()
