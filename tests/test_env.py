@@ -4,6 +4,7 @@ import ast
 import copy
 import dataclasses
 import inspect
+import itertools
 import pickle
 import re
 
@@ -321,3 +322,23 @@ def test_readme_python_examples_run():
     for block in blocks:
         exec(compile(block, "README.md", "exec"), namespace)  # noqa: S102
     assert namespace["env"].action_space.contains(namespace["action"])
+
+
+def test_multiscale_tracking_reward_is_bounded_and_keeps_a_gradient_near_zero():
+    from tendon2r_gym.env_config import EnvConfig
+    from tendon2r_gym.ops import SCALAR
+    from tendon2r_gym.task import RAD_PER_DEG, Task
+
+    task = Task(EnvConfig.make(tracking_form="multiscale"))
+    log = Task(EnvConfig.make(tracking_form="log"))
+
+    def r(t, deg):
+        e = deg * RAD_PER_DEG
+        return t.reward_terms(SCALAR, e, e, [0.0, 0.0], False)["tracking"]
+
+    errors = [0.0, 0.001, 0.01, 0.05, 0.1, 1.0, 10.0, 90.0, 180.0]
+    values = [r(task, e) for e in errors]
+    assert values[0] == 1.0 and values[-1] == pytest.approx(0.0, abs=1e-12)
+    assert all(a > b for a, b in itertools.pairwise(values)), values
+    # From 0.05 to 0.01 deg the multiscale reward gains far more than the log form.
+    assert r(task, 0.01) - r(task, 0.05) > 100 * (r(log, 0.01) - r(log, 0.05))

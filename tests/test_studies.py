@@ -61,3 +61,32 @@ def test_default_time_step_is_the_study_recommendation():
         chosen["integrator"].lower(),
         chosen["sim_dt"],
     )
+
+
+def test_random_course_arms_are_valid_and_seeded(tmp_path):
+    from tendon2r_gym.arms import COURSE, draw_arms
+    from tendon2r_gym.env_config import EnvConfig
+    from tendon2r_gym.studies import arm_sweep
+
+    arms = draw_arms(3, 4)
+    assert arms == draw_arms(3, 4) and arms != draw_arms(4, 4)
+    for arm in arms:
+        cfg = EnvConfig.from_kwargs(arm)
+        for k in ("R1", "R2", "a", "b", "c"):
+            lo, hi = getattr(COURSE, k)
+            assert lo <= getattr(cfg.mechanism, k) <= hi
+        assert cfg.mechanism.max_tendon_force >= 2 * cfg.force_need * 0.99
+    files = arm_sweep.arm_files(tmp_path, 2, 3)
+    assert set(files) >= {"default", "report_002", "pull_only", "course_0", "course_1"}
+    assert EnvConfig.make(str(files["course_1"])).mechanism.R1 == arms[1]["mechanism"]["R1"]
+
+
+def test_sensitivity_variants_change_one_knob():
+    from tendon2r_gym.studies.sensitivity import variant
+
+    base = variant("defaults", None)
+    assert variant("lr_x3", None).ppo["learning_rate"] == 3 * base.ppo["learning_rate"]
+    assert variant("batch_x0.25", None).ppo["batch_size"] == base.ppo["batch_size"] // 4
+    assert variant("8x512", None).rollout_steps == base.rollout_steps
+    assert variant("log_std_0", None) is None, "the shipped value is not run twice"
+    assert variant("gamma_0.95", 2048).total_timesteps == 2048
