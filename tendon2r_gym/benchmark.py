@@ -178,7 +178,7 @@ def verdicts(rows: list[dict[str, Any]]) -> list[str]:
             if "rms_tension_N" in r and "rms_tension_N" in by["pd"]:
                 smooth = (
                     f"; tension {_ratio(r, by['pd'], 'rms_tension_N'):.1f}x PD's, tension rate "
-                    f"{_ratio(r, by['pd'], 'rms_tension_rate_N_per_s'):.0f}x PD's"
+                    f"{_ratio(r, by['pd'], 'rms_tension_rate_N_per_s'):.1f}x PD's"
                 )
             lines.append(
                 f"- {name}, {label}: RMS {_fmt(r['rms_deg'])} vs PD {_fmt(pd)}"

@@ -112,6 +112,7 @@ class Task:
         ]
         self.form = config.tracking_form
         self.obs_size = L.size(config.preview_steps)
+        self._info_keys = {k: f"reward_{k}" for k in TERMS}  # formatted once, not every step
 
     # -- reset -----------------------------------------------------------------------------------
     def reference_option(self, options: Any) -> Reference | None:
@@ -225,7 +226,8 @@ class Task:
 
     def scale(self, terms: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
         """Returns (reward, scaled terms): each term times its weight, and their sum."""
-        scaled = {k: self.scales[k] * v for k, v in terms.items()}
+        scales = self.scales
+        scaled = {k: scales[k] * v for k, v in terms.items()}
         return sum(scaled.values()), scaled
 
     # -- divergence ------------------------------------------------------------------------------
@@ -251,14 +253,18 @@ class Task:
         """Returns the info of a step (keys STEP_INFO_KEYS) from the observation (one, or N
         rows), the scaled reward terms, the tendon tensions (N, positive pulling), the
         moment-arm condition number, the time and divergence."""
-        return {
-            **{f"reward_{k}": v for k, v in scaled.items()},
-            "q": obs[..., L.Q],
-            "q_des": obs[..., L.Q_DES],
-            "tracking_error_deg": obs[..., L.ERROR] / RAD_PER_DEG,
-            "tendon_tension": tension,
-            "moment_arm_cond": cond,
-            "effector_pos": obs[..., L.EFFECTOR_POS],
-            "time": time,
-            "diverged": diverged,
-        }
+        keys = self._info_keys
+        info = {keys[k]: v for k, v in scaled.items()}
+        if obs.ndim == 1:  # one env
+            q, q_des, err, pos = obs[L.Q], obs[L.Q_DES], obs[L.ERROR], obs[L.EFFECTOR_POS]
+        else:  # N arms
+            q, q_des = obs[:, L.Q], obs[:, L.Q_DES]
+            err, pos = obs[:, L.ERROR], obs[:, L.EFFECTOR_POS]
+        info["q"], info["q_des"] = q, q_des
+        info["tracking_error_deg"] = err / RAD_PER_DEG
+        info["tendon_tension"] = tension
+        info["moment_arm_cond"] = cond
+        info["effector_pos"] = pos
+        info["time"] = time
+        info["diverged"] = diverged
+        return info

@@ -57,9 +57,6 @@ def time_env_step(env: gym.Env, n: int) -> float:
 def _checkout_child(steps: int, num_envs: int, seconds: float) -> dict[str, float]:
     """Runs in a child whose ``tendon2r_gym`` is another checkout's: the single env's overhead
     and the native vector env's steps/s at ``num_envs`` arms, timed by this module's code."""
-    import gymnasium as gym
-    import numpy as np
-
 
     env = gym.make("Tendon2R-v0")
     raw, step = time_raw_physics(env, steps), time_env_step(env, steps)
@@ -86,8 +83,10 @@ def compare_checkouts(
     processes, in rounds; per figure, the best of ``repeats``."""
     code = "\n".join(
         [
+            "from __future__ import annotations",
             "import json, sys, time",
-            "import mujoco",
+            "import gymnasium as gym, mujoco, numpy as np",
+            "import tendon2r_gym  # the checkout under test registers the env",
             inspect.getsource(time_raw_physics),
             inspect.getsource(time_env_step),
             inspect.getsource(_checkout_child),
