@@ -99,7 +99,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     | `ctrl_dt` | `0.001` | control period (s), an integer multiple of the mechanism's sim_dt |
     | `episode_duration` | `2.0` | seconds per episode |
     | `reward_scales` | `{{'tracking': 1, 'ctrl': 0.001, 'divergence': 10}}` | term weights |
-    | `tracking_form` | `"log"` | "log" (bounded) or "quadratic" tracking reward |
+    | `tracking_form` | `"log"` | "log" (bounded), "multiscale" or "quadratic" tracking reward |
     | `tracking_sigma_deg` | `1.0` | error scale of the "log" tracking reward (deg) |
     | `reset_noise_scale` | `0.001` | initial-state noise (rad, rad/s) |
     | `preview_steps` | `3` | number of future reference samples observed |
@@ -125,7 +125,10 @@ class Tendon2REnv(MujocoEnv, EzPickle):
       - any number of tendons, ``pull_only`` motors, ``info["tendon_tension"]`` (was
         ``tendon_force``, the motor force with the opposite sign);
       - a diverged step returns the last good observation; construction refuses unstable
-        physics and late-failing arguments.
+        physics and late-failing arguments;
+      - the task written once (tendon2r_gym.task) for this env and the vector env, which now
+        return the same info keys; the "multiscale" tracking form; the ``default`` and
+        ``report_002`` presets size ``max_tendon_force`` automatically.
     """
 
     metadata = {"render_modes": ["human", "rgb_array", "depth_array"]}
