@@ -133,6 +133,7 @@ def test_pd_tracks_random_course_arms_with_the_default_limit(tmp_path):
     rng = np.random.default_rng(2026)
     done, skipped = 0, 0
     while done < 10:
+        assert skipped < 100, f"{skipped} draws refused: the draw or the validation is wrong"
         mech, ref = _course_draw(rng)
         path = tmp_path / f"arm_{done}_{skipped}.yaml"
         path.write_text(f"mechanism: {mech}\nreference: {ref}\nfit_to_workspace: true\n")
