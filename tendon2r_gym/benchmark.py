@@ -20,6 +20,7 @@ import numpy as np
 
 from tendon2r_gym.bundle import bundle_meta, bundled_model, training_summary
 from tendon2r_gym.evaluation import BASELINE, evaluate, names
+from tendon2r_gym.metrics import beats, rms_ratio
 from tendon2r_gym.plots import plot_trace
 from tendon2r_gym.presets import DATA_DIR
 from tendon2r_gym.runs import RUN_META, RunFolder, model_files
@@ -167,7 +168,7 @@ def verdicts(rows: list[dict[str, Any]]) -> list[str]:
             if label in baselines:
                 continue
             pd = by["pd"]["rms_deg"]
-            wins = all(p <= d for p, d in zip(r["rms_deg"], pd, strict=True))
+            wins = beats(r["rms_deg"], pd)
             ratios = "".join(
                 f"; {max(p / c for p, c in zip(r['rms_deg'], by[b]['rms_deg'], strict=True)):.1f}x"
                 f" {b.upper()}"
@@ -191,7 +192,7 @@ def verdicts(rows: list[dict[str, Any]]) -> list[str]:
 
 def _ratio(row: dict[str, Any], pd: dict[str, Any], key: str) -> float:
     """Returns a row's RMS over tendons of ``key`` divided by PD's."""
-    return float(np.sqrt(np.mean(np.square(row[key]))) / np.sqrt(np.mean(np.square(pd[key]))))
+    return rms_ratio(row[key], pd[key])
 
 
 def _beat(value: Any) -> str:

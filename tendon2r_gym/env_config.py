@@ -148,16 +148,16 @@ class EnvConfig:
         refs = [self.reference]
         if self.reference_ranges is not None:
             refs += self.reference_ranges.corners()
-        need = _physics(self.mechanism.replace(max_tendon_force=1.0), tuple(refs))
+        # A slow or constant reference needs almost no force, but feedback still does: "auto"
+        # never falls below the need of AUTO_FLOOR's motion about the same bias (last entry).
+        refs.append(Reference(bias_deg=self.reference.bias_deg, **AUTO_FLOOR))
+        *needs, floor_need = _physics(self.mechanism.replace(max_tendon_force=1.0), tuple(refs))
+        need = max(needs)
         if self.mechanism.pull_only:
             need = max(need, self.mechanism.pretension)
         object.__setattr__(self, "force_need", need)
         limit = self.mechanism.max_tendon_force
         if limit == AUTO:
-            # A slow or constant reference needs almost no force, but feedback still does: the
-            # limit never falls below the need of AUTO_FLOOR's motion about the same bias.
-            floor = Reference(bias_deg=self.reference.bias_deg, **AUTO_FLOOR)
-            floor_need = _physics(self.mechanism.replace(max_tendon_force=1.0), (floor,))
             auto = FORCE_HEADROOM * max(need, floor_need)
             object.__setattr__(
                 self, "mechanism", self.mechanism.replace(max_tendon_force=float(f"{auto:.3g}"))
@@ -198,11 +198,12 @@ def arguments() -> list[str]:
 
 
 @lru_cache(maxsize=64)
-def _physics(mech: Mechanism, refs: tuple[Reference, ...]) -> float:
-    """Checks that the integrator can integrate ``mech``; returns the force need (N)."""
+def _physics(mech: Mechanism, refs: tuple[Reference, ...]) -> tuple[float, ...]:
+    """Checks that the integrator can integrate ``mech`` (one model build); returns the force
+    need (N) of each reference."""
     model = build_model(mech)
     check_stability(model, mech)
-    return force_need(model, refs, mech.pull_only, mech.pretension)
+    return tuple(force_need(model, [r], mech.pull_only, mech.pretension) for r in refs)
 
 
 assert set(SECTIONS) <= set(arguments())

@@ -11,6 +11,17 @@ from tendon2r_gym.rollout import Trace
 SATURATION = 0.999  # |normalized command| at or above this counts as saturated
 
 
+def beats(rms_deg: Sequence[float], baseline_rms_deg: Sequence[float]) -> bool:
+    """Returns whether a policy's RMS error is <= the baseline's on every joint (the
+    project's "beats PD")."""
+    return all(p <= d for p, d in zip(rms_deg, baseline_rms_deg, strict=True))
+
+
+def rms_ratio(values: Sequence[float], baseline: Sequence[float]) -> float:
+    """Returns the RMS over entries (tendons) of ``values`` divided by the baseline's."""
+    return float(np.sqrt(np.mean(np.square(values))) / np.sqrt(np.mean(np.square(baseline))))
+
+
 def tracking_metrics(traces: Sequence[Trace]) -> dict[str, list[float] | float | int]:
     """Returns per-joint RMS and max error (deg), per-tendon RMS, peak and least tension (N),
     the RMS rate of change of each tension (N/s, smoothness), the steps with a negative

@@ -101,7 +101,6 @@ class Task:
         self.div_lo, self.div_hi = self.q_lo - DIVERGED_PAST_LIMIT, self.q_hi + DIVERGED_PAST_LIMIT
         self.scales = dict(config.reward_scales)
         self.offsets = [k * config.preview_dt for k in range(1, config.preview_steps + 1)]
-        self.log_form = config.tracking_form == "log"
         self.sigma = config.tracking_sigma_deg
         self.log_norm = 2.0 * math.log1p((180.0 / self.sigma) ** 2)
         # "multiscale": (1 / sigma_k, 2 K log(1 + (180 / sigma_k)^2)) per scale
@@ -209,7 +208,7 @@ class Task:
         """Returns the unscaled reward terms (keys of TERMS) from the tracking errors (rad), the
         clipped action (one value, or one column of N values, per tendon) and divergence."""
         e1, e2 = e1 / RAD_PER_DEG, e2 / RAD_PER_DEG
-        if self.log_form:
+        if self.form == "log":
             u1, u2 = e1 / self.sigma, e2 / self.sigma
             tracking = 1.0 - (ops.log1p(u1 * u1) + ops.log1p(u2 * u2)) / self.log_norm
         elif self.form == "multiscale":

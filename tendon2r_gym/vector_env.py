@@ -4,12 +4,13 @@
 :class:`Tendon2RVectorEnv`.  One MjModel and N simulations are stepped by MuJoCo's batch API
 (C threads, results bit-identical to one MjData per simulation); the observation, reward,
 reference and divergence checks are tendon2r_gym.task's formulas on numpy arrays over the N
-arms.  The same seeds give the
-same trajectories, observations and rewards as N single envs (``gym.make``), bit for bit.
+arms.  The same seeds give the same trajectories, observations, rewards and infos as N single
+envs (``gym.make``), bit for bit.
 
 Gymnasium 1.x conventions: ``autoreset_mode`` NEXT_STEP by default (SAME_STEP on request,
 which SB3's adapter uses), per-env ``info`` arrays with their ``_key`` masks, truncation after
-``episode_duration / ctrl_dt`` steps.  tendon2r_gym.vector_env_sb3 exposes it to Stable-Baselines3.
+``episode_duration / ctrl_dt`` steps.  tendon2r_gym.vector_env_sb3 exposes it to
+Stable-Baselines3.
 """
 
 from __future__ import annotations

@@ -21,6 +21,7 @@ import yaml
 
 from tendon2r_gym.arms import draw_arms
 from tendon2r_gym.benchmark import benchmark_own_arm
+from tendon2r_gym.metrics import beats, rms_ratio
 from tendon2r_gym.presets import load_yaml, preset_path
 from tendon2r_gym.runs import command_line
 
@@ -52,10 +53,9 @@ def _verdict(rows: list[dict[str, Any]]) -> dict[str, Any]:
         r = by.get(label)
         out[label] = None if r is None else {
             "rms_deg": r["rms_deg"],
-            "beats_pd": all(p <= d for p, d in zip(r["rms_deg"], pd, strict=True)),
-            "tension_rate_x_pd": float(
-                sum(x * x for x in r["rms_tension_rate_N_per_s"]) ** 0.5
-                / sum(x * x for x in by["pd"]["rms_tension_rate_N_per_s"]) ** 0.5
+            "beats_pd": beats(r["rms_deg"], pd),
+            "tension_rate_x_pd": rms_ratio(
+                r["rms_tension_rate_N_per_s"], by["pd"]["rms_tension_rate_N_per_s"]
             ),
         }
     return out

@@ -108,6 +108,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
 def write(result: dict[str, Any], out: Path) -> None:
     """Writes sensitivity.json and sensitivity.md."""
+    from tendon2r_gym.metrics import beats
+
     out.mkdir(parents=True, exist_ok=True)
     (out / "sensitivity.json").write_text(json.dumps(result, indent=1))
     fmt = lambda v: " / ".join(f"{x:.3f}" for x in v)  # noqa: E731
@@ -115,7 +117,7 @@ def write(result: dict[str, Any], out: Path) -> None:
     passed = 0
     variants = [r for r in result["runs"] if r["variant"] != "defaults"]
     for r in result["runs"]:
-        ok = all(p <= d for p, d in zip(r["best_rms_deg"], r["pd_eval_rms_deg"], strict=True))
+        ok = beats(r["best_rms_deg"], r["pd_eval_rms_deg"])
         passed += ok and r["variant"] != "defaults"
         rows.append(
             f"| {r['variant']} | {VARIANTS[r['variant']][0]} | {fmt(r['best_rms_deg'])} | "

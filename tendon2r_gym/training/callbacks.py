@@ -13,7 +13,7 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 
 from tendon2r_gym.learned import PPOPolicy
-from tendon2r_gym.metrics import tracking_metrics
+from tendon2r_gym.metrics import beats, tracking_metrics
 from tendon2r_gym.policies import PDPolicy
 from tendon2r_gym.rollout import rollouts
 from tendon2r_gym.runs import BEST_METRICS, CHECKPOINT_PREFIX, PD_EVAL, RunFolder, model_files
@@ -112,13 +112,13 @@ class TrackingEvalCallback(BaseCallback):
         self.logger.record("eval/rms_deg_B", metrics["rms_deg"][1])
         self.logger.record("eval/rms_deg_mean", rms)
         wall = round(time.perf_counter() - self._start, 1)
-        beats = all(p <= d for p, d in zip(metrics["rms_deg"], self.pd_rms, strict=True))
+        beats_pd = beats(metrics["rms_deg"], self.pd_rms)
         self.run.append_evaluation(
             {
                 "timesteps": self.num_timesteps,
                 "wall_time_s": wall,
                 "rms_deg": metrics["rms_deg"],
-                "beats_pd": beats,
+                "beats_pd": beats_pd,
             }
         )
         if rms < self.best_rms:
