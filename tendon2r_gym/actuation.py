@@ -23,8 +23,14 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from tendon2r_gym.mechanism import Mechanism
+from tendon2r_gym.model import build_model
 from tendon2r_gym.ops import SCALAR, Ops
 from tendon2r_gym.routing import null_direction, positive_span
+
+#: Damping of the tension distribution's inverse, relative to |J|_F^2 (PD's default, and the
+#: env's in ``action_mode="joint_torque"``).
+FORCE_DAMPING = 1e-3
 
 
 def cond(J: np.ndarray) -> float:
@@ -147,3 +153,83 @@ class ActuationAnalysis:
     def grid(self, q1: np.ndarray, q2: np.ndarray, fn) -> np.ndarray:
         """Returns fn(q) on the grid q1 x q2 (rad), shape (len(q1), len(q2))."""
         return np.array([[fn(np.array([a, b])) for b in q2] for a in q1])
+
+
+class TorqueToTension:
+    """Joint torques -> normalized tendon commands for one mechanism, from a private copy of its
+    model (never the env's MjData): the moment arms at q, :func:`distribute`, then push-pull:
+    -t / F; pull-only: 2 t / F - 1 (F = max_tendon_force), clipped to [-1, 1].  PD and computed
+    torque command the tendons through it, and so does the env in
+    ``action_mode="joint_torque"``."""
+
+    def __init__(self, mechanism: Mechanism, damping: float = FORCE_DAMPING) -> None:
+        self.mechanism = mechanism
+        self.damping = damping
+        self.model = build_model(mechanism)
+        self.data = mujoco.MjData(self.model)
+        self._arms = MomentArms(self.model, self.data)
+        self._M = np.zeros((self.model.nv, self.model.nv))
+        self._batches: dict[int, _Kinematics] = {}
+        self._max_force = mechanism.max_tendon_force
+        self._pull_only, self._pretension = mechanism.pull_only, mechanism.pretension
+
+    def kinematics(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Returns the moment arms J (N, n_tendons, 2) and the inertia M (N, 2, 2) at the joint
+        angles q (N, 2), from the private model (one mujoco.batch call for N > 1)."""
+        if len(q) == 1:
+            self.data.qpos[:] = q[0]
+            mujoco.mj_fwdPosition(self.model, self.data)
+            mujoco.mj_fullM(self.model, self.data, self._M)
+            return self._arms.dense()[None].copy(), self._M[None].copy()
+        batch = self._batches.get(len(q))
+        if batch is None:
+            batch = self._batches[len(q)] = _Kinematics(self.model, len(q))
+        return batch(q)
+
+    def command(self, J: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """Returns the clipped normalized commands (N, n_tendons) whose tensions give the joint
+        torques tau (N, 2) through the moment arms J (N, n_tendons, 2)."""
+        t = distribute(J, tau, self._pull_only, self._pretension, self.damping)
+        u = 2.0 * t / self._max_force - 1.0 if self._pull_only else -t / self._max_force
+        return np.clip(u, -1.0, 1.0).astype(np.float32)
+
+    def max_joint_torque(self) -> np.ndarray:
+        """Returns the torque (N m) each joint alone reaches at q = 0 before a tendon saturates,
+        with push-pull tendons of limit F: F / max_k |(J (J^T J)^-1)_kj| (the scale of a
+        normalized joint-torque action)."""
+        J, _ = self.kinematics(np.zeros((1, 2)))
+        pinv = J[0] @ np.linalg.inv(J[0].T @ J[0])
+        return self._max_force / np.max(np.abs(pinv), axis=0)
+
+
+class _Kinematics:
+    """M(q) and J(q) of N configurations in one mujoco.batch forward call (position stage)."""
+
+    def __init__(self, model: mujoco.MjModel, n: int) -> None:
+        from mujoco import batch as mj_batch
+
+        self.batch = mj_batch.Batch(model, n, nthread=1)
+        self.qpos = self.batch.bind("qpos")
+        self.M, self.J = self.batch.bind("M"), self.batch.bind("ten_J")  # bound before calls
+        self.m_idx = _sparse_index(model.M_rownnz, model.M_rowadr, model.M_colind)
+        self.j_idx = _sparse_index(model.ten_J_rownnz, model.ten_J_rowadr, model.ten_J_colind)
+        self.shapes = (model.nv, model.nv), (model.ntendon, model.nv)
+
+    def __call__(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        self.qpos[:] = q
+        self.batch.forward(stage=mujoco.mjtStage.mjSTAGE_POS.value)
+        n = len(q)
+        M, J = np.zeros((n, *self.shapes[0])), np.zeros((n, *self.shapes[1]))
+        (mr, mc), (jr, jc) = self.m_idx, self.j_idx
+        M[:, mr, mc] = self.M
+        M[:, mc, mr] = self.M  # the lower triangle is stored: mirror it
+        J[:, jr, jc] = self.J
+        return J, M
+
+
+def _sparse_index(rownnz: np.ndarray, rowadr: np.ndarray, colind: np.ndarray):
+    """Returns (rows, cols) of each stored entry of a MuJoCo sparse matrix."""
+    rows = np.concatenate([np.full(nnz, r) for r, nnz in enumerate(rownnz)]).astype(int)
+    pairs = zip(rowadr, rownnz, strict=True)
+    cols = np.concatenate([colind[a : a + nnz] for a, nnz in pairs]).astype(int)
+    return rows, cols

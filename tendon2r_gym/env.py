@@ -14,7 +14,7 @@ from gymnasium.envs.mujoco.mujoco_env import DEFAULT_SIZE, MujocoEnv
 from gymnasium.utils import EzPickle
 
 from tendon2r_gym import observation as obs_layout
-from tendon2r_gym.actuation import MomentArms, cond
+from tendon2r_gym.actuation import MomentArms, TorqueToTension, cond
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.model import CAMERA, build_model, tendon_name
 from tendon2r_gym.ops import SCALAR
@@ -165,7 +165,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         # MujocoEnv insists on an existing model_path and loads it in _initialize_simulation.
         # We build the model in memory with MjSpec (parameters stay exact, no file round trip)
         # and override _initialize_simulation; this module's path only passes the check.
-        n_obs = obs_layout.size(cfg.preview_steps)
+        n_obs = obs_layout.size(cfg.preview_steps, cfg.n_actions)
         MujocoEnv.__init__(
             self,
             __file__,
@@ -185,6 +185,11 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         model.vis.global_.offheight = max(model.vis.global_.offheight, self.height)
         return model, mujoco.MjData(model)
 
+    def _set_action_space(self) -> spaces.Box:
+        """One normalized command per tendon ("tension") or per joint ("joint_torque")."""
+        self.action_space = spaces.Box(-1.0, 1.0, (self.config.n_actions,), np.float32)
+        return self.action_space
+
     def _resolve_ids(self) -> None:
         """Caches views and constants used on every step (no name look-ups in the hot path)."""
         d = self.data
@@ -192,10 +197,15 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         # Views into MjData stay valid for its lifetime; fetching them once saves a binding call
         # per access on every step.
         self._qpos, self._qvel, self._ctrl = d.qpos, d.qvel, d.ctrl
-        self._n = self.mechanism.n_tendons
+        self._n = self.config.n_actions
+        self._last_action = [0.0] * self._n
+        self._torque_map: TorqueToTension | None = None
+        if self.config.action_mode == "joint_torque":
+            self._torque_map = TorqueToTension(self.mechanism)
+            self._max_torque = self._torque_map.max_joint_torque()
         # Named sensor reads: each tendon's motor force (N, positive lengthens), contiguous.
         first = self.model.sensor(f"force_{tendon_name(0)}").adr[0]
-        self._motor_force = d.sensordata[first : first + self._n]
+        self._motor_force = d.sensordata[first : first + self.mechanism.n_tendons]
         self._warnings = [d.warning[w] for w in DIVERGENCE_WARNINGS]
         self._arms = MomentArms(self.model, d)
         self._err = obs_layout.ERROR
@@ -224,12 +234,17 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     # -- gymnasium API -----------------------------------------------------------------------------
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         a = self._check_action(action)
-        self._ctrl[:] = a
+        last, self._last_action = self._last_action, a
+        if self._torque_map is None:
+            self._ctrl[:] = a
+        else:  # joint_torque: PD's tension distribution at the current q
+            J, _ = self._torque_map.kinematics(self._qpos[None])
+            self._ctrl[:] = self._torque_map.command(J, self._max_torque * np.array([a]))[0]
         mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
         diverged = self._check_divergence()
         # A diverged step reports the last good state: nothing enormous reaches a learner.
         obs = self._last_obs.copy() if diverged else self._get_obs()
-        reward, terms = self._get_rew(obs, a, diverged)
+        reward, terms = self._get_rew(obs, a, last, diverged)
         info = self._get_info(obs, terms, diverged)
         self._last_obs = obs
         if self.render_mode == "human":
@@ -261,15 +276,17 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     def _get_obs(self) -> np.ndarray:
         """Returns the observation (tendon2r_gym.task.Task.observation on this arm)."""
         (q1, q2), (w1, w2) = self._qpos.tolist(), self._qvel.tolist()
-        parts = self.task.observation(SCALAR, q1, q2, w1, w2, self.data.time, self._ref)
+        parts = self.task.observation(
+            SCALAR, q1, q2, w1, w2, self.data.time, self._ref, self._last_action
+        )
         return np.array(parts, dtype=np.float64)
 
     def _get_rew(
-        self, obs: np.ndarray, action: list[float], diverged: bool
+        self, obs: np.ndarray, action: list[float], last: list[float], diverged: bool
     ) -> tuple[float, dict[str, float]]:
         """Returns (reward, scaled terms); the reward is the sum of the terms."""
         e1, e2 = obs[self._err].tolist()
-        return self.task.scale(self.task.reward_terms(SCALAR, e1, e2, action, diverged))
+        return self.task.scale(self.task.reward_terms(SCALAR, e1, e2, action, last, diverged))
 
     def _get_info(self, obs: np.ndarray, terms: dict[str, float], diverged: bool) -> dict[str, Any]:
         return self.task.step_info(
@@ -285,6 +302,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         self._set_reference(self.task.episode_reference(self.np_random, self._fixed_reference))
         q, qdot = self.task.initial_state(self.np_random, self.reference)
         self.set_state(q, qdot)
+        self._last_action = [0.0] * self._n
         self._warning_count = sum(w.number for w in self._warnings)
         self._last_obs = self._get_obs()
         return self._last_obs

@@ -34,6 +34,10 @@ from tendon2r_gym.validation import boolean, check_keys, integer, invalid, mappi
 #: reference needs: PD's feedback and the start-up transient need room above feed-forward.
 FORCE_HEADROOM = 2.0
 #: The least motion ``auto`` sizes the force limit for (per joint, about the reference's bias).
+#: What the action commands: "tension", each tendon motor (normalized by max_tendon_force);
+#: "joint_torque", each joint's torque (normalized by max_joint_torque), which the env turns
+#: into tendon tensions with PD's distribution (tendon2r_gym.actuation.TorqueToTension).
+ACTION_MODES = ("tension", "joint_torque")
 AUTO_FLOOR = {"amp_deg": (10.0, 10.0), "freq_hz": (1.0, 1.0)}
 
 
@@ -46,6 +50,7 @@ class EnvConfig:
     reference_ranges: ReferenceRanges | None = None
     fit_to_workspace: bool = False
     ctrl_dt: float = 0.001
+    action_mode: str = "tension"
     episode_duration: float = 2.0
     reward_scales: Mapping[str, float] = field(default_factory=lambda: dict(REWARD_SCALES))
     tracking_form: str = "log"
@@ -92,6 +97,8 @@ class EnvConfig:
         if abs(n_sub * sim_dt - self.ctrl_dt) > 1e-6 * self.ctrl_dt:
             raise invalid("ctrl_dt", self.ctrl_dt, f"an integer multiple of sim_dt = {sim_dt} s")
         set_("ctrl_dt", n_sub * sim_dt)
+        if self.action_mode not in ACTION_MODES:
+            raise invalid("action_mode", self.action_mode, f"one of {ACTION_MODES}")
         set_("episode_duration", number("episode_duration", self.episode_duration, self.ctrl_dt))
         scales = mapping("reward_scales", self.reward_scales)
         check_keys("reward_scales", scales, REWARD_SCALES)
@@ -175,6 +182,12 @@ class EnvConfig:
     def n_substeps(self) -> int:
         """Returns the physics steps per control step."""
         return round(self.ctrl_dt / self.mechanism.sim_dt)
+
+    @property
+    def n_actions(self) -> int:
+        """Returns the action's length: one per tendon ("tension") or per joint
+        ("joint_torque")."""
+        return self.mechanism.n_tendons if self.action_mode == "tension" else 2
 
     @property
     def max_episode_steps(self) -> int:

@@ -97,7 +97,7 @@ def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
     }
     ours = {
         **{k: getattr(config, k) for k in ("ctrl_dt", "preview_steps", "preview_dt")},
-        "observation": observation_layout(config.preview_steps),
+        "observation": observation.layout(config.preview_steps, config.n_actions),
         "mechanism": config.mechanism,
         "reference": None if ranges else config.reference,
         "reference_ranges": config.reference_ranges,
@@ -113,11 +113,6 @@ def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
 
 def _shown(value: Any) -> Any:
     return value.to_dict() if hasattr(value, "to_dict") else value
-
-
-def observation_layout(preview_steps: int) -> list:
-    """Returns the observation layout as [[name, size], ...] with the preview last."""
-    return [[name, n] for name, n, _ in observation.FIXED] + [["preview", 2 * preview_steps]]
 
 
 def _plain(value: Any) -> Any:

@@ -1,7 +1,9 @@
 """The observation layout of Tendon2R-v0: named slices, the one place that knows the order.
 
 The env writes the observation in this order, and policies, info and tests read it by name.
-The fixed entries come first, so their slices do not depend on ``preview_steps``.
+The fixed entries come first, so their slices do not depend on ``preview_steps``; then the
+preview of the reference, then the last action (one value per action dimension), which makes
+the action-rate reward term a function of the observed state.
 """
 
 from __future__ import annotations
@@ -53,9 +55,23 @@ def preview_slice(preview_steps: int) -> slice:
     return slice(N_FIXED, N_FIXED + 2 * preview_steps)
 
 
-def size(preview_steps: int) -> int:
+def last_action_slice(preview_steps: int, n_actions: int) -> slice:
+    """Returns the slice of the last action the env applied (as the policy sent it, clipped to
+    [-1, 1]; zeros after a reset)."""
+    start = N_FIXED + 2 * preview_steps
+    return slice(start, start + n_actions)
+
+
+def size(preview_steps: int, n_actions: int) -> int:
     """Returns the length of the observation."""
-    return N_FIXED + 2 * preview_steps
+    return N_FIXED + 2 * preview_steps + n_actions
+
+
+def layout(preview_steps: int, n_actions: int) -> list[list]:
+    """Returns the layout as [[name, size], ...] in order (run.json records it, so that a
+    trained model meets only the observation it was trained on)."""
+    fixed = [[name, n] for name, n, _ in FIXED]
+    return [*fixed, ["preview", 2 * preview_steps], ["last_action", n_actions]]
 
 
 def mask(zeroed: Iterable[str], n_obs: int) -> np.ndarray:
@@ -76,5 +92,9 @@ def table(preview_steps_name: str = "P") -> str:
     rows.append(
         f"| {N_FIXED} to {N_FIXED - 1} + 2{preview_steps_name} | q_des(t + k preview_dt), "
         "k = 1..P, A then B | rad |"
+    )
+    rows.append(
+        f"| {N_FIXED} + 2{preview_steps_name} to the end | the last action (zeros after a reset), "
+        "one per action dimension | 1 |"
     )
     return "\n".join(rows)

@@ -25,13 +25,13 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from tendon2r_gym.actuation import MomentArms, distribute
+from tendon2r_gym.actuation import FORCE_DAMPING, TorqueToTension
+from tendon2r_gym.env_config import ACTION_MODES
 from tendon2r_gym.mechanism import Mechanism
-from tendon2r_gym.model import build_model
 from tendon2r_gym.observation import DQ, DQ_DES, Q_DES, Q
 from tendon2r_gym.presets import PD_CONFIG, load_yaml
 from tendon2r_gym.reference import Reference
-from tendon2r_gym.validation import check_keys, number
+from tendon2r_gym.validation import check_keys, invalid, number
 
 
 @dataclass(frozen=True)
@@ -45,7 +45,7 @@ class Gains:
     bandwidth_hz: float = 30.0  # closed-loop natural frequency (Hz)
     damping_ratio: float = 1.0
     max_bandwidth_fraction: float = 0.05  # of the control rate 1 / ctrl_dt
-    force_damping: float = 1e-3  # damped-inverse regularization, relative to |J|
+    force_damping: float = FORCE_DAMPING  # damped-inverse regularization, relative to |J|
 
     def __post_init__(self) -> None:
         for name in ("bandwidth_hz", "damping_ratio", "max_bandwidth_fraction", "force_damping"):
@@ -67,46 +67,31 @@ class _TendonController:
     observation or a batch of them (numpy over the batch; the kinematics of a batch come from
     one ``mujoco.batch`` call, of a single observation from an MjData)."""
 
-    def __init__(self, mechanism: Mechanism, ctrl_dt: float, gains: Gains | None = None) -> None:
+    def __init__(
+        self,
+        mechanism: Mechanism,
+        ctrl_dt: float,
+        gains: Gains | None = None,
+        action_mode: str = "tension",
+    ) -> None:
+        if action_mode not in ACTION_MODES:
+            raise invalid("action_mode", action_mode, f"one of {ACTION_MODES}")
         self.mechanism = mechanism
+        self.action_mode = action_mode
         self.gains = gains or Gains.from_yaml()
         w = self.gains.natural_frequency(ctrl_dt)
         self.kp, self.kd = w * w, 2.0 * self.gains.damping_ratio * w
-        self.model = build_model(mechanism)
-        self.data = mujoco.MjData(self.model)
-        self._arms = MomentArms(self.model, self.data)
-        self._M = np.zeros((self.model.nv, self.model.nv))
-        self._batches: dict[int, Any] = {}
-        self._max_force = mechanism.max_tendon_force
-        self._pull_only, self._pretension = mechanism.pull_only, mechanism.pretension
+        self.actuation = TorqueToTension(mechanism, self.gains.force_damping)
+        self.model, self.data = self.actuation.model, self.actuation.data
+        self.kinematics = self.actuation.kinematics
+        self.tendon_command = self.actuation.command
+        self._max_torque = self.actuation.max_joint_torque()
 
     @classmethod
     def from_env(cls, env: Any, **kwargs: Any) -> _TendonController:
         """Builds the controller from an env's mechanism and control period (not its state)."""
         env = env.unwrapped
-        return cls(env.mechanism, env.ctrl_dt, **kwargs)
-
-    def kinematics(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Returns the moment arms J (N, n_tendons, 2) and the inertia M (N, 2, 2) at the joint
-        angles q (N, 2), from the private model."""
-        if len(q) == 1:
-            self.data.qpos[:] = q[0]
-            mujoco.mj_fwdPosition(self.model, self.data)
-            mujoco.mj_fullM(self.model, self.data, self._M)
-            return self._arms.dense()[None].copy(), self._M[None].copy()
-        batch = self._batches.get(len(q))
-        if batch is None:
-            batch = self._batches[len(q)] = _Kinematics(self.model, len(q))
-        return batch(q)
-
-    def tendon_command(self, J: np.ndarray, tau: np.ndarray) -> np.ndarray:
-        """Returns the clipped normalized commands (N, n_tendons) whose tensions give the joint
-        torques tau (N, 2) through the moment arms J (N, n_tendons, 2): the tension
-        distribution of tendon2r_gym.actuation.distribute (damped by force_damping), then
-        push-pull: -t / F; pull-only: 2 t / F - 1 (F the force limit)."""
-        t = distribute(J, tau, self._pull_only, self._pretension, self.gains.force_damping)
-        u = 2.0 * t / self._max_force - 1.0 if self._pull_only else -t / self._max_force
-        return np.clip(u, -1.0, 1.0).astype(np.float32)
+        return cls(env.mechanism, env.ctrl_dt, action_mode=env.config.action_mode, **kwargs)
 
     def _torque(self, obs: np.ndarray, M: np.ndarray) -> np.ndarray:
         raise NotImplementedError
@@ -122,41 +107,12 @@ class _TendonController:
         obs = np.asarray(observation, dtype=np.float64)
         batch = np.atleast_2d(obs)
         J, M = self.kinematics(batch[:, Q])
-        action = self.tendon_command(J, self._torque(batch, M))
+        tau = self._torque(batch, M)
+        if self.action_mode == "joint_torque":  # the env distributes the torques
+            action = np.clip(tau / self._max_torque, -1.0, 1.0).astype(np.float32)
+        else:
+            action = self.tendon_command(J, tau)
         return (action[0] if obs.ndim == 1 else action), state
-
-
-class _Kinematics:
-    """M(q) and J(q) of N configurations in one mujoco.batch forward call (position stage)."""
-
-    def __init__(self, model: mujoco.MjModel, n: int) -> None:
-        from mujoco import batch as mj_batch
-
-        self.batch = mj_batch.Batch(model, n, nthread=1)
-        self.qpos = self.batch.bind("qpos")
-        self.M, self.J = self.batch.bind("M"), self.batch.bind("ten_J")  # bound before calls
-        self.m_idx = _sparse_index(model.M_rownnz, model.M_rowadr, model.M_colind)
-        self.j_idx = _sparse_index(model.ten_J_rownnz, model.ten_J_rowadr, model.ten_J_colind)
-        self.shapes = (model.nv, model.nv), (model.ntendon, model.nv)
-
-    def __call__(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        self.qpos[:] = q
-        self.batch.forward(stage=mujoco.mjtStage.mjSTAGE_POS.value)
-        n = len(q)
-        M, J = np.zeros((n, *self.shapes[0])), np.zeros((n, *self.shapes[1]))
-        (mr, mc), (jr, jc) = self.m_idx, self.j_idx
-        M[:, mr, mc] = self.M
-        M[:, mc, mr] = self.M  # the lower triangle is stored: mirror it
-        J[:, jr, jc] = self.J
-        return J, M
-
-
-def _sparse_index(rownnz: np.ndarray, rowadr: np.ndarray, colind: np.ndarray):
-    """Returns (rows, cols) of each stored entry of a MuJoCo sparse matrix."""
-    rows = np.concatenate([np.full(nnz, r) for r, nnz in enumerate(rownnz)]).astype(int)
-    pairs = zip(rowadr, rownnz, strict=True)
-    cols = np.concatenate([colind[a : a + nnz] for a, nnz in pairs]).astype(int)
-    return rows, cols
 
 
 class PDPolicy(_TendonController):
@@ -181,14 +137,17 @@ class ComputedTorquePolicy(_TendonController):
         ctrl_dt: float,
         reference: Reference,
         gains: Gains | None = None,
+        action_mode: str = "tension",
     ) -> None:
-        super().__init__(mechanism, ctrl_dt, gains)
+        super().__init__(mechanism, ctrl_dt, gains, action_mode)
         self._set_references([reference])
 
     @classmethod
     def from_env(cls, env: Any, **kwargs: Any) -> ComputedTorquePolicy:
         env = env.unwrapped
-        return cls(env.mechanism, env.ctrl_dt, env.reference, **kwargs)
+        return cls(
+            env.mechanism, env.ctrl_dt, env.reference, action_mode=env.config.action_mode, **kwargs
+        )
 
     def _set_references(self, refs: list[Reference]) -> None:
         self.references = refs

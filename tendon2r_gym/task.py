@@ -36,6 +36,9 @@ DIVERGED_PAST_LIMIT = 0.5  # rad past a joint limit that counts as diverged
 #: limit reach about 500 rad/s.
 DIVERGED_SPEED = 1e4
 
+#: Default weight of the action-rate term (tendon2r_gym.studies.learnability, reward rows).
+ACTION_RATE_WEIGHT = 0.01
+
 #: Reward terms: name -> (default weight, what the unscaled term is).  reward = sum of weight *
 #: term; each scaled term is in ``info`` as ``reward_<name>``.
 TERMS: dict[str, tuple[float, str]] = {
@@ -48,6 +51,11 @@ TERMS: dict[str, tuple[float, str]] = {
         "on, with reward normalization): ``-sum(e^2)`` in deg^2, steep far from the reference",
     ),
     "ctrl": (0.001, "``-sum(action^2)`` on the clipped action (for pull-only, -1 is slack)"),
+    "action_rate": (
+        ACTION_RATE_WEIGHT,
+        "``-sum((action - last_action)^2)`` on the clipped actions of this step and the last "
+        "(observed, zeros after a reset): smooth commands that a motor can follow",
+    ),
     "divergence": (10.0, "-1 on the step where the physics diverges, else 0"),
 }
 REWARD_SCALES: dict[str, float] = {name: weight for name, (weight, _) in TERMS.items()}
@@ -110,7 +118,7 @@ class Task:
             for k in MULTISCALE
         ]
         self.form = config.tracking_form
-        self.obs_size = L.size(config.preview_steps)
+        self.obs_size = L.size(config.preview_steps, config.n_actions)
         self._info_keys = {k: f"reward_{k}" for k in TERMS}  # formatted once, not every step
 
     # -- reset -----------------------------------------------------------------------------------
@@ -172,11 +180,20 @@ class Task:
 
     # -- observation -----------------------------------------------------------------------------
     def observation(
-        self, ops: Ops, q1: Any, q2: Any, w1: Any, w2: Any, t: Any, ref: Sequence[Any]
+        self,
+        ops: Ops,
+        q1: Any,
+        q2: Any,
+        w1: Any,
+        w2: Any,
+        t: Any,
+        ref: Sequence[Any],
+        last_action: Sequence[Any],
     ) -> list[Any]:
         """Returns the observation's entries in the order of tendon2r_gym.observation (q, dq,
-        q_des, dq_des, error, error_log, effector_pos, effector_vel, preview), from the joint
-        angles and speeds, the time and :func:`reference_params`."""
+        q_des, dq_des, error, error_log, effector_pos, effector_vel, preview, last action),
+        from the joint angles and speeds, the time, :func:`reference_params` and the last
+        clipped action (one value, or one column of N values, per action dimension)."""
         amp1, amp2, om1, om2, ph1, ph2, bias1, bias2 = ref
         a, b, c = self.a, self.b, self.c
         c1, s1 = ops.cos(q1), ops.sin(q1)
@@ -199,14 +216,22 @@ class Task:
         for dt in self.offsets:
             obs.append(amp1 * ops.sin(arg1 + om1 * dt) + bias1)
             obs.append(amp2 * ops.sin(arg2 + om2 * dt) + bias2)
+        obs.extend(last_action)
         return obs
 
     # -- reward ----------------------------------------------------------------------------------
     def reward_terms(
-        self, ops: Ops, e1: Any, e2: Any, action: Sequence[Any], diverged: Any
+        self,
+        ops: Ops,
+        e1: Any,
+        e2: Any,
+        action: Sequence[Any],
+        last_action: Sequence[Any],
+        diverged: Any,
     ) -> dict[str, Any]:
         """Returns the unscaled reward terms (keys of TERMS) from the tracking errors (rad), the
-        clipped action (one value, or one column of N values, per tendon) and divergence."""
+        clipped action and the one before it (one value, or one column of N values, per action
+        dimension) and divergence."""
         e1, e2 = e1 / RAD_PER_DEG, e2 / RAD_PER_DEG
         if self.form == "log":
             u1, u2 = e1 / self.sigma, e2 / self.sigma
@@ -218,10 +243,16 @@ class Task:
                 tracking -= (ops.log1p(u1 * u1) + ops.log1p(u2 * u2)) / norm
         else:
             tracking = -(e1 * e1 + e2 * e2)
-        effort = 0.0  # in tendon order, as numpy's sum over a few entries
-        for x in action:
+        effort = rate = 0.0  # in action order, as numpy's sum over a few entries
+        for x, x0 in zip(action, last_action, strict=True):
             effort += x * x
-        return {"tracking": tracking, "ctrl": -effort, "divergence": ops.where(diverged, -1.0, 0.0)}
+            rate += (x - x0) * (x - x0)
+        return {
+            "tracking": tracking,
+            "ctrl": -effort,
+            "action_rate": -rate,
+            "divergence": ops.where(diverged, -1.0, 0.0),
+        }
 
     def scale(self, terms: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
         """Returns (reward, scaled terms): each term times its weight, and their sum."""
@@ -234,9 +265,7 @@ class Task:
         """Returns whether the state has left the simulation's valid domain: a joint far past
         its limit or faster than DIVERGED_SPEED, or a non-finite state (NaN fails every test)."""
         lo, hi, fast = self.div_lo, self.div_hi, DIVERGED_SPEED
-        inside = (
-            (lo < q1) & (q1 < hi) & (lo < q2) & (q2 < hi) & (abs(w1) < fast) & (abs(w2) < fast)
-        )
+        inside = (lo < q1) & (q1 < hi) & (lo < q2) & (q2 < hi) & (abs(w1) < fast) & (abs(w2) < fast)
         return ops.not_(inside)
 
     # -- info ------------------------------------------------------------------------------------

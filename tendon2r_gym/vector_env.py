@@ -27,7 +27,7 @@ from gymnasium.vector.utils import batch_space
 from mujoco import batch as mj_batch
 
 from tendon2r_gym import observation as obs_layout
-from tendon2r_gym.actuation import cond_of_rows
+from tendon2r_gym.actuation import TorqueToTension, cond_of_rows
 from tendon2r_gym.env import DIVERGENCE_WARNINGS
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.model import build_model, tendon_name
@@ -72,10 +72,10 @@ class Tendon2RVectorEnv(VectorEnv):
             else integer("max_episode_steps", max_episode_steps, 1, 10**9)
         )
         self.mechanism, self.ctrl_dt = cfg.mechanism, cfg.ctrl_dt
-        n_act = cfg.mechanism.n_tendons
+        n_act = cfg.n_actions
         self.single_action_space = spaces.Box(-1.0, 1.0, (n_act,), np.float32)
         self.single_observation_space = spaces.Box(
-            -np.inf, np.inf, (obs_layout.size(cfg.preview_steps),), np.float64
+            -np.inf, np.inf, (obs_layout.size(cfg.preview_steps, n_act),), np.float64
         )
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
@@ -91,7 +91,11 @@ class Tendon2RVectorEnv(VectorEnv):
         )
         first = self.model.sensor(f"force_{tendon_name(0)}").adr[0]
         self._sensors = b.bind("sensordata")
-        self._force = slice(first, first + n_act)
+        self._force = slice(first, first + cfg.mechanism.n_tendons)
+        self._torque_map: TorqueToTension | None = None
+        if cfg.action_mode == "joint_torque":  # the single env's distribution, batched
+            self._torque_map = TorqueToTension(cfg.mechanism)
+            self._max_torque = self._torque_map.max_joint_torque()
         self._ten_J = b.bind("ten_J")
         self._J_rows = _sparse_rows(self.model)
         self._warn_ids = [int(w) for w in DIVERGENCE_WARNINGS]
@@ -109,6 +113,7 @@ class Tendon2RVectorEnv(VectorEnv):
         # samples all phases of the reference instead of N copies of the same window.
         self._stagger = boolean("stagger", stagger)
         self._last_obs = np.zeros((n, self.single_observation_space.shape[0]))
+        self._last_action = np.zeros((n, n_act))  # clipped, as observed; zeros after a reset
 
     # -- references --------------------------------------------------------------------------
     def _set_references(self, ids: np.ndarray, refs: list[Reference]) -> None:
@@ -159,6 +164,7 @@ class Tendon2RVectorEnv(VectorEnv):
             self._qpos[i], self._qvel[i] = task.initial_state(self._rngs[i], ref)
         self.batch.forward(ids)
         self._steps[ids] = 0
+        self._last_action[ids] = 0.0
         self._warn_count[ids] = self._warnings()[ids]
         self._needs_reset[ids] = False
 
@@ -188,7 +194,13 @@ class Tendon2RVectorEnv(VectorEnv):
             ids = active = np.flatnonzero(~resetting)
         else:  # the common step: every arm, without index arrays
             ids, active = None, slice(None)
-        self._ctrl[active] = a[active]
+        last = self._last_action.copy()
+        self._last_action[active] = a[active]
+        if self._torque_map is None:
+            self._ctrl[active] = a[active]
+        else:  # joint_torque: PD's tension distribution at the current q
+            J, _ = self._torque_map.kinematics(self._qpos[active])
+            self._ctrl[active] = self._torque_map.command(J, self._max_torque * a[active])
         failed = np.zeros(n, dtype=bool)
         try:
             self.batch.step(ids, nstep=self.config.n_substeps)
@@ -198,7 +210,7 @@ class Tendon2RVectorEnv(VectorEnv):
         obs = self._observe()
         if diverged.any():
             obs[diverged] = self._last_obs[diverged]  # the last good state, as the single env
-        rewards, terms = self._rewards(obs, a, diverged)
+        rewards, terms = self._rewards(obs, a, last, diverged)
         rewards[resetting] = 0.0
         self._steps[active] += 1
         terminated[active] = diverged[active]
@@ -257,15 +269,22 @@ class Tendon2RVectorEnv(VectorEnv):
         """The observations of every arm (tendon2r_gym.task.Task.observation on arrays)."""
         q, w = self._qpos, self._qvel
         parts = self.task.observation(
-            BATCH, q[:, 0], q[:, 1], w[:, 0], w[:, 1], self._time, tuple(self._ref)
+            BATCH,
+            q[:, 0],
+            q[:, 1],
+            w[:, 0],
+            w[:, 1],
+            self._time,
+            tuple(self._ref),
+            list(self._last_action.T),
         )
         return np.stack(parts, axis=1)
 
     def _rewards(
-        self, obs: np.ndarray, a: np.ndarray, diverged: np.ndarray
+        self, obs: np.ndarray, a: np.ndarray, last: np.ndarray, diverged: np.ndarray
     ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         e = obs[:, obs_layout.ERROR]
-        terms = self.task.reward_terms(BATCH, e[:, 0], e[:, 1], list(a.T), diverged)
+        terms = self.task.reward_terms(BATCH, e[:, 0], e[:, 1], list(a.T), list(last.T), diverged)
         return self.task.scale(terms)
 
     def _moment_arm_cond(self) -> np.ndarray:

@@ -28,7 +28,7 @@ class SB3VecEnv(VecEnv):
             raise invalid("autoreset_mode", venv.autoreset_mode, "SAME_STEP for SB3")
         super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
         self.venv, self.residual_scale = venv, residual_scale
-        self.pd = PDPolicy(venv.mechanism, venv.ctrl_dt) if residual_scale > 0 else None
+        self.pd = PDPolicy.from_env(venv) if residual_scale > 0 else None
         self._mask = observation.mask(zero_obs, venv.single_observation_space.shape[0])
         self._raw: np.ndarray | None = None
         self._actions: np.ndarray | None = None
@@ -73,7 +73,6 @@ class SB3VecEnv(VecEnv):
 
     def env_is_wrapped(self, wrapper_class: type, indices: Any = None) -> list[bool]:
         return [False] * len(self._get_indices(indices))
-
 
 
 def make_native(

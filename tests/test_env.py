@@ -115,7 +115,8 @@ def test_observation_entries_match_the_physics():
     np.testing.assert_allclose(obs[L.ERROR], ref.q(d.time) - d.qpos)
     preview = ref.q(d.time + np.array([1, 2, 3]) * 0.01).ravel()
     np.testing.assert_allclose(obs[L.preview_slice(3)], preview)
-    assert obs.shape == (L.size(3),)
+    assert obs.shape == (L.size(3, 2),)
+    np.testing.assert_array_equal(obs[L.last_action_slice(3, 2)], np.float32([0.3, -0.2]))
     # Push-pull: motor force = action * limit along the tendon; tension is minus that.
     limit = env.unwrapped.mechanism.max_tendon_force
     assert env.unwrapped.tendon_tensions() == pytest.approx(-np.array([0.3, -0.2]) * limit)
@@ -270,7 +271,7 @@ def test_vector_envs(mode):
     obs, _ = envs.reset(seed=0)
     obs2, rew, term, trunc, info = envs.step(np.zeros((2, 2), np.float32))
     envs.close()
-    assert obs.shape == obs2.shape == (2, L.size(3))
+    assert obs.shape == obs2.shape == (2, L.size(3, 2))
     assert rew.shape == (2,)
 
 
@@ -334,7 +335,7 @@ def test_multiscale_tracking_reward_is_bounded_and_keeps_a_gradient_near_zero():
 
     def r(t, deg):
         e = deg * RAD_PER_DEG
-        return t.reward_terms(SCALAR, e, e, [0.0, 0.0], False)["tracking"]
+        return t.reward_terms(SCALAR, e, e, [0.0, 0.0], [0.0, 0.0], False)["tracking"]
 
     errors = [0.0, 0.001, 0.01, 0.05, 0.1, 1.0, 10.0, 90.0, 180.0]
     values = [r(task, e) for e in errors]

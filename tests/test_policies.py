@@ -175,7 +175,7 @@ def test_tendon_command_is_the_damped_inverse_of_the_moment_arms():
     for _ in range(20):
         pd.data.qpos[:] = rng.uniform(0.8 * lo, 0.8 * hi, 2)
         mujoco.mj_fwdPosition(pd.model, pd.data)
-        J = pd._arms.dense().copy()
+        J = pd.actuation._arms.dense().copy()
         tau = rng.uniform(-1, 1, 2) * 1e-3  # small: no saturation
         lam2 = pd.gains.force_damping * np.sum(J * J)
         f = J @ np.linalg.solve(J.T @ J + lam2 * np.eye(2), tau)

@@ -51,13 +51,17 @@ def _verdict(rows: list[dict[str, Any]]) -> dict[str, Any]:
     out = {"pd": pd, "ct": by["ct"]["rms_deg"]}
     for label in ("ppo scratch", "ppo residual"):
         r = by.get(label)
-        out[label] = None if r is None else {
-            "rms_deg": r["rms_deg"],
-            "beats_pd": beats(r["rms_deg"], pd),
-            "tension_rate_x_pd": rms_ratio(
-                r["rms_tension_rate_N_per_s"], by["pd"]["rms_tension_rate_N_per_s"]
-            ),
-        }
+        out[label] = (
+            None
+            if r is None
+            else {
+                "rms_deg": r["rms_deg"],
+                "beats_pd": beats(r["rms_deg"], pd),
+                "tension_rate_x_pd": rms_ratio(
+                    r["rms_tension_rate_N_per_s"], by["pd"]["rms_tension_rate_N_per_s"]
+                ),
+            }
+        )
     return out
 
 

@@ -65,6 +65,20 @@ ROWS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
                            {"entry": "default"}),
     "residual_log": ("residual PPO with the bounded log reward of the env's defaults",
                      {"tracking_form": "log", "reward_scales": {}}, {"entry": "default"}),
+    "plain_sigma_0.1": ("plain PPO, log reward with sigma 0.1 deg",
+                        {"tracking_sigma_deg": 0.1}, {}),
+    "plain_sigma_0.01": ("plain PPO, log reward with sigma 0.01 deg",
+                         {"tracking_sigma_deg": 0.01}, {}),
+    "residual_sigma_0.1": ("residual PPO (entry `default`), the registered reward with sigma "
+                           "0.1 deg", {"tracking_form": "log", "reward_scales": {},
+                                       "tracking_sigma_deg": 0.1}, {"entry": "default"}),
+    "residual_sigma_0.01": ("residual PPO (entry `default`), the registered reward with sigma "
+                            "0.01 deg", {"tracking_form": "log", "reward_scales": {},
+                                         "tracking_sigma_deg": 0.01}, {"entry": "default"}),
+    "plain_no_rate": ("plain PPO without the action-rate term",
+                      {"reward_scales": {"action_rate": 0.0}}, {}),
+    "plain_rate_0.1": ("plain PPO, action-rate weight 0.1",
+                       {"reward_scales": {"action_rate": 0.1}}, {}),
 }  # fmt: skip
 
 
@@ -134,6 +148,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             futures = [pool.submit(_run, r, s, args.steps, root) for r, s in jobs]
             runs = [f.result() for f in futures]
     result = summarize(runs, args.rows, args.seeds, args.steps, command)
+    base = row_config(args.rows[0], args.steps)
+    result["pd_tension_rate_N_per_s"] = pd_tension_rate(base.env_kwargs, list(base.eval_seeds))
     write(result, Path(args.out))
     return result
 
@@ -157,10 +173,33 @@ def summarize(
                 "beat_pd_seeds": sum(b is not None for b in beat),
                 "first_beat_pd": beat,
                 "wall_time_s_mean": float(np.mean([r["wall_time_s"] for r in mine])),
+                "tension_rate_N_per_s_mean": _mean_rate(mine),
                 "pd_rms_deg": mine[0]["pd_eval_rms_deg"],
             }
         )
     return {"command": command, "steps": steps, "seeds": seeds, "rows": rows, "runs": runs}
+
+
+def _rate_ratio(row: dict[str, Any], result: dict[str, Any]) -> str:
+    """Returns the row's RMS tension rate over PD's (the `default` preset), or "-"."""
+    rate, pd = row.get("tension_rate_N_per_s_mean"), result.get("pd_tension_rate_N_per_s")
+    return "-" if rate is None or pd is None else f"{rate / pd:.1f}x"
+
+
+def _mean_rate(runs: list[dict[str, Any]]) -> float | None:
+    """Returns the RMS tension rate (N/s) of the best models, over tendons and seeds."""
+    rates = [r.get("best_tension_rate_N_per_s") for r in runs]
+    if any(r is None for r in rates):
+        return None
+    return float(np.sqrt(np.mean(np.square(rates))))
+
+
+def pd_tension_rate(env_kwargs: dict[str, Any], seeds: list[int]) -> float:
+    """Returns PD's RMS tension rate (N/s) over tendons on the eval seeds."""
+    from tendon2r_gym.evaluation import evaluate
+
+    metrics, _ = evaluate("pd", env_kwargs, seeds)
+    return float(np.sqrt(np.mean(np.square(metrics["rms_tension_rate_N_per_s"]))))
 
 
 def write(result: dict[str, Any], out: Path) -> None:
@@ -178,12 +217,13 @@ def write(result: dict[str, Any], out: Path) -> None:
         "changes one choice of `default_scratch` back to its landed value (or to an "
         "alternative); the residual rows start from the `default` entry instead.",
         "",
-        "| row | change | best RMS A / B (deg) | ± std | seeds that beat PD | wall (s) |",
-        "|---|---|---|---|---|---|",
+        "| row | change | best RMS A / B (deg) | ± std | seeds that beat PD | tension rate "
+        "/ PD's | wall (s) |",
+        "|---|---|---|---|---|---|---|",
         *(
             f"| {r['row']} | {r['change']} | {fmt(r['rms_deg_mean'])} | "
             f"{fmt(r['rms_deg_std'])} | {r['beat_pd_seeds']} / {len(seeds)} | "
-            f"{r['wall_time_s_mean']:.0f} |"
+            f"{_rate_ratio(r, result)} | {r['wall_time_s_mean']:.0f} |"
             for r in rows
         ),
     ]

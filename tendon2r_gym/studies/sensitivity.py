@@ -20,6 +20,7 @@ from typing import Any
 
 ENTRY = "default_scratch"
 
+
 def _policy(**kw: Any) -> Any:
     return lambda h: {"policy_kwargs": {**h.policy_kwargs, **kw}}
 

@@ -102,7 +102,11 @@ def compare_checkouts(
         for label, src in checkouts.items():
             env = {**os.environ, "PYTHONPATH": str(Path(src).resolve())}
             out = subprocess.run(
-                [sys.executable, "-c", code], env=env, cwd=src, capture_output=True, text=True,
+                [sys.executable, "-c", code],
+                env=env,
+                cwd=src,
+                capture_output=True,
+                text=True,
                 check=True,
             ).stdout
             run = json.loads(out.strip().splitlines()[-1])

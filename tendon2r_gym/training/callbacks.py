@@ -138,7 +138,6 @@ def _fmt(pair: list[float]) -> str:
     return " / ".join(f"{v:.4f}" for v in pair)
 
 
-
 class StopOnSignal(BaseCallback):
     """Ctrl-C (SIGINT) or SIGTERM during ``learn`` asks training to stop at the next env step,
     so that no signal lands inside torch or MuJoCo; a second signal interrupts at once."""
@@ -167,7 +166,6 @@ class StopOnSignal(BaseCallback):
 
     def _on_step(self) -> bool:
         return not self.stopped
-
 
 
 def save_model(model: Any, stem: Path) -> None:

@@ -24,8 +24,9 @@ from typing import Any
 
 import numpy as np
 
+from tendon2r_gym import observation
 from tendon2r_gym.env_config import EnvConfig
-from tendon2r_gym.learned import make_training_env, observation_layout
+from tendon2r_gym.learned import make_training_env
 from tendon2r_gym.runs import (
     BEST_METRICS,
     CONFIG,
@@ -184,7 +185,7 @@ def train_run(
             "env_kwargs": hp.env_kwargs,
             "env_config": {
                 **env_config.to_dict(),
-                "observation": observation_layout(env_config.preview_steps),
+                "observation": observation.layout(env_config.preview_steps, env_config.n_actions),
             },
         },
     )
@@ -291,6 +292,7 @@ def _write_summary(
         "interrupted": interrupted,
         "best_rms_deg": best.get("rms_deg"),
         "best_timesteps": best.get("timesteps"),
+        "best_tension_rate_N_per_s": best.get("rms_tension_rate_N_per_s"),
         "pd_eval_rms_deg": run.read_json(PD_EVAL),
         "first_beat_pd": first_beat_pd(run),
         "segments": segments,
