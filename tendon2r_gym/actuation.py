@@ -195,11 +195,12 @@ class TorqueToTension:
 
     def max_joint_torque(self) -> np.ndarray:
         """Returns the torque (N m) each joint alone reaches at q = 0 before a tendon saturates,
-        with push-pull tendons of limit F: F / max_k |(J (J^T J)^-1)_kj| (the scale of a
-        normalized joint-torque action)."""
+        with push-pull tendons of limit F: F / max_k |(J^+)^T_kj| (J^+ the pseudo-inverse, J
+        (J^T J)^-1 when J has full rank); the scale of a normalized joint-torque action.  A
+        joint that no tendon spans gets 0."""
         J, _ = self.kinematics(np.zeros((1, 2)))
-        pinv = J[0] @ np.linalg.inv(J[0].T @ J[0])
-        return self._max_force / np.max(np.abs(pinv), axis=0)
+        peak = np.max(np.abs(np.linalg.pinv(J[0])), axis=1)  # (2,): per joint
+        return np.where(peak > 0, self._max_force / np.where(peak > 0, peak, 1.0), 0.0)
 
 
 class _Kinematics:

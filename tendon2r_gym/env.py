@@ -54,15 +54,23 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     come from a preset or an experiment file (``preset``), with keyword overrides.
 
     ## Action Space
-    ``Box(-1, 1, (n_tendons,), float32)``: the normalized command of each motor.  Push-pull
-    (default): an action of +-1 is +-``max_tendon_force`` N along the tendon.  Pull-only
-    (``mechanism.pull_only``): an action in [-1, 1] maps affinely to a tension in
-    [0, ``max_tendon_force``] N (-1 slack, +1 full pull).  Out-of-range actions are clipped
-    to [-1, 1]; a wrong shape or a non-finite action raises ValueError.  ``info["tendon_tension"]``
-    is each tendon's pulling force in N (positive when it pulls) for every routing.
+    ``Box(-1, 1, (n_actions,), float32)``, by ``action_mode``:
+
+    - ``"tension"`` (default): one normalized command per tendon motor.  Push-pull: +-1 is
+      +-``max_tendon_force`` N along the tendon.  Pull-only (``mechanism.pull_only``): [-1, 1]
+      maps affinely to a tension in [0, ``max_tendon_force``] N (-1 slack, +1 full pull).
+    - ``"joint_torque"``: one normalized torque per joint, times the torque each joint alone
+      reaches before a tendon saturates (``TorqueToTension.max_joint_torque``); the env turns
+      the torques into tendon tensions with the distribution PD uses
+      (tendon2r_gym.actuation.distribute at the current q: pull-only respected, pretension
+      kept), clipped at the force limit.
+
+    Out-of-range actions are clipped to [-1, 1]; a wrong shape or a non-finite action raises
+    ValueError.  ``info["tendon_tension"]`` is each tendon's pulling force in N (positive when
+    it pulls) for every routing and mode.
 
     ## Observation Space
-    ``Box(-inf, inf, (16 + 2 * preview_steps,), float64)``, named slices in
+    ``Box(-inf, inf, (16 + 2 * preview_steps + n_actions,), float64)``, named slices in
     ``tendon2r_gym.observation``:
 
     {obs_table}
@@ -98,7 +106,8 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     | `fit_to_workspace` | `False` | scale the amplitudes down (with a warning) instead of raising |
     | `ctrl_dt` | `0.001` | control period (s), an integer multiple of the mechanism's sim_dt |
     | `episode_duration` | `2.0` | seconds per episode |
-    | `reward_scales` | `{{'tracking': 1, 'ctrl': 0.001, 'divergence': 10}}` | term weights |
+    | `action_mode` | `"tension"` | "tension" (one command per tendon) or "joint_torque" |
+    | `reward_scales` | `{{'tracking': 1, 'ctrl': 0.001, 'action_rate': 0.01, 'divergence': 10}}` | weights |
     | `tracking_form` | `"log"` | "log" (bounded), "multiscale" or "quadratic" tracking reward |
     | `tracking_sigma_deg` | `1.0` | error scale of the "log" tracking reward (deg) |
     | `reset_noise_scale` | `0.001` | initial-state noise (rad, rad/s) |
@@ -129,7 +138,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
       - the task written once (tendon2r_gym.task) for this env and the vector env, which now
         return the same info keys; the "multiscale" tracking form; the ``default`` and
         ``report_002`` presets size ``max_tendon_force`` automatically.
-    """
+    """  # noqa: E501
 
     metadata = {"render_modes": ["human", "rgb_array", "depth_array"]}
 

@@ -199,8 +199,8 @@ class Tendon2RVectorEnv(VectorEnv):
         if self._torque_map is None:
             self._ctrl[active] = a[active]
         else:  # joint_torque: PD's tension distribution at the current q
-            J, _ = self._torque_map.kinematics(self._qpos[active])
-            self._ctrl[active] = self._torque_map.command(J, self._max_torque * a[active])
+            J, _ = self._torque_map.kinematics(self._qpos)  # every arm: one batch size
+            self._ctrl[active] = self._torque_map.command(J, self._max_torque * a)[active]
         failed = np.zeros(n, dtype=bool)
         try:
             self.batch.step(ids, nstep=self.config.n_substeps)

@@ -116,7 +116,7 @@ def test_observation_entries_match_the_physics():
     preview = ref.q(d.time + np.array([1, 2, 3]) * 0.01).ravel()
     np.testing.assert_allclose(obs[L.preview_slice(3)], preview)
     assert obs.shape == (L.size(3, 2),)
-    np.testing.assert_array_equal(obs[L.last_action_slice(3, 2)], np.float32([0.3, -0.2]))
+    np.testing.assert_array_equal(obs[L.last_action_slice(3, 2)], [0.3, -0.2])
     # Push-pull: motor force = action * limit along the tendon; tension is minus that.
     limit = env.unwrapped.mechanism.max_tendon_force
     assert env.unwrapped.tendon_tensions() == pytest.approx(-np.array([0.3, -0.2]) * limit)

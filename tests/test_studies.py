@@ -76,9 +76,11 @@ def test_random_course_arms_are_valid_and_seeded(tmp_path):
             lo, hi = getattr(COURSE, k)
             assert lo <= getattr(cfg.mechanism, k) <= hi
         assert cfg.mechanism.max_tendon_force >= 2 * cfg.force_need * 0.99
-    files = arm_sweep.arm_files(tmp_path, 2, 3)
-    assert set(files) >= {"default", "report_002", "pull_only", "course_0", "course_1"}
-    assert EnvConfig.make(str(files["course_1"])).mechanism.R1 == arms[1]["mechanism"]["R1"]
+    files = arm_sweep.arm_files(tmp_path, 2, 3, ("tension", "joint_torque"))
+    names = {"default", "report_002", "pull_only", "course_0", "course_1"}
+    assert {k[0] for k in files} >= names and {k[1] for k in files} == {"tension", "joint_torque"}
+    cfg = EnvConfig.make(str(files["course_1", "joint_torque"]))
+    assert cfg.mechanism.R1 == arms[1]["mechanism"]["R1"] and cfg.action_mode == "joint_torque"
 
 
 def test_sensitivity_variants_change_one_knob():

@@ -19,7 +19,9 @@ def _native(n, **kw):
     ("n", "nthread", "kwargs"),
     [(3, 1, {}), (3, 1, {"preset": "pull_only"}), (3, 1, {"reference_ranges": RANGES}),
      (3, 1, {"tracking_form": "quadratic"}), (3, 1, {"preset": "report_002", "ctrl_dt": 0.002}),
-     (17, 2, {"preview_steps": 6}), (9, None, {"preview_steps": 0})],
+     (17, 2, {"preview_steps": 6}), (9, None, {"preview_steps": 0}),
+     (3, 1, {"action_mode": "joint_torque"}),
+     (5, 1, {"action_mode": "joint_torque", "preset": "pull_only"})],
 )  # fmt: skip
 @pytest.mark.parametrize("mode", ["NextStep", "SameStep"])
 def test_same_seeds_same_trajectories_as_single_envs_bit_for_bit(n, nthread, kwargs, mode):

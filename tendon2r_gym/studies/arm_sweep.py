@@ -8,6 +8,7 @@ arms drawn with ``--arm-seed`` from the course's ranges by tendon2r_gym.arms.dra
 arm is written as an experiment file and run through the same code path as
 ``tendon2r-benchmark --env-config ARM.yaml``: plain and residual PPO trained with the shipped
 hyperparameters (one seed, no per-arm tuning), then PD, CT and both on the same episodes.
+Every arm runs in each ``--action-modes`` (the experiment file's ``action_mode``).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import yaml
 
 from tendon2r_gym.arms import draw_arms
 from tendon2r_gym.benchmark import benchmark_own_arm
+from tendon2r_gym.env_config import ACTION_MODES
 from tendon2r_gym.metrics import beats, rms_ratio
 from tendon2r_gym.presets import load_yaml, preset_path
 from tendon2r_gym.runs import command_line
@@ -29,8 +31,11 @@ PRESETS = ("default", "report_002", "pull_only")
 EXAMPLE = Path(__file__).resolve().parents[2] / "configs" / "examples" / "my_arm.yaml"
 
 
-def arm_files(folder: Path, n_random: int, arm_seed: int) -> dict[str, Path]:
-    """Writes every arm of the sweep as an experiment file; returns name -> path."""
+def arm_files(
+    folder: Path, n_random: int, arm_seed: int, modes: tuple[str, ...] = ("tension",)
+) -> dict[tuple[str, str], Path]:
+    """Writes every arm of the sweep in every action mode as an experiment file; returns
+    (arm, mode) -> path."""
     folder.mkdir(parents=True, exist_ok=True)
     arms: dict[str, dict[str, Any]] = {p: load_yaml(preset_path(p)) for p in PRESETS}
     if EXAMPLE.is_file():
@@ -39,9 +44,10 @@ def arm_files(folder: Path, n_random: int, arm_seed: int) -> dict[str, Path]:
         arms[f"course_{i}"] = arm
     paths = {}
     for name, content in arms.items():
-        path = folder / f"{name}.yaml"
-        path.write_text(yaml.safe_dump(content, sort_keys=False))
-        paths[name] = path
+        for mode in modes:
+            path = folder / f"{name}_{mode}.yaml"
+            path.write_text(yaml.safe_dump({**content, "action_mode": mode}, sort_keys=False))
+            paths[name, mode] = path
     return paths
 
 
@@ -72,21 +78,27 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--arms", nargs="+", default=None, help="only these arms (names)")
     p.add_argument("--train-steps", type=int, default=None, help="default: the entries' own")
     p.add_argument("--episodes", type=int, default=3)
+    p.add_argument(
+        "--action-modes", nargs="+", default=list(ACTION_MODES), choices=list(ACTION_MODES)
+    )
     p.add_argument("--out", default="results")
     p.add_argument("--run-dir", default="runs/arm_sweep")
     args = p.parse_args(argv)
     command = command_line(argv, "python scripts/arm_sweep.py")
     out, runs = Path(args.out), Path(args.run_dir)
-    paths = arm_files(runs / "arms", args.n_random, args.arm_seed)
+    paths = arm_files(runs / "arms", args.n_random, args.arm_seed, tuple(args.action_modes))
     if args.arms:
-        paths = {k: v for k, v in paths.items() if k in args.arms}
-    result: dict[str, Any] = {"command": command, "arms": {}}
-    for name, path in paths.items():
+        paths = {k: v for k, v in paths.items() if k[0] in args.arms}
+    result: dict[str, Any] = {"command": command, "modes": args.action_modes, "arms": {}}
+    for (name, mode), path in paths.items():
+        key = f"{name}_{mode}"
         bench = benchmark_own_arm(
-            str(path), args.train_steps, [0], args.episodes, runs / "reports" / name,
-            runs / name, command,
+            str(path), args.train_steps, [0], args.episodes, runs / "reports" / key,
+            runs / key, command,
         )  # fmt: skip
-        result["arms"][name] = {
+        result["arms"][key] = {
+            "arm": name,
+            "action_mode": mode,
             "env_config": bench["env_config"],
             **_verdict(bench["rows"]),
         }
@@ -113,21 +125,36 @@ def write(result: dict[str, Any], out: Path) -> None:
         f"Produced by `{result['command']}`. One training seed per arm, the shipped "
         "hyperparameters (configs/ppo.yaml `default_scratch` and `default`), no per-arm tuning;",
         "RMS tracking error (deg, joint A / B) on evaluation seeds 0-2; `rate`: the RMS rate of",
-        "change of the tendon tensions, as a multiple of PD's. Action mode: tension.",
+        "change of the tendon tensions, as a multiple of PD's (in the same action mode).",
         "",
-        "| arm | PD | CT | plain PPO | residual PPO |",
-        "|---|---|---|---|---|",
+        "| arm | action mode | PD | CT | plain PPO | residual PPO |",
+        "|---|---|---|---|---|---|",
         *(
-            f"| {name} | {fmt(a['pd'])} | {fmt(a['ct'])} | {cell(a['ppo scratch'])} | "
-            f"{cell(a['ppo residual'])} |"
-            for name, a in arms.items()
+            f"| {a['arm']} | {a['action_mode']} | {fmt(a['pd'])} | {fmt(a['ct'])} | "
+            f"{cell(a['ppo scratch'])} | {cell(a['ppo residual'])} |"
+            for a in arms.values()
         ),
         "",
     ]
     for label in ("ppo scratch", "ppo residual"):
-        done = [a[label] for a in arms.values() if a[label] is not None]
-        wins = sum(v["beats_pd"] for v in done)
-        lines.append(f"- {label}: <= PD on both joints on {wins} of {len(done)} arms.")
+        for mode in result["modes"]:
+            done = [
+                a[label] for a in arms.values() if a[label] is not None and a["action_mode"] == mode
+            ]
+            wins = sum(v["beats_pd"] for v in done)
+            lines.append(f"- {label}, {mode}: <= PD on both joints on {wins} of {len(done)} arms.")
+    names = {a["arm"] for a in arms.values()}
+    either = sum(
+        any(
+            a["ppo scratch"] is not None and a["ppo scratch"]["beats_pd"]
+            for a in arms.values()
+            if a["arm"] == n
+        )
+        for n in names
+    )
+    lines.append(
+        f"- ppo scratch: <= PD in at least one action mode on {either} of {len(names)} arms."
+    )
     (out / "arm_sweep.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines), flush=True)
 

@@ -1,0 +1,91 @@
+"""action_mode "joint_torque": the env turns normalized joint torques into tendon tensions with
+PD's distribution, and every consumer (PD, CT, the residual wrapper, the vector env) follows."""
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+import pytest
+
+from tendon2r_gym import observation as L
+from tendon2r_gym.env import Tendon2REnv
+from tendon2r_gym.evaluation import evaluate
+from tendon2r_gym.learned import ResidualPDWrapper
+from tendon2r_gym.policies import PDPolicy
+
+
+@pytest.mark.parametrize("preset", ["default", "pull_only"])
+def test_joint_torque_action_applies_that_torque(preset):
+    """On the compiled model, the motors' joint torque equals action * max_joint_torque (to
+    the distribution's damping) on every step where no motor saturates, and pull-only
+    tensions stay >= the pretension."""
+    env = Tendon2REnv(preset, action_mode="joint_torque")
+    assert env.action_space.shape == (2,)
+    env.reset(seed=0)
+    m, d = env.model, env.data
+    check = mujoco.MjData(m)
+    rng = np.random.default_rng(1)
+    checked = 0
+    for _ in range(40):
+        q, dq = d.qpos.copy(), d.qvel.copy()
+        a = rng.uniform(-0.3, 0.3, 2)
+        obs, *_ = env.step(a)
+        np.testing.assert_array_equal(obs[L.last_action_slice(3, 2)], a)
+        if np.max(np.abs(d.ctrl)) >= 0.999:
+            continue  # a saturated motor: the torque is clipped
+        checked += 1
+        check.qpos[:], check.qvel[:], check.ctrl[:] = q, dq, d.ctrl
+        mujoco.mj_forward(m, check)
+        tau = a * env._max_torque
+        np.testing.assert_allclose(
+            check.qfrc_actuator, tau, rtol=1e-2, atol=1e-2 * np.max(np.abs(tau))
+        )
+        if env.mechanism.pull_only:
+            assert np.all(env.tendon_tensions() >= env.mechanism.pretension - 1e-12)
+    assert checked >= 10
+
+
+def test_max_joint_torque_saturates_a_tendon():
+    """At q = 0, a full normalized torque on one joint drives some tendon to its force limit."""
+    env = Tendon2REnv(action_mode="joint_torque")
+    env.reset(seed=0, options={"reference": {"amp_deg": [0, 0], "bias_deg": [0, 0]}})
+    env.unwrapped.set_state(np.zeros(2), np.zeros(2))
+    for j in range(2):
+        a = np.zeros(2)
+        a[j] = 1.0
+        J, _ = env._torque_map.kinematics(np.zeros((1, 2)))
+        u = env._torque_map.command(J, (a * env._max_torque)[None])[0]
+        assert np.max(np.abs(u)) == pytest.approx(1.0, rel=1e-2)
+
+
+@pytest.mark.parametrize("preset", ["default", "pull_only"])
+def test_pd_tracks_in_both_action_modes(preset):
+    """PD outputs the env's kind of action, and tracks as well in either mode."""
+    tension, _ = evaluate("pd", {"preset": preset, "episode_duration": 1.0}, [0])
+    torque, _ = evaluate(
+        "pd", {"preset": preset, "episode_duration": 1.0, "action_mode": "joint_torque"}, [0]
+    )
+    np.testing.assert_allclose(torque["rms_deg"], tension["rms_deg"], rtol=0.05)
+    ct, _ = evaluate(
+        "ct", {"preset": preset, "episode_duration": 1.0, "action_mode": "joint_torque"}, [0]
+    )
+    assert all(c < p for c, p in zip(ct["rms_deg"], torque["rms_deg"], strict=True))
+
+
+def test_residual_wrapper_in_joint_torque_mode_starts_at_pd():
+    """A zero residual on the registered env in joint_torque mode reproduces PD exactly."""
+    env = ResidualPDWrapper(gym.make("Tendon2R-v0", action_mode="joint_torque"), 0.5)
+    ref = gym.make("Tendon2R-v0", action_mode="joint_torque")
+    pd = PDPolicy.from_env(ref)
+    obs, _ = env.reset(seed=3)
+    obs_ref, _ = ref.reset(seed=3)
+    for _ in range(50):
+        obs, *_ = env.step(np.zeros(2))
+        obs_ref, *_ = ref.step(pd.predict(obs_ref)[0])
+        np.testing.assert_array_equal(obs, obs_ref)
+
+
+def test_bad_action_mode_names_the_field():
+    with pytest.raises(ValueError, match="action_mode"):
+        gym.make("Tendon2R-v0", action_mode="torque")
+    with pytest.raises(ValueError, match=r"action = .*\(2,\)"):
+        Tendon2REnv("pull_only", action_mode="joint_torque").step(np.zeros(3))
