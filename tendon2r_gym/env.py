@@ -92,7 +92,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
       0.5 rad past its limit, a joint faster than 1e4 rad/s, or a non-finite state).  That step
       returns the last good observation (never larger than the observations before it) and the
       reward of that state minus ``reward_scales["divergence"]``, so it is bounded: in [-1 -
-      divergence, 1] for the "log" form.  ``info["diverged"]`` is True.  Construction refuses
+      divergence - ctrl - action_rate terms, 0] for the "log" form.  ``info["diverged"]`` is True.  Construction refuses
       parameters the integrator cannot integrate (tendon2r_gym.stability).
 
     ## Arguments
@@ -107,7 +107,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     | `ctrl_dt` | `0.001` | control period (s), an integer multiple of the mechanism's sim_dt |
     | `episode_duration` | `2.0` | seconds per episode |
     | `action_mode` | `"tension"` | "tension" (one command per tendon) or "joint_torque" |
-    | `reward_scales` | `{{'tracking': 1, 'ctrl': 0.001, 'action_rate': 0.01, 'divergence': 10}}` | weights |
+    | `reward_scales` | `{{'tracking': 1, 'ctrl': 0.001, 'action_rate': 0.01, 'divergence': 100}}` | weights |
     | `tracking_form` | `"log"` | "log" (bounded), "multiscale" or "quadratic" tracking reward |
     | `tracking_sigma_deg` | `1.0` | error scale of the "log" tracking reward (deg) |
     | `reset_noise_scale` | `0.001` | initial-state noise (rad, rad/s) |

@@ -44,11 +44,13 @@ ACTION_RATE_WEIGHT = 0.01
 TERMS: dict[str, tuple[float, str]] = {
     "tracking": (
         1.0,
-        'with ``tracking_form="log"`` (default, for learning from scratch): ``1 - sum(log(1 + '
-        "(e / sigma)^2)) / (2 log(1 + (180 / sigma)^2))`` with the errors e in deg and sigma = "
-        "``tracking_sigma_deg``: in [0, 1] for abs(e) <= 180 deg, 1 on the reference, quadratic "
-        'near it and logarithmic far from it.  ``"quadratic"`` (what the residual entries train '
-        "on, with reward normalization): ``-sum(e^2)`` in deg^2, steep far from the reference",
+        'with ``tracking_form="log"`` (default): ``-sum(log(1 + (e / sigma)^2)) / (2 log(1 + '
+        "(180 / sigma)^2))`` with the errors e in deg and sigma = ``tracking_sigma_deg``: in "
+        "[-1, 0] for abs(e) <= 180 deg, 0 on the reference, quadratic (the RMS metric) below "
+        "sigma and logarithmic far from it, so that training from 90 deg off still has a "
+        "gradient; no constant offset, so VecNormalize's reward scaling does not clip it.  "
+        '``"multiscale"``: the mean of such kernels at MULTISCALE x sigma.  ``"quadratic"``: '
+        "``-sum(e^2)`` in deg^2, the RMS metric everywhere, steep far from the reference",
     ),
     "ctrl": (0.001, "``-sum(action^2)`` on the clipped action (for pull-only, -1 is slack)"),
     "action_rate": (
@@ -56,7 +58,12 @@ TERMS: dict[str, tuple[float, str]] = {
         "``-sum((action - last_action)^2)`` on the clipped actions of this step and the last "
         "(observed, zeros after a reset): smooth commands that a motor can follow",
     ),
-    "divergence": (10.0, "-1 on the step where the physics diverges, else 0"),
+    "divergence": (
+        100.0,
+        "-1 on the step where the physics diverges, else 0: more than any discounted sum of "
+        "tracking penalties it could end (at most 1 per step, 1 / (1 - gamma) = 100 for "
+        "gamma 0.99), so that ending an episode never pays",
+    ),
 }
 REWARD_SCALES: dict[str, float] = {name: weight for name, (weight, _) in TERMS.items()}
 TRACKING_FORMS = ("quadratic", "log", "multiscale")
@@ -235,9 +242,9 @@ class Task:
         e1, e2 = e1 / RAD_PER_DEG, e2 / RAD_PER_DEG
         if self.form == "log":
             u1, u2 = e1 / self.sigma, e2 / self.sigma
-            tracking = 1.0 - (ops.log1p(u1 * u1) + ops.log1p(u2 * u2)) / self.log_norm
+            tracking = -(ops.log1p(u1 * u1) + ops.log1p(u2 * u2)) / self.log_norm
         elif self.form == "multiscale":
-            tracking = 1.0
+            tracking = 0.0
             for inv, norm in self.kernels:
                 u1, u2 = e1 * inv, e2 * inv
                 tracking -= (ops.log1p(u1 * u1) + ops.log1p(u2 * u2)) / norm

@@ -339,7 +339,7 @@ def test_multiscale_tracking_reward_is_bounded_and_keeps_a_gradient_near_zero():
 
     errors = [0.0, 0.001, 0.01, 0.05, 0.1, 1.0, 10.0, 90.0, 180.0]
     values = [r(task, e) for e in errors]
-    assert values[0] == 1.0 and values[-1] == pytest.approx(0.0, abs=1e-12)
+    assert values[0] == 0.0 and values[-1] == pytest.approx(-1.0, abs=1e-12)
     assert all(a > b for a, b in itertools.pairwise(values)), values
     # From 0.05 to 0.01 deg the multiscale reward gains far more than the log form.
     assert r(task, 0.01) - r(task, 0.05) > 100 * (r(log, 0.01) - r(log, 0.05))

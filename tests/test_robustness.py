@@ -206,5 +206,5 @@ def test_a_diverged_step_returns_the_last_good_state():
     assert terminated and info["diverged"]
     assert np.abs(obs).max() <= max(seen), "nothing enormous reaches a learner"
     divergence = env.unwrapped.config.reward_scales["divergence"]
-    assert -1.0 - divergence - 0.1 <= reward <= 1.0
+    assert -1.0 - divergence - 0.1 <= reward <= 0.0
     assert info["reward_divergence"] == -divergence

@@ -79,6 +79,30 @@ ROWS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
                       {"reward_scales": {"action_rate": 0.0}}, {}),
     "plain_rate_0.1": ("plain PPO, action-rate weight 0.1",
                        {"reward_scales": {"action_rate": 0.1}}, {}),
+    "residual_log_ctrl0": ("residual PPO (entry `default`), the registered reward without the "
+                           "ctrl term", {"tracking_form": "log", "reward_scales": {"ctrl": 0.0}},
+                           {"entry": "default"}),
+    "residual_log_ctrl0_rate0": ("residual PPO (entry `default`), the registered reward "
+                                 "without the ctrl and action-rate terms",
+                                 {"tracking_form": "log",
+                                  "reward_scales": {"ctrl": 0.0, "action_rate": 0.0}},
+                                 {"entry": "default"}),
+    "residual_registered": ("residual PPO (entry `default`) on the registered env",
+                            {"tracking_form": "log", "reward_scales": {}}, {"entry": "default"}),
+    "plain_norm_reward": ("plain PPO with reward normalization", {},
+                          {"normalize": {"norm_reward": True}}),
+    "plain_div100": ("plain PPO, divergence weight 100", {"reward_scales": {"divergence": 100.0}},
+                     {}),
+    "plain_div100_norm": ("plain PPO, divergence weight 100, reward normalization",
+                          {"reward_scales": {"divergence": 100.0}},
+                          {"normalize": {"norm_reward": True}}),
+    "plain_div100_registered": ("plain PPO, divergence weight 100, reset noise 0.001",
+                                {"reward_scales": {"divergence": 100.0},
+                                 "reset_noise_scale": 0.001}, {}),
+    "residual_div100": ("residual PPO (entry `default`), divergence weight 100",
+                        {"tracking_form": "log", "reward_scales": {"divergence": 100.0}},
+                        {"entry": "default"}),
+    "plain_ctrl0": ("plain PPO without the ctrl term", {"reward_scales": {"ctrl": 0.0}}, {}),
 }  # fmt: skip
 
 
