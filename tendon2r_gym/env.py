@@ -65,6 +65,11 @@ class Tendon2REnv(MujocoEnv, EzPickle):
       (tendon2r_gym.actuation.distribute at the current q: pull-only respected, pretension
       kept), clipped at the force limit.
 
+    With ``action_filter_tau`` > 0 the env applies the command c = c_last + alpha (action -
+    c_last), alpha = 1 - exp(-ctrl_dt / action_filter_tau), a first-order low-pass that a
+    motor can follow; c_last is observed (``last_action``), so PD and CT send the action that
+    the filter turns into their own command.
+
     Out-of-range actions are clipped to [-1, 1]; a wrong shape or a non-finite action raises
     ValueError.  ``info["tendon_tension"]`` is each tendon's pulling force in N (positive when
     it pulls) for every routing and mode.
@@ -107,6 +112,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     | `ctrl_dt` | `0.001` | control period (s), an integer multiple of the mechanism's sim_dt |
     | `episode_duration` | `2.0` | seconds per episode |
     | `action_mode` | `"tension"` | "tension" (one command per tendon) or "joint_torque" |
+    | `action_filter_tau` | `0.0` | time constant (s) of a first-order filter on the command |
     | `reward_scales` | `{{'tracking': 1, 'ctrl': 0.001, 'action_rate': 0.01, 'divergence': 100}}` | weights |
     | `tracking_form` | `"log"` | "log" (bounded), "multiscale" or "quadratic" tracking reward |
     | `tracking_sigma_deg` | `1.0` | error scale of the "log" tracking reward (deg) |
@@ -138,6 +144,13 @@ class Tendon2REnv(MujocoEnv, EzPickle):
       - the task written once (tendon2r_gym.task) for this env and the vector env, which now
         return the same info keys; the "multiscale" tracking form; the ``default`` and
         ``report_002`` presets size ``max_tendon_force`` automatically.
+      - one reward for plain and residual PPO: the "log" tracking term lost its constant
+        offset (now in [-1, 0]; VecNormalize divides rewards by the return's std and clips
+        them at 10, so about +1 per step with a nearly constant return was clipped flat, and
+        residual PPO or a normalized rl_zoo3 set-up learned nothing from it); divergence
+        weight 100 (was 10) so that ending an episode never pays; the ``action_rate`` term
+        (0.01) with the last action at the end of the observation;
+        ``action_mode="joint_torque"``.
     """  # noqa: E501
 
     metadata = {"render_modes": ["human", "rgb_array", "depth_array"]}
@@ -207,7 +220,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         # per access on every step.
         self._qpos, self._qvel, self._ctrl = d.qpos, d.qvel, d.ctrl
         self._n = self.config.n_actions
-        self._last_action = [0.0] * self._n
+        self._last_action = self.task.rest_command()
         self._torque_map: TorqueToTension | None = None
         if self.config.action_mode == "joint_torque":
             self._torque_map = TorqueToTension(self.mechanism)
@@ -242,8 +255,8 @@ class Tendon2REnv(MujocoEnv, EzPickle):
 
     # -- gymnasium API -----------------------------------------------------------------------------
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        a = self._check_action(action)
-        last, self._last_action = self._last_action, a
+        last = self._last_action
+        a = self._last_action = self.task.command(self._check_action(action), last)
         if self._torque_map is None:
             self._ctrl[:] = a
         else:  # joint_torque: PD's tension distribution at the current q
@@ -311,7 +324,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         self._set_reference(self.task.episode_reference(self.np_random, self._fixed_reference))
         q, qdot = self.task.initial_state(self.np_random, self.reference)
         self.set_state(q, qdot)
-        self._last_action = [0.0] * self._n
+        self._last_action = self.task.rest_command()
         self._warning_count = sum(w.number for w in self._warnings)
         self._last_obs = self._get_obs()
         return self._last_obs

@@ -51,6 +51,7 @@ class EnvConfig:
     fit_to_workspace: bool = False
     ctrl_dt: float = 0.001
     action_mode: str = "tension"
+    action_filter_tau: float = 0.0
     episode_duration: float = 2.0
     reward_scales: Mapping[str, float] = field(default_factory=lambda: dict(REWARD_SCALES))
     tracking_form: str = "log"
@@ -99,6 +100,7 @@ class EnvConfig:
         set_("ctrl_dt", n_sub * sim_dt)
         if self.action_mode not in ACTION_MODES:
             raise invalid("action_mode", self.action_mode, f"one of {ACTION_MODES}")
+        set_("action_filter_tau", number("action_filter_tau", self.action_filter_tau, 0.0, 1.0))
         set_("episode_duration", number("episode_duration", self.episode_duration, self.ctrl_dt))
         scales = mapping("reward_scales", self.reward_scales)
         check_keys("reward_scales", scales, REWARD_SCALES)
@@ -188,6 +190,13 @@ class EnvConfig:
         """Returns the action's length: one per tendon ("tension") or per joint
         ("joint_torque")."""
         return self.mechanism.n_tendons if self.action_mode == "tension" else 2
+
+    @property
+    def action_filter_alpha(self) -> float:
+        """Returns the weight of a new action in the applied command, 1 - exp(-ctrl_dt / tau)
+        (1: no filter)."""
+        tau = self.action_filter_tau
+        return 1.0 if tau == 0.0 else -math.expm1(-self.ctrl_dt / tau)
 
     @property
     def max_episode_steps(self) -> int:

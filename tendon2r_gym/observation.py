@@ -56,8 +56,8 @@ def preview_slice(preview_steps: int) -> slice:
 
 
 def last_action_slice(preview_steps: int, n_actions: int) -> slice:
-    """Returns the slice of the last action the env applied (as the policy sent it, clipped to
-    [-1, 1]; zeros after a reset)."""
+    """Returns the slice of the last command the env applied (the clipped action, through the
+    env's action filter if it has one; the rest command after a reset)."""
     start = N_FIXED + 2 * preview_steps
     return slice(start, start + n_actions)
 
@@ -94,7 +94,7 @@ def table(preview_steps_name: str = "P") -> str:
         "k = 1..P, A then B | rad |"
     )
     rows.append(
-        f"| {N_FIXED} + 2{preview_steps_name} to the end | the last action (zeros after a reset), "
-        "one per action dimension | 1 |"
+        f"| {N_FIXED} + 2{preview_steps_name} to the end | the last applied command (the rest "
+        "command after a reset), one per action dimension | 1 |"
     )
     return "\n".join(rows)

@@ -25,6 +25,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from tendon2r_gym import observation
 from tendon2r_gym.actuation import FORCE_DAMPING, TorqueToTension
 from tendon2r_gym.env_config import ACTION_MODES
 from tendon2r_gym.mechanism import Mechanism
@@ -62,6 +63,16 @@ class Gains:
         return 2 * math.pi * min(self.bandwidth_hz, self.max_bandwidth_fraction / ctrl_dt)
 
 
+def _env_options(config: Any) -> dict[str, Any]:
+    """Returns what a baseline takes from an env config besides the mechanism: the action
+    mode, and the env's action filter (alpha, where the last command is observed)."""
+    where = observation.last_action_slice(config.preview_steps, config.n_actions)
+    return {
+        "action_mode": config.action_mode,
+        "action_filter": (config.action_filter_alpha, where),
+    }
+
+
 class _TendonController:
     """Shared machinery: a private model, joint torque -> normalized tendon command, for one
     observation or a batch of them (numpy over the batch; the kinematics of a batch come from
@@ -73,6 +84,7 @@ class _TendonController:
         ctrl_dt: float,
         gains: Gains | None = None,
         action_mode: str = "tension",
+        action_filter: tuple[float, slice] | None = None,
     ) -> None:
         if action_mode not in ACTION_MODES:
             raise invalid("action_mode", action_mode, f"one of {ACTION_MODES}")
@@ -86,12 +98,14 @@ class _TendonController:
         self.kinematics = self.actuation.kinematics
         self.tendon_command = self.actuation.command
         self._max_torque = self.actuation.max_joint_torque()
+        # (alpha, slice of the last command in the observation) of the env's action filter
+        self._filter = action_filter if action_filter and action_filter[0] != 1.0 else None
 
     @classmethod
     def from_env(cls, env: Any, **kwargs: Any) -> _TendonController:
         """Builds the controller from an env's mechanism and control period (not its state)."""
         env = env.unwrapped
-        return cls(env.mechanism, env.ctrl_dt, action_mode=env.config.action_mode, **kwargs)
+        return cls(env.mechanism, env.ctrl_dt, **_env_options(env.config), **kwargs)
 
     def _torque(self, obs: np.ndarray, M: np.ndarray) -> np.ndarray:
         raise NotImplementedError
@@ -112,6 +126,13 @@ class _TendonController:
             action = np.clip(tau / self._max_torque, -1.0, 1.0).astype(np.float32)
         else:
             action = self.tendon_command(J, tau)
+        if self._filter is not None:
+            # Send the target that the env's filter turns into this command exactly:
+            # last + alpha (target - last) = command.
+            alpha, where = self._filter
+            last = batch[:, where]
+            target = last + (action.astype(np.float64) - last) / alpha
+            action = np.clip(target, -1.0, 1.0).astype(np.float32)
         return (action[0] if obs.ndim == 1 else action), state
 
 
@@ -138,16 +159,15 @@ class ComputedTorquePolicy(_TendonController):
         reference: Reference,
         gains: Gains | None = None,
         action_mode: str = "tension",
+        action_filter: tuple[float, slice] | None = None,
     ) -> None:
-        super().__init__(mechanism, ctrl_dt, gains, action_mode)
+        super().__init__(mechanism, ctrl_dt, gains, action_mode, action_filter)
         self._set_references([reference])
 
     @classmethod
     def from_env(cls, env: Any, **kwargs: Any) -> ComputedTorquePolicy:
         env = env.unwrapped
-        return cls(
-            env.mechanism, env.ctrl_dt, env.reference, action_mode=env.config.action_mode, **kwargs
-        )
+        return cls(env.mechanism, env.ctrl_dt, env.reference, **_env_options(env.config), **kwargs)
 
     def _set_references(self, refs: list[Reference]) -> None:
         self.references = refs

@@ -52,11 +52,11 @@ TERMS: dict[str, tuple[float, str]] = {
         '``"multiscale"``: the mean of such kernels at MULTISCALE x sigma.  ``"quadratic"``: '
         "``-sum(e^2)`` in deg^2, the RMS metric everywhere, steep far from the reference",
     ),
-    "ctrl": (0.001, "``-sum(action^2)`` on the clipped action (for pull-only, -1 is slack)"),
+    "ctrl": (0.001, "``-sum(command^2)`` on the applied command (for pull-only, -1 is slack)"),
     "action_rate": (
         ACTION_RATE_WEIGHT,
-        "``-sum((action - last_action)^2)`` on the clipped actions of this step and the last "
-        "(observed, zeros after a reset): smooth commands that a motor can follow",
+        "``-sum((command - last_command)^2)`` on the commands the env applied on this step and "
+        "the last (observed, zeros after a reset): smooth commands that a motor can follow",
     ),
     "divergence": (
         100.0,
@@ -125,6 +125,7 @@ class Task:
             for k in MULTISCALE
         ]
         self.form = config.tracking_form
+        self.alpha = config.action_filter_alpha
         self.obs_size = L.size(config.preview_steps, config.n_actions)
         self._info_keys = {k: f"reward_{k}" for k in TERMS}  # formatted once, not every step
 
@@ -225,6 +226,25 @@ class Task:
             obs.append(amp2 * ops.sin(arg2 + om2 * dt) + bias2)
         obs.extend(last_action)
         return obs
+
+    # -- action ----------------------------------------------------------------------------------
+    def rest_command(self) -> list[float]:
+        """Returns the command at rest, the "last command" after a reset: no force, or for
+        pull-only tendons in tension mode the pretension (-1 would be slack)."""
+        cfg = self.config
+        mech = cfg.mechanism
+        if cfg.action_mode == "tension" and mech.pull_only:
+            return [2.0 * mech.pretension / mech.max_tendon_force - 1.0] * cfg.n_actions
+        return [0.0] * cfg.n_actions
+
+    def command(self, action: Sequence[Any], last: Sequence[Any]) -> list[Any]:
+        """Returns the command the env applies: the clipped action through the first-order
+        filter of ``action_filter_tau``, last + alpha (action - last), or the action itself
+        without a filter (``last``: the command applied on the step before)."""
+        alpha = self.alpha
+        if alpha == 1.0:
+            return list(action)
+        return [c + alpha * (x - c) for x, c in zip(action, last, strict=True)]
 
     # -- reward ----------------------------------------------------------------------------------
     def reward_terms(

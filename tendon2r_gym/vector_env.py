@@ -113,7 +113,7 @@ class Tendon2RVectorEnv(VectorEnv):
         # samples all phases of the reference instead of N copies of the same window.
         self._stagger = boolean("stagger", stagger)
         self._last_obs = np.zeros((n, self.single_observation_space.shape[0]))
-        self._last_action = np.zeros((n, n_act))  # clipped, as observed; zeros after a reset
+        self._last_action = np.zeros((n, n_act))  # the applied commands, as observed
 
     # -- references --------------------------------------------------------------------------
     def _set_references(self, ids: np.ndarray, refs: list[Reference]) -> None:
@@ -164,7 +164,7 @@ class Tendon2RVectorEnv(VectorEnv):
             self._qpos[i], self._qvel[i] = task.initial_state(self._rngs[i], ref)
         self.batch.forward(ids)
         self._steps[ids] = 0
-        self._last_action[ids] = 0.0
+        self._last_action[ids] = self.task.rest_command()
         self._warn_count[ids] = self._warnings()[ids]
         self._needs_reset[ids] = False
 
@@ -195,6 +195,8 @@ class Tendon2RVectorEnv(VectorEnv):
         else:  # the common step: every arm, without index arrays
             ids, active = None, slice(None)
         last = self._last_action.copy()
+        if self.task.alpha != 1.0:  # action_filter_tau
+            a = np.stack(self.task.command(list(a.T), list(last.T)), axis=1)
         self._last_action[active] = a[active]
         if self._torque_map is None:
             self._ctrl[active] = a[active]

@@ -89,3 +89,30 @@ def test_bad_action_mode_names_the_field():
         gym.make("Tendon2R-v0", action_mode="torque")
     with pytest.raises(ValueError, match=r"action = .*\(2,\)"):
         Tendon2REnv("pull_only", action_mode="joint_torque").step(np.zeros(3))
+
+
+def test_action_filter_step_response_has_its_time_constant():
+    """A unit step of the action reaches 1 - 1/e of the way after tau / ctrl_dt steps, and the
+    observation carries the applied command."""
+    env = Tendon2REnv(action_filter_tau=0.01)
+    env.reset(seed=0)
+    where = L.last_action_slice(3, 2)
+    for _ in range(10):  # tau / ctrl_dt = 10 steps
+        obs, *_ = env.step(np.array([1.0, -1.0]))
+    np.testing.assert_allclose(obs[where], [1 - np.exp(-1), -(1 - np.exp(-1))], rtol=1e-12)
+    limit = env.mechanism.max_tendon_force
+    np.testing.assert_allclose(env.tendon_tensions(), -obs[where] * limit, rtol=1e-12)
+
+
+@pytest.mark.parametrize("preset", ["default", "report_002"])
+def test_baselines_track_through_the_action_filter(preset):
+    """PD sends the action that the filter turns into its own command: the same tracking."""
+    kwargs = {"preset": preset, "episode_duration": 1.0}
+    plain, _ = evaluate("pd", kwargs, [0])
+    filtered, _ = evaluate("pd", {**kwargs, "action_filter_tau": 0.01}, [0])
+    np.testing.assert_allclose(filtered["rms_deg"], plain["rms_deg"], rtol=0.01)
+
+
+def test_bad_action_filter_names_the_field():
+    with pytest.raises(ValueError, match="action_filter_tau"):
+        gym.make("Tendon2R-v0", action_filter_tau=-0.01)

@@ -21,7 +21,8 @@ def _native(n, **kw):
      (3, 1, {"tracking_form": "quadratic"}), (3, 1, {"preset": "report_002", "ctrl_dt": 0.002}),
      (17, 2, {"preview_steps": 6}), (9, None, {"preview_steps": 0}),
      (3, 1, {"action_mode": "joint_torque"}),
-     (5, 1, {"action_mode": "joint_torque", "preset": "pull_only"})],
+     (5, 1, {"action_mode": "joint_torque", "preset": "pull_only"}),
+     (4, 1, {"action_filter_tau": 0.005, "preset": "pull_only"})],
 )  # fmt: skip
 @pytest.mark.parametrize("mode", ["NextStep", "SameStep"])
 def test_same_seeds_same_trajectories_as_single_envs_bit_for_bit(n, nthread, kwargs, mode):

@@ -102,6 +102,12 @@ ROWS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
     "residual_div100": ("residual PPO (entry `default`), divergence weight 100",
                         {"tracking_form": "log", "reward_scales": {"divergence": 100.0}},
                         {"entry": "default"}),
+    "plain_filter": ("plain PPO, action filter 10 ms", {"action_filter_tau": 0.01}, {}),
+    "plain_filter_rate0": ("plain PPO, action filter 10 ms, no action-rate term",
+                           {"action_filter_tau": 0.01, "reward_scales": {"action_rate": 0.0}},
+                           {}),
+    "residual_filter": ("residual PPO (entry `default`), action filter 10 ms",
+                        {"action_filter_tau": 0.01}, {"entry": "default"}),
     "plain_ctrl0": ("plain PPO without the ctrl term", {"reward_scales": {"ctrl": 0.0}}, {}),
 }  # fmt: skip
 
