@@ -149,8 +149,9 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         them at 10, so about +1 per step with a nearly constant return was clipped flat, and
         residual PPO or a normalized rl_zoo3 set-up learned nothing from it); divergence
         weight 100 (was 10) so that ending an episode never pays; the ``action_rate`` term
-        (0.01) with the last action at the end of the observation;
-        ``action_mode="joint_torque"``.
+        (0.01) with the last applied command at the end of the observation (after a reset, the
+        rest command: no force, or the pretension for pull-only tendons);
+        ``action_mode="joint_torque"``; the optional ``action_filter_tau``.
     """  # noqa: E501
 
     metadata = {"render_modes": ["human", "rgb_array", "depth_array"]}
