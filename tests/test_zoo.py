@@ -43,3 +43,19 @@ def test_the_zoo_file_is_generated_from_ours():
         assert zoo[env_id]["env_kwargs"] == hp.env_kwargs
         assert zoo[env_id]["n_timesteps"] == hp.total_timesteps
         assert ("env_wrapper" in zoo[env_id]) == (hp.residual_scale > 0)
+
+
+def test_the_residual_trains_on_the_registered_reward():
+    """One reward: the residual zoo entry is the registered env (its preset only) under our
+    wrapper, and no entry overrides a reward setting."""
+    import yaml
+
+    from tendon2r_gym.training.zoo import zoo_file
+
+    table = yaml.safe_load(zoo_file())
+    assert table["Tendon2RResidual-v0"]["env_kwargs"] == {"preset": "default"}
+    assert "env_wrapper" in table["Tendon2RResidual-v0"]
+    for entry in table.values():
+        assert not {"reward_scales", "tracking_form", "tracking_sigma_deg"} & set(
+            entry["env_kwargs"]
+        )
