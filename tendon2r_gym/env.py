@@ -222,6 +222,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         self._qpos, self._qvel, self._ctrl = d.qpos, d.qvel, d.ctrl
         self._n = self.config.n_actions
         self._last_action = self.task.rest_command()
+        self._filtered = self.config.action_filter_alpha != 1.0
         self._torque_map: TorqueToTension | None = None
         if self.config.action_mode == "joint_torque":
             self._torque_map = TorqueToTension(self.mechanism)
@@ -257,7 +258,10 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     # -- gymnasium API -----------------------------------------------------------------------------
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         last = self._last_action
-        a = self._last_action = self.task.command(self._check_action(action), last)
+        a = self._check_action(action)
+        if self._filtered:
+            a = self.task.command(a, last)
+        self._last_action = a
         if self._torque_map is None:
             self._ctrl[:] = a
         else:  # joint_torque: PD's tension distribution at the current q

@@ -237,13 +237,13 @@ class Task:
             return [2.0 * mech.pretension / mech.max_tendon_force - 1.0] * cfg.n_actions
         return [0.0] * cfg.n_actions
 
-    def command(self, action: Sequence[Any], last: Sequence[Any]) -> list[Any]:
+    def command(self, action: Sequence[Any], last: Sequence[Any]) -> Sequence[Any]:
         """Returns the command the env applies: the clipped action through the first-order
         filter of ``action_filter_tau``, last + alpha (action - last), or the action itself
         without a filter (``last``: the command applied on the step before)."""
         alpha = self.alpha
         if alpha == 1.0:
-            return list(action)
+            return action
         return [c + alpha * (x - c) for x, c in zip(action, last, strict=True)]
 
     # -- reward ----------------------------------------------------------------------------------
@@ -271,9 +271,10 @@ class Task:
         else:
             tracking = -(e1 * e1 + e2 * e2)
         effort = rate = 0.0  # in action order, as numpy's sum over a few entries
-        for x, x0 in zip(action, last_action, strict=True):
+        for x, x0 in zip(action, last_action):  # equal lengths: both are n_actions long
             effort += x * x
-            rate += (x - x0) * (x - x0)
+            d = x - x0
+            rate += d * d
         return {
             "tracking": tracking,
             "ctrl": -effort,
