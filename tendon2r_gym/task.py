@@ -271,7 +271,7 @@ class Task:
         else:
             tracking = -(e1 * e1 + e2 * e2)
         effort = rate = 0.0  # in action order, as numpy's sum over a few entries
-        for x, x0 in zip(action, last_action):  # equal lengths: both are n_actions long
+        for x, x0 in zip(action, last_action, strict=False):  # both n_actions long
             effort += x * x
             d = x - x0
             rate += d * d
