@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from functools import cached_property
 from typing import Any
 
 import mujoco
@@ -193,14 +194,21 @@ class TorqueToTension:
         u = 2.0 * t / self._max_force - 1.0 if self._pull_only else -t / self._max_force
         return np.clip(u, -1.0, 1.0).astype(np.float32)
 
-    def max_joint_torque(self) -> np.ndarray:
-        """Returns the torque (N m) each joint alone reaches at q = 0 before a tendon saturates,
-        with push-pull tendons of limit F: F / max_k |(J^+)^T_kj| (J^+ the pseudo-inverse, J
+    @cached_property
+    def max_torque(self) -> np.ndarray:
+        """The torque (N m) each joint alone reaches at q = 0 before a tendon saturates, with
+        push-pull tendons of limit F: F / max_k |(J^+)^T_kj| (J^+ the pseudo-inverse, J
         (J^T J)^-1 when J has full rank); the scale of a normalized joint-torque action.  A
         joint that no tendon spans gets 0."""
         J, _ = self.kinematics(np.zeros((1, 2)))
         peak = np.max(np.abs(np.linalg.pinv(J[0])), axis=1)  # (2,): per joint
         return np.where(peak > 0, self._max_force / np.where(peak > 0, peak, 1.0), 0.0)
+
+    def joint_torque_command(self, q: np.ndarray, action: np.ndarray) -> np.ndarray:
+        """Returns the tendon commands (N, n_tendons) of normalized joint torques ``action``
+        (N, 2) at the joint angles q (N, 2): ``action_mode="joint_torque"`` in both envs."""
+        J, _ = self.kinematics(q)
+        return self.command(J, self.max_torque * action)
 
 
 class _Kinematics:

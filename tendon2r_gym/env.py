@@ -60,7 +60,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
       +-``max_tendon_force`` N along the tendon.  Pull-only (``mechanism.pull_only``): [-1, 1]
       maps affinely to a tension in [0, ``max_tendon_force``] N (-1 slack, +1 full pull).
     - ``"joint_torque"``: one normalized torque per joint, times the torque each joint alone
-      reaches before a tendon saturates (``TorqueToTension.max_joint_torque``); the env turns
+      reaches before a tendon saturates (``TorqueToTension.max_torque``); the env turns
       the torques into tendon tensions with the distribution PD uses
       (tendon2r_gym.actuation.distribute at the current q: pull-only respected, pretension
       kept), clipped at the force limit.
@@ -226,7 +226,6 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         self._torque_map: TorqueToTension | None = None
         if self.config.action_mode == "joint_torque":
             self._torque_map = TorqueToTension(self.mechanism)
-            self._max_torque = self._torque_map.max_joint_torque()
         # Named sensor reads: each tendon's motor force (N, positive lengthens), contiguous.
         first = self.model.sensor(f"force_{tendon_name(0)}").adr[0]
         self._motor_force = d.sensordata[first : first + self.mechanism.n_tendons]
@@ -265,8 +264,8 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         if self._torque_map is None:
             self._ctrl[:] = a
         else:  # joint_torque: PD's tension distribution at the current q
-            J, _ = self._torque_map.kinematics(self._qpos[None])
-            self._ctrl[:] = self._torque_map.command(J, self._max_torque * np.array([a]))[0]
+            u = self._torque_map.joint_torque_command(self._qpos[None], np.array([a]))
+            self._ctrl[:] = u[0]
         mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
         diverged = self._check_divergence()
         # A diverged step reports the last good state: nothing enormous reaches a learner.

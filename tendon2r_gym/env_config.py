@@ -34,11 +34,13 @@ from tendon2r_gym.validation import boolean, check_keys, integer, invalid, mappi
 #: reference needs: PD's feedback and the start-up transient need room above feed-forward.
 FORCE_HEADROOM = 2.0
 #: The least motion ``auto`` sizes the force limit for (per joint, about the reference's bias).
-#: What the action commands: "tension", each tendon motor (normalized by max_tendon_force);
-#: "joint_torque", each joint's torque (normalized by max_joint_torque), which the env turns
-#: into tendon tensions with PD's distribution (tendon2r_gym.actuation.TorqueToTension).
-ACTION_MODES = ("tension", "joint_torque")
 AUTO_FLOOR = {"amp_deg": (10.0, 10.0), "freq_hz": (1.0, 1.0)}
+
+
+#: What the action commands: "tension", each tendon motor (normalized by max_tendon_force);
+#: "joint_torque", each joint's torque (normalized by TorqueToTension.max_torque), which the env
+#: turns into tendon tensions with PD's distribution (tendon2r_gym.actuation.TorqueToTension).
+ACTION_MODES = ("tension", "joint_torque")
 
 
 @dataclass(frozen=True)

@@ -97,7 +97,6 @@ class _TendonController:
         self.model, self.data = self.actuation.model, self.actuation.data
         self.kinematics = self.actuation.kinematics
         self.tendon_command = self.actuation.command
-        self._max_torque = self.actuation.max_joint_torque()
         # (alpha, slice of the last command in the observation) of the env's action filter
         self._filter = action_filter if action_filter and action_filter[0] != 1.0 else None
 
@@ -123,7 +122,7 @@ class _TendonController:
         J, M = self.kinematics(batch[:, Q])
         tau = self._torque(batch, M)
         if self.action_mode == "joint_torque":  # the env distributes the torques
-            action = np.clip(tau / self._max_torque, -1.0, 1.0).astype(np.float32)
+            action = np.clip(tau / self.actuation.max_torque, -1.0, 1.0).astype(np.float32)
         else:
             action = self.tendon_command(J, tau)
         if self._filter is not None:

@@ -95,7 +95,6 @@ class Tendon2RVectorEnv(VectorEnv):
         self._torque_map: TorqueToTension | None = None
         if cfg.action_mode == "joint_torque":  # the single env's distribution, batched
             self._torque_map = TorqueToTension(cfg.mechanism)
-            self._max_torque = self._torque_map.max_joint_torque()
         self._ten_J = b.bind("ten_J")
         self._J_rows = _sparse_rows(self.model)
         self._warn_ids = [int(w) for w in DIVERGENCE_WARNINGS]
@@ -201,8 +200,8 @@ class Tendon2RVectorEnv(VectorEnv):
         if self._torque_map is None:
             self._ctrl[active] = a[active]
         else:  # joint_torque: PD's tension distribution at the current q
-            J, _ = self._torque_map.kinematics(self._qpos)  # every arm: one batch size
-            self._ctrl[active] = self._torque_map.command(J, self._max_torque * a)[active]
+            # every arm, so that the kinematics batch keeps one size
+            self._ctrl[active] = self._torque_map.joint_torque_command(self._qpos, a)[active]
         failed = np.zeros(n, dtype=bool)
         try:
             self.batch.step(ids, nstep=self.config.n_substeps)

@@ -15,7 +15,7 @@ from tendon2r_gym.policies import PDPolicy
 
 @pytest.mark.parametrize("preset", ["default", "pull_only"])
 def test_joint_torque_action_applies_that_torque(preset):
-    """On the compiled model, the motors' joint torque equals action * max_joint_torque (to
+    """On the compiled model, the motors' joint torque equals action * max_torque (to
     the distribution's damping) on every step where no motor saturates, and pull-only
     tensions stay >= the pretension."""
     env = Tendon2REnv(preset, action_mode="joint_torque")
@@ -35,7 +35,7 @@ def test_joint_torque_action_applies_that_torque(preset):
         checked += 1
         check.qpos[:], check.qvel[:], check.ctrl[:] = q, dq, d.ctrl
         mujoco.mj_forward(m, check)
-        tau = a * env._max_torque
+        tau = a * env._torque_map.max_torque
         np.testing.assert_allclose(
             check.qfrc_actuator, tau, rtol=1e-2, atol=1e-2 * np.max(np.abs(tau))
         )
@@ -52,8 +52,7 @@ def test_max_joint_torque_saturates_a_tendon():
     for j in range(2):
         a = np.zeros(2)
         a[j] = 1.0
-        J, _ = env._torque_map.kinematics(np.zeros((1, 2)))
-        u = env._torque_map.command(J, (a * env._max_torque)[None])[0]
+        u = env._torque_map.joint_torque_command(np.zeros((1, 2)), a[None])[0]
         assert np.max(np.abs(u)) == pytest.approx(1.0, rel=1e-2)
 
 
