@@ -115,13 +115,19 @@ class MomentArms:
         self._view = data.ten_J.reshape(self._shape) if self._full else None
         self._pattern = (model.ten_J_rownnz, model.ten_J_rowadr, model.ten_J_colind)
         self._buf = np.zeros(self._shape)
+        # A realistic model (tendon2r_gym.realism) has spool joints after the arm's two and
+        # passive friction tendons after the motors' ones: J keeps the motors' rows (one
+        # motor per tendon) and the arm's columns.
+        self._arm = (slice(0, model.nu), slice(0, 2))
+        self._ideal = self._shape == (model.nu, 2)
 
     def dense(self) -> np.ndarray:
-        """Returns J (a view into MjData when every row is full, else a reused buffer)."""
-        if self._full:
+        """Returns J (n_tendons, 2): a view into MjData when every row is full, else a view of
+        a reused buffer."""
+        if self._full and self._ideal:
             return self._view
         mujoco.mju_sparse2dense(self._buf, self._data.ten_J, *self._pattern)
-        return self._buf
+        return self._buf if self._ideal else self._buf[self._arm]
 
 
 class ActuationAnalysis:
@@ -158,15 +164,16 @@ class ActuationAnalysis:
 
 class TorqueToTension:
     """Joint torques -> normalized tendon commands for one mechanism, from a private copy of its
-    model (never the env's MjData): the moment arms at q, :func:`distribute`, then push-pull:
-    -t / F; pull-only: 2 t / F - 1 (F = max_tendon_force), clipped to [-1, 1].  PD and computed
-    torque command the tendons through it, and so does the env in
-    ``action_mode="joint_torque"``."""
+    nominal model (:meth:`Mechanism.ideal`, never the env's MjData): the moment arms at q,
+    :func:`distribute`, then push-pull: -t / F; pull-only: 2 t / F - 1 (F = max_tendon_force),
+    clipped to [-1, 1].  PD and computed torque command the tendons through it, and so does the
+    env in ``action_mode="joint_torque"``."""
 
     def __init__(self, mechanism: Mechanism, damping: float = FORCE_DAMPING) -> None:
         self.mechanism = mechanism
         self.damping = damping
-        self.model = build_model(mechanism)
+        # The nominal model: a controller's model of the arm knows no stretch, lag or friction.
+        self.model = build_model(mechanism.ideal())
         self.data = mujoco.MjData(self.model)
         self._arms = MomentArms(self.model, self.data)
         self._M = np.zeros((self.model.nv, self.model.nv))

@@ -18,6 +18,7 @@ from tendon2r_gym.actuation import MomentArms, TorqueToTension, cond
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.model import CAMERA, build_model, tendon_name
 from tendon2r_gym.ops import SCALAR
+from tendon2r_gym.realism import CommandDelay, Drive
 from tendon2r_gym.reference import Reference
 from tendon2r_gym.task import Task, reference_params, rewards_table
 from tendon2r_gym.validation import integer, invalid, real_array
@@ -218,8 +219,13 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         d = self.data
         self.task = Task(self.config)
         # Views into MjData stay valid for its lifetime; fetching them once saves a binding call
-        # per access on every step.
-        self._qpos, self._qvel, self._ctrl = d.qpos, d.qvel, d.ctrl
+        # per access on every step.  The arm's joints are the first two (spools follow).
+        self._qpos, self._qvel, self._ctrl = d.qpos[:2], d.qvel[:2], d.ctrl
+        self.drive = Drive(self.model, self.mechanism)
+        self._delay: CommandDelay | None = None
+        if self.config.delay_steps:
+            n_motors = self.mechanism.n_tendons
+            self._delay = CommandDelay(self.config.delay_steps, 1, n_motors, self.drive.ctrl)
         self._n = self.config.n_actions
         self._last_action = self.task.rest_command()
         self._filtered = self.config.action_filter_alpha != 1.0
@@ -245,7 +251,11 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     # -- named quantities ------------------------------------------------------------------------
     def tendon_tensions(self) -> np.ndarray:
         """Returns each tendon's tension (N, positive when it pulls) in the last step: minus the
-        motor force along the tendon that the model's force sensors read."""
+        motor force along the tendon that the model's force sensors read, or for elastic cables
+        the force of their stretch (tendon2r_gym.realism.Drive.cable_tensions)."""
+        if self.mechanism.elastic:
+            n, d = self.mechanism.n_tendons, self.data
+            return self.drive.cable_tensions(d.ten_length[:n], d.ten_velocity[:n])
         return -self._motor_force
 
     def force_need(self) -> float:
@@ -262,10 +272,12 @@ class Tendon2REnv(MujocoEnv, EzPickle):
             a = self.task.command(a, last)
         self._last_action = a
         if self._torque_map is None:
-            self._ctrl[:] = a
+            u = a
         else:  # joint_torque: PD's tension distribution at the current q
-            u = self._torque_map.joint_torque_command(self._qpos[None], np.array([a]))
-            self._ctrl[:] = u[0]
+            u = self._torque_map.joint_torque_command(self._qpos[None], np.array([a]))[0]
+        if self._delay is not None:  # the motors get the command of delay_steps ago
+            u = self._delay(np.array([u], dtype=np.float64))[0]
+        self._ctrl[:] = u
         mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
         diverged = self._check_divergence()
         # A diverged step reports the last good state: nothing enormous reaches a learner.
@@ -295,8 +307,9 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         diverged = n_warn > self._warning_count or self.task.out_of_domain(SCALAR, q1, q2, w1, w2)
         self._warning_count = n_warn
         if diverged:  # MuJoCo already reset the state on a bad QACC; make sure it is finite.
-            self._qpos[:] = np.nan_to_num(self._qpos, nan=0.0, posinf=0.0, neginf=0.0)
-            self._qvel[:] = 0.0
+            qpos = self.data.qpos  # the arm's and the spools'
+            qpos[:] = np.nan_to_num(qpos, nan=0.0, posinf=0.0, neginf=0.0)
+            self.data.qvel[:] = 0.0
         return diverged
 
     def _get_obs(self) -> np.ndarray:
@@ -327,8 +340,13 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     def reset_model(self) -> np.ndarray:
         self._set_reference(self.task.episode_reference(self.np_random, self._fixed_reference))
         q, qdot = self.task.initial_state(self.np_random, self.reference)
-        self.set_state(q, qdot)
+        if self.drive.has_state:  # spools, lags and command histories at rest
+            self.drive.settle(self.data, q, qdot)
+        else:
+            self.set_state(q, qdot)
         self._last_action = self.task.rest_command()
+        if self._delay is not None:
+            self._delay.reset(slice(None))
         self._warning_count = sum(w.number for w in self._warnings)
         self._last_obs = self._get_obs()
         return self._last_obs

@@ -100,6 +100,11 @@ class EnvConfig:
         if abs(n_sub * sim_dt - self.ctrl_dt) > 1e-6 * self.ctrl_dt:
             raise invalid("ctrl_dt", self.ctrl_dt, f"an integer multiple of sim_dt = {sim_dt} s")
         set_("ctrl_dt", n_sub * sim_dt)
+        delay = self.mechanism.motor_delay
+        if abs(round(delay / self.ctrl_dt) * self.ctrl_dt - delay) > 1e-6 * self.ctrl_dt:
+            raise invalid(
+                "mechanism.motor_delay", delay, f"a multiple of ctrl_dt = {self.ctrl_dt} s"
+            )
         if self.action_mode not in ACTION_MODES:
             raise invalid("action_mode", self.action_mode, f"one of {ACTION_MODES}")
         set_("action_filter_tau", number("action_filter_tau", self.action_filter_tau, 0.0, 1.0))
@@ -194,6 +199,11 @@ class EnvConfig:
         return self.mechanism.n_tendons if self.action_mode == "tension" else 2
 
     @property
+    def delay_steps(self) -> int:
+        """Returns the control steps each motor command is held back (mechanism.motor_delay)."""
+        return round(self.mechanism.motor_delay / self.ctrl_dt)
+
+    @property
     def action_filter_alpha(self) -> float:
         """Returns the weight of a new action in the applied command, 1 - exp(-ctrl_dt / tau)
         (1: no filter)."""
@@ -223,9 +233,12 @@ def arguments() -> list[str]:
 
 @lru_cache(maxsize=64)
 def _physics(mech: Mechanism, refs: tuple[Reference, ...]) -> tuple[float, ...]:
-    """Checks that the integrator can integrate ``mech`` (one model build); returns the force
-    need (N) of each reference."""
+    """Checks that MuJoCo compiles ``mech`` and that the integrator can integrate it; returns
+    the force need (N) of each reference, from the nominal model (no stretch, lag or friction:
+    inverse dynamics of the arm)."""
     model = build_model(mech)
+    if mech.realistic:
+        model = build_model(mech.ideal())
     check_stability(model, mech)
     return tuple(force_need(model, [r], mech.pull_only, mech.pretension) for r in refs)
 

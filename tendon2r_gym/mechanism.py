@@ -41,6 +41,13 @@ LIMITS = {
     "link_radius": 0.1,  # m
     "pulley_thickness": 0.1,
 }
+#: Upper bounds of the realism fields (tendon2r_gym.realism), far above any desk-top arm.
+REALISM_LIMITS = {
+    "tendon_elasticity": 1e7,  # N/m
+    "tendon_friction": 1e3,  # N
+    "motor_tau": 1.0,  # s
+    "motor_delay": 1.0,  # s
+}
 #: ``max_tendon_force: auto`` sizes the force limit from the reference (Tendon2REnv does it).
 AUTO = "auto"
 
@@ -75,8 +82,18 @@ class Mechanism:
     pulley_thickness: float = 0.002  # (m)
     joint_range_deg: tuple[float, float] = (-90.0, 90.0)  # both joints (deg)
     joint_damping: float = 0.0  # (N m s / rad)
-    tendon_stiffness: float = 0.0  # (N / m); 0 is an ideal tendon
-    tendon_damping: float = 0.0  # (N s / m)
+    # A spring and a damper along each tendon's path, in parallel with the motor (a spring
+    # on the joints, at rest at q = 0); series elasticity is tendon_elasticity.
+    tendon_stiffness: float = 0.0  # (N / m)
+    tendon_damping: float = 0.0  # (N s / m); with tendon_elasticity, the cable's own damping
+    # Real tendons and motors (tendon2r_gym.realism; every one off by default: an inextensible,
+    # frictionless cable and a motor that acts at once).  Typical small servo-and-cable arm:
+    # configs/examples/real_arm.yaml and the real_arm preset.
+    tendon_elasticity: float = 0.0  # series stiffness of each cable, EA / length (N / m)
+    motor_mass: float = 0.05  # motor and spool inertia felt along the cable (kg)
+    tendon_friction: float = 0.0  # dry friction of each cable sliding on its pulleys (N)
+    motor_tau: float = 0.0  # time constant of the motor force's first-order lag (s)
+    motor_delay: float = 0.0  # dead time between a command and the motor (s), whole ctrl_dt
     # Simulation.
     # RK4 at 1 ms stays within 4e-4 deg of RK4 at 2e-5 s on both presets under PD, at 1/8 the
     # cost of the reports' RK4 at 1e-4 s (results/timestep_study.md).
@@ -95,6 +112,16 @@ class Mechanism:
         set_("pull_only", boolean("Mechanism.pull_only", self.pull_only))
         for name in ("joint_damping", "tendon_stiffness", "tendon_damping", "pretension"):
             set_(name, number(f"Mechanism.{name}", getattr(self, name), 0.0))
+        for name, hi in REALISM_LIMITS.items():
+            set_(name, number(f"Mechanism.{name}", getattr(self, name), 0.0, hi))
+        set_("motor_mass", number("Mechanism.motor_mass", self.motor_mass, 0.0, 1e3, lo_open=True))
+        if self.tendon_elasticity > 0 and self.tendon_stiffness > 0:
+            raise _fail(
+                "tendon_stiffness",
+                self.tendon_stiffness,
+                "0 when tendon_elasticity > 0 (a series-elastic cable carries its own spring; "
+                "tendon_stiffness is a spring in parallel with it)",
+            )
         set_("sim_dt", number("Mechanism.sim_dt", self.sim_dt, 0.0, 0.01, lo_open=True))
         r1, r2 = self.R1 / 2, self.R2 / 2
         if r1 >= self.a:
@@ -172,6 +199,28 @@ class Mechanism:
     def n_tendons(self) -> int:
         """Returns the number of tendons (and motors)."""
         return len(self.tendon_sides)
+
+    @property
+    def elastic(self) -> bool:
+        """Returns whether the cables stretch (tendon_elasticity > 0): each motor then drives a
+        spool of mass ``motor_mass`` that pulls its cable, one extra degree of freedom each."""
+        return self.tendon_elasticity > 0
+
+    @property
+    def realistic(self) -> bool:
+        """Returns whether any realism field is on (tendon2r_gym.realism)."""
+        return any(getattr(self, k) > 0 for k in REALISM_LIMITS)
+
+    def ideal(self) -> Mechanism:
+        """Returns the nominal mechanism: every realism field off (the model that PD's and CT's
+        distribution and inverse dynamics use)."""
+        return self.replace(**dict.fromkeys(REALISM_LIMITS, 0.0)) if self.realistic else self
+
+    @property
+    def rest_tension(self) -> float:
+        """Returns the tension (N) each cable holds at rest: the pretension for pull-only
+        tendons (a slack cable would have to be taken up first), else 0."""
+        return self.pretension if self.pull_only else 0.0
 
     @property
     def joint_range_rad(self) -> tuple[float, float]:

@@ -5,6 +5,16 @@ Frame: the arm moves in the x-z plane; the wall is the plane x = 0; hinges turn 
 no gravity.  Body tree: world (wall, base link ``a``) -> ``link_c`` (hinge ``A``, ``pulley1``) ->
 ``link_b`` (hinge ``B``, ``pulley2``, ``effector``).
 
+Real tendons (tendon2r_gym.realism, all off by default, and then the model is exactly the ideal
+one): with ``tendon_elasticity`` each motor drives a ``spool`` body on its own slide joint behind
+the wall (mass ``motor_mass``, after the arm's two joints in qpos), and the cable runs from the
+spool over the wall anchor; its spring pulls only when stretched (pull-only) or both ways
+(push-pull).  ``tendon_friction`` is MuJoCo's tendon frictionloss (on a passive copy of each
+cable's path from the wall when the cable is elastic, so that it opposes sliding over the
+pulleys, not stretch); ``motor_tau`` a first-order filter (dyntype filter, filterexact off
+RK4; actearly).  ``motor_delay`` is not in the model: the envs hold each command back by whole
+control steps (tendon2r_gym.realism.CommandDelay).
+
 Each spatial tendon runs: wall anchor -> wraps ``pulley1`` -> guide site on link c (on the common
 tangent of the two pulleys for that tendon's sides, so the path is a true belt path) -> wraps
 ``pulley2`` -> end site at the tip.  A tendon is anchored on the wall at z = s1 * R1/2 and ends on
@@ -75,6 +85,12 @@ def guide_site_positions(mech: Mechanism) -> list[np.ndarray]:
         t1, t2 = belt_tangent(mech.r1, mech.r2, mech.c, s1, s2)
         out.append(0.5 * (t1 + t2))
     return out
+
+
+def spool_gap(mech: Mechanism) -> float:
+    """Returns how far behind the wall each spool sits at rest (m): more than any change of a
+    tendon's path over the joint range, so that a spool never reaches its anchor."""
+    return 2.0 * math.pi * (mech.r1 + mech.r2) + 0.05
 
 
 def build_spec(mech: Mechanism) -> mujoco.MjSpec:
@@ -176,6 +192,17 @@ def build_spec(mech: Mechanism) -> mujoco.MjSpec:
             site(link_b, f"fairlead2_t{i + 1}", (FAIRLEAD_GAP * r2, s2 * r2), size=0.0008)
             site(link_b, f"end{i + 1}", (b, s2 * r2))
 
+    # Series-elastic cables: a spool per motor, added after the arm so that qpos[:2] stays
+    # (q_A, q_B).  Only its mass matters (it slides); the inertia only has to be valid.
+    if mech.elastic:
+        for i, (s1, _) in enumerate(sides):
+            spool = world.add_body(name=spool_name(i), pos=[-spool_gap(mech), 0.0, s1 * r1])
+            spool.explicitinertial = True
+            spool.mass = mech.motor_mass
+            spool.inertia = [mech.motor_mass * 1e-4] * 3
+            spool.add_joint(name=spool_name(i), type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[1, 0, 0])
+            site(spool, spool_name(i), (0.0, 0.0))
+
     # Tendons, their motors and one tension sensor each.  Motors are general actuators with
     # gear 1, so MuJoCo's actuator force is the force along the tendon in N (positive
     # lengthens).  Push-pull: force = F * ctrl.  Pull-only: force = -F (ctrl + 1) / 2, a
@@ -188,31 +215,63 @@ def build_spec(mech: Mechanism) -> mujoco.MjSpec:
             name=name,
             width=0.0006,
             rgba=_RGBA["tendons"][i % len(_RGBA["tendons"])],
-            stiffness=mech.tendon_stiffness,
+            stiffness=mech.tendon_elasticity if mech.elastic else mech.tendon_stiffness,
             damping=mech.tendon_damping,
         )
-        # A tendon with side 0 on pulley 2 ends at its guide site on link c.
-        path = PATH if s2 else PATH[:4]
-        for kind, point, side in path:
-            if kind == "site":
-                shared = point in ("anchor", "guide", "end")
-                t.wrap_site(f"{point}{i + 1}" if shared else f"{point}_t{i + 1}")
-            else:
-                t.wrap_geom(point, f"{side}_t{i + 1}")
-        act = spec.add_actuator(name=motor_name(i), trntype=mujoco.mjtTrn.mjTRN_TENDON, target=name)
+        if mech.elastic:
+            t.wrap_site(spool_name(i))
+        else:
+            t.frictionloss = mech.tendon_friction
+        _wrap_path(t, i, s2)
+        if mech.elastic:  # the motor pulls its spool: a force along -x pulls the cable
+            act = spec.add_actuator(
+                name=motor_name(i), trntype=mujoco.mjtTrn.mjTRN_JOINT, target=spool_name(i)
+            )
+        else:
+            act = spec.add_actuator(
+                name=motor_name(i), trntype=mujoco.mjtTrn.mjTRN_TENDON, target=name
+            )
         act.gaintype = mujoco.mjtGain.mjGAIN_FIXED
         act.biastype = mujoco.mjtBias.mjBIAS_AFFINE
         act.gainprm[0] = gain
         act.biasprm[:3] = [bias, 0.0, 0.0]
         act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
         act.ctrlrange = [-1.0, 1.0]
+        if mech.motor_tau > 0:  # force = gain act + bias, d act / dt = (ctrl - act) / tau
+            # RK4 integrates the filter's ODE to 1e-5 (measured; with filterexact, whose exact
+            # update assumes an Euler step, RK4's time constant came out 15% long).
+            exact = mech.integrator != "RK4"
+            act.dyntype = mujoco.mjtDyn.mjDYN_FILTEREXACT if exact else mujoco.mjtDyn.mjDYN_FILTER
+            act.dynprm[0] = mech.motor_tau
+            act.actearly = True  # the force of a step already uses that step's act
         spec.add_sensor(
             name=f"force_{name}",
             type=mujoco.mjtSensor.mjSENS_ACTUATORFRC,
             objtype=mujoco.mjtObj.mjOBJ_ACTUATOR,
             objname=motor_name(i),
         )
+    if mech.elastic and mech.tendon_friction > 0:
+        # Friction acts where the cable slides on its pulleys: along its path from the wall.
+        for i, (_, s2) in enumerate(sides):
+            path = spec.add_tendon(name=f"path{i + 1}", frictionloss=mech.tendon_friction)
+            _wrap_path(path, i, s2)
     return spec
+
+
+def _wrap_path(tendon: mujoco.MjsTendon, i: int, s2: int) -> None:
+    """Adds PATH's points of tendon i (a tendon with side 0 on pulley 2 ends at its guide site
+    on link c)."""
+    for kind, point, side in PATH if s2 else PATH[:4]:
+        if kind == "site":
+            shared = point in ("anchor", "guide", "end")
+            tendon.wrap_site(f"{point}{i + 1}" if shared else f"{point}_t{i + 1}")
+        else:
+            tendon.wrap_geom(point, f"{side}_t{i + 1}")
+
+
+def spool_name(i: int) -> str:
+    """Returns the name of the spool body, joint and site of tendon i (0-based)."""
+    return f"spool{i + 1}"
 
 
 def tendon_name(i: int) -> str:
@@ -229,7 +288,14 @@ def build_model(mech: Mechanism) -> mujoco.MjModel:
     """Returns the compiled MuJoCo model of the mechanism; a mechanism MuJoCo cannot compile
     (a massless link, degenerate inertia) raises a ValueError naming the mass fields."""
     try:
-        return build_spec(mech).compile()
+        spec = build_spec(mech)
+        model = spec.compile()
+        if mech.elastic:  # each cable is at rest at its length with the arm and spools at 0
+            for i in range(mech.n_tendons):
+                rest = model.tendon_length0[i]
+                spec.tendon(tendon_name(i)).springlength = [0.0 if mech.pull_only else rest, rest]
+            model = spec.compile()
+        return model
     except ValueError as e:  # MuJoCo's compiler message names its element, not our field
         fields = {k: getattr(mech, k) for k in ("density", "link_radius", "pulley_thickness")}
         raise invalid(

@@ -6,7 +6,12 @@ M(q) the joint inertia and J(q) the tendon moment arms,
 - damping rate   lambda = max eig(M^-1 D), D = joint_damping I + tendon_damping J^T J,
   counting only the terms the integrator treats explicitly (MuJoCo's Euler integrates joint
   damping implicitly; implicit and implicitfast integrate all damping implicitly);
-- stiffness rate omega  = sqrt(max eig(M^-1 tendon_stiffness J^T J)).
+- stiffness rate omega  = sqrt(max eig(M^-1 tendon_stiffness J^T J));
+- cable rate omega_c    = sqrt(tendon_elasticity (1 / motor_mass + max eig(J M^-1 J^T))), the
+  highest frequency of a series-elastic cable between its spool and the arm (an upper bound:
+  the spool's and the arm's mobilities add), held to the stiffness limit.
+
+``model`` is the nominal (ideal) model of the mechanism: its two joints and its tendons.
 
 A run is accepted if lambda * sim_dt and omega * sim_dt stay below the integrator's limits in
 :data:`LIMITS`.  ``python scripts/stability_limits.py`` measures them on the compiled default
@@ -40,11 +45,14 @@ LIMITS: dict[str, tuple[float, float, tuple[str, ...]]] = {
 
 def rates(model: mujoco.MjModel, mech: Mechanism, grid: int = 7) -> dict[str, float]:
     """Returns, over a grid of the joint range, the largest rate (1/s) that each of
-    joint_damping, tendon_damping and tendon_stiffness alone gives."""
+    joint_damping, tendon_damping, tendon_stiffness and tendon_elasticity alone gives
+    (``model``: the nominal model, build_model(mech.ideal()))."""
     data = mujoco.MjData(model)
     arms = MomentArms(model, data)
     M = np.zeros((model.nv, model.nv))
-    out = {"joint_damping": 0.0, "tendon_damping": 0.0, "tendon_stiffness": 0.0}
+    out = dict.fromkeys(
+        ("joint_damping", "tendon_damping", "tendon_stiffness", "tendon_elasticity"), 0.0
+    )
     lo, hi = mech.joint_range_rad
     for q1 in np.linspace(lo, hi, grid):
         for q2 in np.linspace(lo, hi, grid):
@@ -60,6 +68,8 @@ def rates(model: mujoco.MjModel, mech: Mechanism, grid: int = 7) -> dict[str, fl
             out["tendon_stiffness"] = max(
                 out["tendon_stiffness"], math.sqrt(mech.tendon_stiffness * tendon)
             )
+            cable = math.sqrt(mech.tendon_elasticity * (1.0 / mech.motor_mass + tendon))
+            out["tendon_elasticity"] = max(out["tendon_elasticity"], cable)
     return out
 
 
@@ -81,13 +91,16 @@ def check_stability(model: mujoco.MjModel, mech: Mechanism) -> None:
             f"<= {limit:.3g} for {mech.integrator} at sim_dt = {dt} s (damping rate "
             f"{damping:.3g}/s x sim_dt must stay <= {damp_max}; fix: {fix})",
         )
-    if r["tendon_stiffness"] * dt > stiff_max:
-        value = mech.tendon_stiffness
-        limit = value * (stiff_max / (r["tendon_stiffness"] * dt)) ** 2
-        raise invalid(
-            "Mechanism.tendon_stiffness",
-            value,
-            f"<= {limit:.3g} N/m for {mech.integrator} at sim_dt = {dt} s (stiffness rate "
-            f"{r['tendon_stiffness']:.3g} rad/s x sim_dt must stay <= {stiff_max}; fix: a "
-            "smaller sim_dt)",
-        )
+    for field, fix in (
+        ("tendon_stiffness", "a smaller sim_dt"),
+        ("tendon_elasticity", "a smaller sim_dt or a larger motor_mass"),
+    ):
+        if r[field] * dt > stiff_max:
+            value = getattr(mech, field)
+            limit = value * (stiff_max / (r[field] * dt)) ** 2
+            raise invalid(
+                f"Mechanism.{field}",
+                value,
+                f"<= {limit:.3g} N/m for {mech.integrator} at sim_dt = {dt} s (stiffness rate "
+                f"{r[field]:.3g} rad/s x sim_dt must stay <= {stiff_max}; fix: {fix})",
+            )

@@ -32,6 +32,7 @@ from tendon2r_gym.env import DIVERGENCE_WARNINGS
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.model import build_model, tendon_name
 from tendon2r_gym.ops import BATCH
+from tendon2r_gym.realism import CommandDelay, Drive
 from tendon2r_gym.reference import Reference
 from tendon2r_gym.task import Task, reference_params
 from tendon2r_gym.validation import boolean, integer, invalid, real_array
@@ -97,6 +98,18 @@ class Tendon2RVectorEnv(VectorEnv):
             self._torque_map = TorqueToTension(cfg.mechanism)
         self._ten_J = b.bind("ten_J")
         self._J_rows = _sparse_rows(self.model)
+        # Realism (tendon2r_gym.realism): spools and lags; an arm is put at
+        # rest on a scratch MjData, as the single env does it, and copied into the batch.
+        self.drive = Drive(self.model, cfg.mechanism)
+        if self.drive.has_state:
+            self._scratch = mujoco.MjData(self.model)
+            self._state = {"act": b.bind("act")}
+        self._delay: CommandDelay | None = None
+        if cfg.delay_steps:
+            n_motors = cfg.mechanism.n_tendons
+            self._delay = CommandDelay(cfg.delay_steps, self.num_envs, n_motors, self.drive.ctrl)
+        if cfg.mechanism.elastic:
+            self._ten_length, self._ten_velocity = b.bind("ten_length"), b.bind("ten_velocity")
         self._warn_ids = [int(w) for w in DIVERGENCE_WARNINGS]
         self.task = Task(cfg)
 
@@ -160,12 +173,28 @@ class Tendon2RVectorEnv(VectorEnv):
         self._set_references(ids, refs)
         self.batch.reset(ids, stage=mujoco.mjtStage.mjSTAGE_NONE.value)
         for i, ref in zip(ids, refs, strict=True):
-            self._qpos[i], self._qvel[i] = task.initial_state(self._rngs[i], ref)
+            q, dq = task.initial_state(self._rngs[i], ref)
+            if self.drive.has_state:
+                self._settle(i, q, dq)
+            else:
+                self._qpos[i], self._qvel[i] = q, dq
         self.batch.forward(ids)
         self._steps[ids] = 0
         self._last_action[ids] = self.task.rest_command()
+        if self._delay is not None:
+            self._delay.reset(ids)
         self._warn_count[ids] = self._warnings()[ids]
         self._needs_reset[ids] = False
+
+    def _settle(self, i: int, q: np.ndarray, dq: np.ndarray) -> None:
+        """Puts arm i at rest with its motors and cables (realism.Drive.settle, as the single
+        env's reset)."""
+        d = self._scratch
+        mujoco.mj_resetData(self.model, d)
+        self.drive.settle(d, q, dq)
+        self._qpos[i], self._qvel[i], self._ctrl[i] = d.qpos, d.qvel, d.ctrl
+        for key, value in self._state.items():
+            value[i] = getattr(d, key)
 
     def _reset_info(self, ids: np.ndarray, info: dict[str, Any] | None = None) -> dict[str, Any]:
         """Adds the single env's reset info of arms ``ids`` to ``info``, as Gymnasium's vector
@@ -198,10 +227,13 @@ class Tendon2RVectorEnv(VectorEnv):
             a = np.stack(self.task.command(list(a.T), list(last.T)), axis=1)
         self._last_action[active] = a[active]
         if self._torque_map is None:
-            self._ctrl[active] = a[active]
+            u = a
         else:  # joint_torque: PD's tension distribution at the current q
             # every arm, so that the kinematics batch keeps one size
-            self._ctrl[active] = self._torque_map.joint_torque_command(self._qpos, a)[active]
+            u = self._torque_map.joint_torque_command(self._qpos[:, :2], a)
+        if self._delay is not None:  # the motors get the command of delay_steps ago
+            u = self._delay(u, active)
+        self._ctrl[active] = u[active]
         failed = np.zeros(n, dtype=bool)
         try:
             self.batch.step(ids, nstep=self.config.n_substeps)
@@ -298,10 +330,16 @@ class Tendon2RVectorEnv(VectorEnv):
     def _step_info(
         self, obs: np.ndarray, terms: dict[str, np.ndarray], diverged: np.ndarray, mask: np.ndarray
     ) -> dict[str, Any]:
+        if self.mechanism.elastic:
+            n = self.mechanism.n_tendons
+            lengths, speeds = self._ten_length[:, :n], self._ten_velocity[:, :n]
+            tension = self.drive.cable_tensions(lengths, speeds)
+        else:
+            tension = -self._sensors[:, self._force]
         values = self.task.step_info(
             obs,
             terms,
-            -self._sensors[:, self._force],
+            tension,
             self._moment_arm_cond(),
             self._time.copy(),
             diverged,
@@ -336,13 +374,13 @@ def _without_empty(info: dict[str, Any]) -> dict[str, Any]:
 
 
 def _sparse_rows(model: mujoco.MjModel) -> list[tuple[int | None, ...]]:
-    """Returns, per tendon and joint, the index of its entry in MuJoCo's sparse ten_J (None
-    where the tendon does not span that joint: its moment arm is 0)."""
+    """Returns, per motor's tendon and arm joint, the index of its entry in MuJoCo's sparse
+    ten_J (None where the tendon does not span that joint: its moment arm is 0)."""
     rows = []
-    for k in range(model.ntendon):
+    for k in range(model.nu):  # one motor per tendon; passive friction tendons come after
         entries: list[int | None] = [None] * model.nv
         start = model.ten_J_rowadr[k]
         for idx in range(start, start + model.ten_J_rownnz[k]):
             entries[model.ten_J_colind[idx]] = int(idx)
-        rows.append(tuple(entries))
+        rows.append(tuple(entries[:2]))  # the arm's joints (spools come after)
     return rows

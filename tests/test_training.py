@@ -168,9 +168,7 @@ def test_ctrl_c_stops_every_seed_and_saves_and_resume_keeps_the_overrides(tmp_pa
     """SIGINT during seed 0 of two: exit 130, last_model and summary saved, seed 1 never
     starts, seeds_summary.json written.  A resume without the flags continues the run that was
     started: its seeds, and the budget and n_envs overridden on the first command."""
-    proc = _start_training(
-        tmp_path, [0, 1], 256, "--total-timesteps", "10000000", "--n-envs", "3"
-    )
+    proc = _start_training(tmp_path, [0, 1], 256, "--total-timesteps", "10000000", "--n-envs", "3")
     _wait_for(tmp_path / "run" / "seed_0" / "evaluations.json", proc)
     proc.send_signal(signal.SIGINT)
     out = proc.communicate(timeout=120)[0].decode()

@@ -9,6 +9,9 @@ from tendon2r_gym.vector_env import Tendon2RVectorEnv
 
 RANGES = {"amp_deg": [[5, 20], [5, 20]], "freq_hz": [[0.5, 3], [0.5, 3]],
           "bias_deg": [[-10, 10], [-10, 10]]}  # fmt: skip
+#: Every realism effect on (tendon2r_gym.realism).
+REAL = {"tendon_elasticity": 3000.0, "tendon_damping": 1.0, "tendon_friction": 0.01,
+        "motor_tau": 0.004, "motor_delay": 0.002}  # fmt: skip
 
 
 def _native(n, **kw):
@@ -22,7 +25,9 @@ def _native(n, **kw):
      (17, 2, {"preview_steps": 6}), (9, None, {"preview_steps": 0}),
      (3, 1, {"action_mode": "joint_torque"}),
      (5, 1, {"action_mode": "joint_torque", "preset": "pull_only"}),
-     (4, 1, {"action_filter_tau": 0.005, "preset": "pull_only"})],
+     (4, 1, {"action_filter_tau": 0.005, "preset": "pull_only"}),
+     (3, 1, {"mechanism": REAL}), (3, 1, {"preset": "pull_only", "mechanism": REAL}),
+     (3, 1, {"action_mode": "joint_torque", "mechanism": REAL})],
 )  # fmt: skip
 @pytest.mark.parametrize("mode", ["NextStep", "SameStep"])
 def test_same_seeds_same_trajectories_as_single_envs_bit_for_bit(n, nthread, kwargs, mode):
@@ -88,9 +93,12 @@ def test_same_step_autoreset_reports_the_final_observation():
 
 @pytest.mark.parametrize(
     ("action", "match"),
-    [(np.zeros((3, 2)), r"(?s)actions = .*allowed: \(2, 2\) finite"),
-     (np.full((2, 2), np.nan), r"(?s)actions = .*allowed: \(2, 2\) finite"),
-     ("ab", "actions = 'ab' is invalid"), (np.full((2, 2), 1j), "actions = ")],
+    [
+        (np.zeros((3, 2)), r"(?s)actions = .*allowed: \(2, 2\) finite"),
+        (np.full((2, 2), np.nan), r"(?s)actions = .*allowed: \(2, 2\) finite"),
+        ("ab", "actions = 'ab' is invalid"),
+        (np.full((2, 2), 1j), "actions = "),
+    ],
 )
 def test_bad_actions_raise(action, match):  # fmt: skip
     envs = _native(2)

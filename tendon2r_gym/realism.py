@@ -1,0 +1,112 @@
+"""Real tendons and motors: the state they start from and the tension they carry.
+
+The realism fields of :class:`~tendon2r_gym.mechanism.Mechanism` (all off by default; then the
+model is the ideal one, bit for bit) and what each one means physically:
+
+- ``tendon_elasticity``: series stiffness EA / L of each cable (N/m); a stretched cable pulls,
+  a slack pull-only one does not push, and each motor drives a spool of mass ``motor_mass``.
+  Typical: 1e3 to 2e4 (a 0.3-0.5 mm braided line, 0.3 m long).
+- ``motor_mass``: motor and spool inertia felt along the cable, J / r_spool^2 (kg).  Typical:
+  0.01 to 0.2 for a low-geared motor.
+- ``tendon_friction``: dry friction of a cable sliding on its pulleys (N).  Typical: 1 to 5% of
+  the working tension.
+- ``motor_tau``: first-order lag of the motor force (s): current loop and driver.  Typical: 1
+  to 10 ms.
+- ``motor_delay``: dead time between a command and the motor (s), whole control steps: bus and
+  driver.  Typical: 1 to 5 ms.
+
+:class:`Drive` puts an arm at rest for a reset: every spool where its cable holds the rest
+tension (:attr:`Mechanism.rest_tension`), every motor's lag at the rest command, so that an
+episode starts as it would on the bench.  Both envs use it (the vector env copies the state of
+its scratch MjData into the batch).  :class:`CommandDelay` holds the commands back: the envs
+apply it, not MuJoCo (MuJoCo 4's actuator ``delay`` mixes samples across RK4's stages:
+measured, a 2 ms delay moved the trajectory by neither 1 nor 2 steps).
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from tendon2r_gym.mechanism import Mechanism
+from tendon2r_gym.model import spool_name
+
+
+def rest_ctrl(mech: Mechanism) -> float:
+    """Returns the motor command whose tension is :attr:`Mechanism.rest_tension`: 0 for
+    push-pull motors, 2 pretension / F - 1 for pull-only ones (F = max_tendon_force)."""
+    if not mech.pull_only:
+        return 0.0
+    return 2.0 * mech.rest_tension / mech.max_tendon_force - 1.0
+
+
+class Drive:
+    """The motors and cables of one compiled model (see the module docstring)."""
+
+    def __init__(self, model: mujoco.MjModel, mech: Mechanism) -> None:
+        self.model, self.mech = model, mech
+        n = self.n = mech.n_tendons
+        self.ctrl = rest_ctrl(mech)
+        #: Whether a reset has more to set than (q, dq): spools or lags.
+        self.has_state = mech.elastic or mech.motor_tau > 0
+        spools = [model.joint(spool_name(i)) for i in range(n)] if mech.elastic else []
+        self.spool_qpos = np.array([j.qposadr[0] for j in spools], dtype=int)
+        self.spool_dof = np.array([j.dofadr[0] for j in spools], dtype=int)
+        self.stretch = mech.rest_tension / mech.tendon_elasticity if mech.elastic else 0.0
+        spring = model.tendon_lengthspring[:n]
+        self.slack_length, self.rest_length = spring[:, 0].copy(), spring[:, 1].copy()
+        self._arms_dof = slice(0, 2)
+
+    def settle(self, data: mujoco.MjData, q: np.ndarray, dq: np.ndarray) -> None:
+        """Sets a freshly reset ``data`` (time 0) to the joint state (q, dq), every cable at its
+        rest tension and still, every lag at the rest command; then runs mj_forward."""
+        m, mech = self.model, self.mech
+        data.qpos[:2], data.qvel[:2] = q, dq
+        if mech.elastic:
+            spools, dofs = self.spool_qpos, self.spool_dof
+            data.qpos[spools] = 0.0
+            mujoco.mj_fwdPosition(m, data)
+            # The spool-anchor segment shortens as the spool moves to the wall (+x), so the
+            # length is L(q, 0) - s, and the cable is still when ds/dt = J_arm dq.
+            length = data.ten_length[: self.n].copy()
+            data.qpos[spools] = length - self.rest_length - self.stretch
+            J = np.zeros((m.ntendon, m.nv))
+            mujoco.mju_sparse2dense(J, data.ten_J, m.ten_J_rownnz, m.ten_J_rowadr, m.ten_J_colind)
+            data.qvel[dofs] = J[: self.n, self._arms_dof] @ np.asarray(dq, dtype=float)
+        data.ctrl[:] = self.ctrl
+        if mech.motor_tau > 0:
+            data.act[:] = self.ctrl
+        mujoco.mj_forward(m, data)
+
+    def cable_tensions(self, length: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+        """Returns each elastic cable's tension (N, positive pulling) from the tendon lengths
+        and speeds (the first n_tendons entries of ``ten_length`` and ``ten_velocity``, one row
+        or N rows): stiffness times stretch past the rest length (below the slack length for
+        push-pull cables, which push), plus the cable's damping."""
+        k, c = self.mech.tendon_elasticity, self.mech.tendon_damping
+        stretch = np.maximum(length - self.rest_length, 0.0)
+        stretch += np.minimum(length - self.slack_length, 0.0)
+        return k * stretch + c * velocity
+
+
+class CommandDelay:
+    """Holds each motor command back by ``steps`` control steps, for N arms that step together:
+    a ring of the last ``steps`` commands, each arm's filled with the rest command at its
+    reset."""
+
+    def __init__(self, steps: int, n_arms: int, n_motors: int, rest: float) -> None:
+        self.rest = rest
+        self._ring = np.full((steps, n_arms, n_motors), rest)
+        self._i = 0
+
+    def reset(self, arms: np.ndarray | slice) -> None:
+        """Fills the ring of ``arms`` with the rest command (the motors were at rest)."""
+        self._ring[:, arms] = self.rest
+
+    def __call__(self, ctrl: np.ndarray, arms: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """Returns the commands (n_arms, n_motors) sent ``steps`` steps ago, and stores
+        ``ctrl`` of the arms that step now (the others keep their ring)."""
+        out = self._ring[self._i].copy()
+        self._ring[self._i, arms] = ctrl[arms]
+        self._i = (self._i + 1) % len(self._ring)
+        return out

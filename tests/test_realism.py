@@ -1,0 +1,188 @@
+"""Real tendons and motors (tendon2r_gym.realism), checked on the compiled MuJoCo model."""
+
+import math
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+import pytest
+
+from tendon2r_gym import Mechanism, build_model
+from tendon2r_gym.mechanism import REALISM_LIMITS
+from tendon2r_gym.model import motor_name, to_xml
+from tendon2r_gym.realism import Drive
+from tendon2r_gym.stability import rates
+
+PUSH_PULL = Mechanism(max_tendon_force=1.0)
+PULL_ONLY = Mechanism(routing="n_plus_1", pull_only=True, max_tendon_force=1.0)
+
+
+def _held(model, data, steps):
+    """Steps with the arm clamped on the bench: a huge armature on its joints."""
+    model.dof_armature[:2] = 1e9
+    for _ in range(steps):
+        mujoco.mj_step(model, data)
+    mujoco.mj_forward(model, data)
+
+
+def test_every_effect_off_is_the_ideal_model():
+    """Every realism field at 0 gives the ideal model (the same MJCF), and ideal() is a no-op."""
+    zeros = PUSH_PULL.replace(**dict.fromkeys(REALISM_LIMITS, 0.0), motor_mass=0.3)
+    assert to_xml(zeros) == to_xml(PUSH_PULL)
+    assert PUSH_PULL.ideal() is PUSH_PULL and not PUSH_PULL.realistic
+    real = PUSH_PULL.replace(tendon_elasticity=1e3, motor_tau=0.01)
+    assert real.realistic and real.ideal() == PUSH_PULL.replace(motor_mass=real.motor_mass)
+
+
+@pytest.mark.parametrize("mech", [PUSH_PULL, PULL_ONLY], ids=["push_pull", "pull_only"])
+def test_steady_stretch_is_tension_over_stiffness(mech):
+    """A held arm: after the cable-spool oscillation dies out, each cable is stretched by
+    tension / k past its rest length, and carries the commanded tension."""
+    k = 2000.0
+    elastic = mech.replace(tendon_elasticity=k, tendon_damping=5.0, motor_mass=0.02)
+    model = build_model(elastic)
+    data = mujoco.MjData(model)
+    drive = Drive(model, elastic)
+    drive.settle(data, np.array([0.2, -0.3]), np.zeros(2))
+    n = elastic.n_tendons
+    rest = drive.cable_tensions(data.ten_length[:n], data.ten_velocity[:n])
+    np.testing.assert_allclose(rest, elastic.rest_tension, atol=1e-9)  # settle's rest state
+    ctrl = np.array([0.3, -0.2, 0.5])[:n]
+    data.ctrl[:] = ctrl
+    _held(model, data, 3000)
+    commanded = -np.array([data.actuator(motor_name(i)).force[0] for i in range(n)])
+    stretch = data.ten_length[:n] - drive.rest_length
+    np.testing.assert_allclose(stretch, commanded / k, rtol=1e-4, atol=1e-9)
+    np.testing.assert_allclose(drive.cable_tensions(data.ten_length[:n], 0.0), commanded, 1e-4)
+
+
+def test_slack_cable_transmits_no_force():
+    """A pull-only cable shorter than its rest length is slack: no force on the arm, whatever
+    its stiffness."""
+    mech = PULL_ONLY.replace(tendon_elasticity=5000.0, pretension=0.0)
+    model = build_model(mech)
+    data = mujoco.MjData(model)
+    Drive(model, mech).settle(data, np.zeros(2), np.zeros(2))
+    spool = model.joint("spool1").qposadr[0]
+    data.qpos[spool] += 0.003  # spool toward the wall: 3 mm of slack
+    mujoco.mj_forward(model, data)
+    assert data.ten_length[0] < model.tendon_lengthspring[0, 1]
+    np.testing.assert_allclose(data.qfrc_passive, 0.0, atol=1e-12)
+    data.qpos[spool] -= 0.006  # 3 mm of stretch: it pulls with k x 3 mm
+    mujoco.mj_forward(model, data)
+    J = np.zeros((model.ntendon, model.nv))
+    mujoco.mju_sparse2dense(J, data.ten_J, model.ten_J_rownnz, model.ten_J_rowadr,
+                            model.ten_J_colind)  # fmt: skip
+    np.testing.assert_allclose(data.qfrc_passive, -J[0] * 5000.0 * 0.003, rtol=1e-6)
+
+
+@pytest.mark.parametrize("elastic", [False, True])
+def test_friction_opposes_sliding_with_its_magnitude(elastic):
+    """A cable sliding over its pulleys feels its set dry friction f against the motion: once
+    the sliding is fast, MuJoCo's (soft) friction constraint of each cable's path has
+    saturated at -f sign(dL/dt); slower, it stays within f.  For an elastic cable it acts on
+    the path from the wall, not on the stretch."""
+    f = 0.05
+    mech = PUSH_PULL.replace(tendon_friction=f, tendon_elasticity=3000.0 if elastic else 0.0)
+    model = build_model(mech)
+    data = mujoco.MjData(model)
+    for speed, saturated in ((10.0, True), (0.3, False)):
+        Drive(model, mech).settle(data, np.zeros(2), np.array([speed, 0.0]))
+        rows = data.efc_type == mujoco.mjtConstraint.mjCNSTR_FRICTION_TENDON
+        tendons = data.efc_id[rows]
+        assert sorted(tendons) == list(range(mech.n_tendons, 2 * mech.n_tendons) if elastic
+                                       else range(mech.n_tendons))  # fmt: skip
+        sliding = data.ten_velocity[tendons]
+        if elastic:  # settled: the cables do not stretch, yet their paths slide
+            np.testing.assert_allclose(data.ten_velocity[: mech.n_tendons], 0.0, atol=1e-12)
+        force = data.efc_force[rows]
+        if saturated:
+            np.testing.assert_allclose(force, -f * np.sign(sliding), rtol=1e-9)
+        else:
+            assert np.all(np.abs(force) < f) and np.all(force * sliding < 0)
+
+
+@pytest.mark.parametrize("integrator", ["RK4", "Euler", "implicitfast"])
+def test_lag_step_response_has_its_time_constant(integrator):
+    """From rest, a step of the command: the motor's force state reaches 1 - exp(-t / tau) of
+    the step after t (exactly off RK4, to RK4's accuracy on it)."""
+    tau = 0.004
+    mech = PUSH_PULL.replace(motor_tau=tau, integrator=integrator)
+    model = build_model(mech)
+    data = mujoco.MjData(model)
+    Drive(model, mech).settle(data, np.zeros(2), np.zeros(2))
+    step = np.array([0.5, -0.25])
+    data.ctrl[:] = step
+    act = []
+    for _ in range(20):
+        mujoco.mj_step(model, data)
+        act.append(data.act.copy())
+    t = mech.sim_dt * np.arange(1, 21)
+    expected = np.outer(1 - np.exp(-t / tau), step)
+    np.testing.assert_allclose(act, expected, rtol=1e-4 if integrator == "RK4" else 1e-12)
+    force = model.actuator_gainprm[:, 0] * data.act + model.actuator_biasprm[:, 0]
+    np.testing.assert_allclose(force, mech.max_tendon_force * data.act)
+
+
+@pytest.mark.parametrize("k", [1, 3])
+@pytest.mark.parametrize("preset", ["default", "pull_only"])
+def test_delay_of_k_steps_shifts_the_response_by_k_steps(k, preset):
+    """With motor_delay = k ctrl_dt the arm moves as the ideal arm does under the same actions
+    sent k steps later (the rest command before them), bit for bit."""
+    delayed = gym.make("Tendon2R-v0", preset=preset, mechanism={"motor_delay": k * 0.001})
+    ideal = gym.make("Tendon2R-v0", preset=preset)
+    rest = np.array(ideal.unwrapped.task.rest_command())
+    actions = np.random.default_rng(0).uniform(-1, 1, (30, *ideal.action_space.shape))
+    shifted = np.concatenate([np.tile(rest, (k, 1)), actions[:-k]])
+    delayed.reset(seed=1), ideal.reset(seed=1)
+    q = [delayed.step(a)[4]["q"] for a in actions]
+    q_ideal = [ideal.step(a)[4]["q"] for a in shifted]
+    np.testing.assert_array_equal(q, q_ideal)
+    with pytest.raises(ValueError, match=r"mechanism\.motor_delay = 0\.003 .*ctrl_dt = 0\.002"):
+        gym.make("Tendon2R-v0", mechanism={"motor_delay": 0.003}, ctrl_dt=0.002)
+
+
+def test_stiff_cables_on_a_light_spool_are_refused():
+    """The cable's frequency bounds the time step: the error names the field and its limit."""
+    omega = rates(build_model(PUSH_PULL), PUSH_PULL.replace(tendon_elasticity=1e5, motor_mass=0.01))
+    assert omega["tendon_elasticity"] * PUSH_PULL.sim_dt > 2.7
+    with pytest.raises(ValueError, match=r"Mechanism\.tendon_elasticity = 100000\.0.*<= "):
+        gym.make("Tendon2R-v0", mechanism={"tendon_elasticity": 1e5, "motor_mass": 0.01})
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "match"),
+    [("tendon_elasticity", -1.0, r"tendon_elasticity = -1\.0"),
+     ("tendon_friction", math.nan, "tendon_friction"),
+     ("motor_tau", 2.0, r"motor_tau = 2\.0 .*\[0, 1\]"),
+     ("motor_delay", -0.001, r"motor_delay = -0\.001"),
+     ("motor_mass", 0.0, r"motor_mass = 0\.0"),
+     ("tendon_stiffness", 10.0, r"tendon_stiffness = 10\.0 .*tendon_elasticity")],
+)  # fmt: skip
+def test_bad_realism_fields_raise_naming_the_field(field, value, match):
+    extra = {"tendon_elasticity": 1000.0} if field == "tendon_stiffness" else {}
+    with pytest.raises(ValueError, match=match):
+        PUSH_PULL.replace(**extra, **{field: value})
+
+
+@pytest.mark.parametrize("preset", ["default", "pull_only"])
+def test_env_starts_at_rest_and_reports_cable_tension(preset):
+    """With every effect on, a reset starts each cable at its rest tension and still; the
+    observation keeps its layout; the same seed gives the same episode."""
+    real = {"tendon_elasticity": 3000.0, "tendon_friction": 0.01, "motor_tau": 0.004,
+            "motor_delay": 0.002}  # fmt: skip
+    env = gym.make("Tendon2R-v0", preset=preset, mechanism=real)
+    ideal = gym.make("Tendon2R-v0", preset=preset)
+    assert env.observation_space == ideal.observation_space
+    obs, _ = env.reset(seed=3)
+    np.testing.assert_array_equal(obs, ideal.reset(seed=3)[0])  # same q, dq, reference
+    u = env.unwrapped
+    n = u.mechanism.n_tendons
+    rest = u.drive.cable_tensions(u.data.ten_length[:n], u.data.ten_velocity[:n])
+    np.testing.assert_allclose(rest, u.mechanism.rest_tension, atol=1e-9)
+    actions = np.random.default_rng(0).uniform(-1, 1, (50, *env.action_space.shape))
+    runs = []
+    for _ in range(2):
+        env.reset(seed=3)
+        runs.append([env.step(a)[4]["tendon_tension"] for a in actions])
+    np.testing.assert_array_equal(*runs)
