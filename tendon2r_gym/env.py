@@ -18,7 +18,7 @@ from tendon2r_gym.actuation import MomentArms, TorqueToTension, cond
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.model import CAMERA, build_model, tendon_name
 from tendon2r_gym.ops import SCALAR
-from tendon2r_gym.realism import CommandDelay, Drive
+from tendon2r_gym.realism import CommandDelay, Drive, Sensors
 from tendon2r_gym.reference import Reference
 from tendon2r_gym.task import Task, reference_params, rewards_table
 from tendon2r_gym.validation import integer, invalid, real_array
@@ -81,6 +81,10 @@ class Tendon2REnv(MujocoEnv, EzPickle):
 
     {obs_table}
 
+    With ``observation_noise`` or ``observation_delay`` (tendon2r_gym.realism.Sensors), the
+    observation is computed from measured joint angles and speeds (late by whole control steps,
+    with Gaussian noise); the reward and ``info`` stay on the true state.
+
     ## Rewards
     ``reward = sum(reward_scales[k] * term_k)`` over the terms below (tendon2r_gym.task.TERMS;
     each is in ``info`` as ``reward_<k>``, already scaled):
@@ -120,10 +124,16 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     | `reset_noise_scale` | `0.001` | initial-state noise (rad, rad/s) |
     | `preview_steps` | `3` | number of future reference samples observed |
     | `preview_dt` | `0.01` | spacing of the future reference samples (s) |
+    | `observation_noise` | `(0.0, 0.0)` | std of the measured angles (rad) and speeds (rad/s) |
+    | `observation_delay` | `0.0` | age of the measurements (s), a multiple of ctrl_dt |
     | `render_mode` | `None` | "human", "rgb_array" or "depth_array" |
     | `width` | `480` | render width (px) |
     | `height` | `480` | render height (px) |
     | `camera_name` | `"side"` | camera that frames the whole arm |
+
+    Real tendons and motors (``mechanism``: ``tendon_elasticity``, ``motor_mass``,
+    ``tendon_friction``, ``motor_tau``, ``motor_delay``; all off by default) are described in
+    tendon2r_gym.realism; PD and CT keep the nominal model.
 
     ``mechanism.max_tendon_force`` defaults to ``"auto"``: FORCE_HEADROOM (2) times the peak
     tendon force that inverse dynamics of the reference needs (for ``reference_ranges``, of its
@@ -153,6 +163,10 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         (0.01) with the last applied command at the end of the observation (after a reset, the
         rest command: no force, or the pretension for pull-only tendons);
         ``action_mode="joint_torque"``; the optional ``action_filter_tau``.
+      - real tendons and motors, all off by default (the ideal model and every result
+        unchanged): series-elastic cables on motor spools, pulley friction, motor lag and
+        delay (``mechanism``), measurement noise and delay (``observation_noise``,
+        ``observation_delay``); ``info["tendon_tension"]`` is the cable's tension.
     """  # noqa: E501
 
     metadata = {"render_modes": ["human", "rgb_array", "depth_array"]}
@@ -226,6 +240,11 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         if self.config.delay_steps:
             n_motors = self.mechanism.n_tendons
             self._delay = CommandDelay(self.config.delay_steps, 1, n_motors, self.drive.ctrl)
+        self._sensing: Sensors | None = None
+        if self.config.sensed:  # the observation is a measurement; reward and info are true
+            cfg = self.config
+            self._sensing = Sensors(cfg.observation_delay_steps, 1, cfg.observation_noise)
+        self._last_truth: np.ndarray | None = None
         self._n = self.config.n_actions
         self._last_action = self.task.rest_command()
         self._filtered = self.config.action_filter_alpha != 1.0
@@ -280,10 +299,16 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         self._ctrl[:] = u
         mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
         diverged = self._check_divergence()
+        if self._sensing is not None:
+            self._sensing.store(np.array([self._state()]), [self.np_random], (0,))
         # A diverged step reports the last good state: nothing enormous reaches a learner.
         obs = self._last_obs.copy() if diverged else self._get_obs()
-        reward, terms = self._get_rew(obs, a, last, diverged)
-        info = self._get_info(obs, terms, diverged)
+        truth = obs
+        if self._sensing is not None:  # reward and info on the true state
+            truth = self._last_truth.copy() if diverged else self._get_obs(measured=False)
+            self._last_truth = truth
+        reward, terms = self._get_rew(truth, a, last, diverged)
+        info = self._get_info(truth, terms, diverged)
         self._last_obs = obs
         if self.render_mode == "human":
             self.render()
@@ -312,9 +337,17 @@ class Tendon2REnv(MujocoEnv, EzPickle):
             self.data.qvel[:] = 0.0
         return diverged
 
-    def _get_obs(self) -> np.ndarray:
-        """Returns the observation (tendon2r_gym.task.Task.observation on this arm)."""
-        (q1, q2), (w1, w2) = self._qpos.tolist(), self._qvel.tolist()
+    def _state(self) -> list[float]:
+        """Returns the true (q_A, q_B, dq_A, dq_B)."""
+        return self._qpos.tolist() + self._qvel.tolist()
+
+    def _get_obs(self, measured: bool = True) -> np.ndarray:
+        """Returns the observation (tendon2r_gym.task.Task.observation on this arm): of what
+        the sensors measure, or with ``measured=False`` of the true state."""
+        if measured and self._sensing is not None:
+            q1, q2, w1, w2 = self._sensing.read()[0].tolist()
+        else:
+            (q1, q2), (w1, w2) = self._qpos.tolist(), self._qvel.tolist()
         parts = self.task.observation(
             SCALAR, q1, q2, w1, w2, self.data.time, self._ref, self._last_action
         )
@@ -347,6 +380,9 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         self._last_action = self.task.rest_command()
         if self._delay is not None:
             self._delay.reset(slice(None))
+        if self._sensing is not None:
+            self._sensing.reset(0, np.array(self._state()), self.np_random)
+            self._last_truth = self._get_obs(measured=False)
         self._warning_count = sum(w.number for w in self._warnings)
         self._last_obs = self._get_obs()
         return self._last_obs

@@ -61,6 +61,10 @@ class EnvConfig:
     reset_noise_scale: float = 0.001
     preview_steps: int = 3
     preview_dt: float = 0.01
+    #: What the controller measures (tendon2r_gym.realism.Sensors): Gaussian noise (std, rad
+    #: and rad/s) on each joint's angle and speed, and their age (s, whole control steps).
+    observation_noise: tuple[float, float] = (0.0, 0.0)
+    observation_delay: float = 0.0
     #: Peak tendon force (N) that inverse dynamics of the reference (or of the worst corner of
     #: reference_ranges) needs; computed, not an argument.
     force_need: float = field(default=math.nan, compare=False)
@@ -100,11 +104,6 @@ class EnvConfig:
         if abs(n_sub * sim_dt - self.ctrl_dt) > 1e-6 * self.ctrl_dt:
             raise invalid("ctrl_dt", self.ctrl_dt, f"an integer multiple of sim_dt = {sim_dt} s")
         set_("ctrl_dt", n_sub * sim_dt)
-        delay = self.mechanism.motor_delay
-        if abs(round(delay / self.ctrl_dt) * self.ctrl_dt - delay) > 1e-6 * self.ctrl_dt:
-            raise invalid(
-                "mechanism.motor_delay", delay, f"a multiple of ctrl_dt = {self.ctrl_dt} s"
-            )
         if self.action_mode not in ACTION_MODES:
             raise invalid("action_mode", self.action_mode, f"one of {ACTION_MODES}")
         set_("action_filter_tau", number("action_filter_tau", self.action_filter_tau, 0.0, 1.0))
@@ -127,6 +126,19 @@ class EnvConfig:
         set_("reset_noise_scale", number("reset_noise_scale", self.reset_noise_scale, 0.0, 0.5))
         set_("preview_steps", integer("preview_steps", self.preview_steps, 0, 100))
         set_("preview_dt", number("preview_dt", self.preview_dt, 0.0, 1.0, lo_open=True))
+        noise = self.observation_noise
+        allowed = "[angle std (rad), speed std (rad/s)], two finite numbers >= 0"
+        if isinstance(noise, (str, bytes, Mapping)) or not isinstance(noise, Sequence):
+            raise invalid("observation_noise", noise, allowed)
+        if len(noise) != 2:
+            raise invalid("observation_noise", noise, allowed)
+        set_("observation_noise", tuple(number("observation_noise", v, 0.0) for v in noise))
+        delay = number("observation_delay", self.observation_delay, 0.0, 1.0)
+        set_("observation_delay", delay)
+        for name, value in (("observation_delay", delay), ("mechanism.motor_delay", None)):
+            value = self.mechanism.motor_delay if value is None else value
+            if abs(round(value / self.ctrl_dt) * self.ctrl_dt - value) > 1e-6 * self.ctrl_dt:
+                raise invalid(name, value, f"a multiple of ctrl_dt = {self.ctrl_dt} s")
         self._check_reference()
         self._size_force_limit()
 
@@ -204,6 +216,16 @@ class EnvConfig:
         return round(self.mechanism.motor_delay / self.ctrl_dt)
 
     @property
+    def observation_delay_steps(self) -> int:
+        """Returns the control steps each measurement is late (observation_delay)."""
+        return round(self.observation_delay / self.ctrl_dt)
+
+    @property
+    def sensed(self) -> bool:
+        """Returns whether the observation is a measurement (noisy or late), not the state."""
+        return self.observation_delay > 0 or any(v > 0 for v in self.observation_noise)
+
+    @property
     def action_filter_alpha(self) -> float:
         """Returns the weight of a new action in the applied command, 1 - exp(-ctrl_dt / tau)
         (1: no filter)."""
@@ -223,6 +245,7 @@ class EnvConfig:
                 continue
             value = getattr(self, f.name)
             out[f.name] = value.to_dict() if hasattr(value, "to_dict") else value
+        out["observation_noise"] = list(self.observation_noise)
         return out
 
 

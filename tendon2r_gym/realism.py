@@ -15,6 +15,11 @@ model is the ideal one, bit for bit) and what each one means physically:
 - ``motor_delay``: dead time between a command and the motor (s), whole control steps: bus and
   driver.  Typical: 1 to 5 ms.
 
+What the controller measures is set in the env config: ``observation_noise`` (Gaussian std on
+each joint's angle, rad, and speed, rad/s; typical encoders 1e-4 rad, speeds from differences
+1e-2 rad/s) and ``observation_delay`` (s, whole control steps; typical 1 to 5 ms):
+:class:`Sensors`.  The reward and ``info`` stay on the true state.
+
 :class:`Drive` puts an arm at rest for a reset: every spool where its cable holds the rest
 tension (:attr:`Mechanism.rest_tension`), every motor's lag at the rest command, so that an
 episode starts as it would on the bench.  Both envs use it (the vector env copies the state of
@@ -110,3 +115,34 @@ class CommandDelay:
         self._ring[self._i, arms] = ctrl[arms]
         self._i = (self._i + 1) % len(self._ring)
         return out
+
+
+class Sensors:
+    """What the controller measures of N arms that step together: (q_A, q_B, dq_A, dq_B),
+    ``steps`` control steps late, with Gaussian noise of std ``noise`` = (rad, rad/s).  Each
+    measurement draws its noise once, from its arm's generator, when it is taken (every
+    step, and at a reset, which fills the arm's ring), so that reading it draws nothing."""
+
+    def __init__(self, steps: int, n_arms: int, noise: tuple[float, float]) -> None:
+        self.std = np.repeat(np.asarray(noise, dtype=float), 2)  # q_A, q_B, dq_A, dq_B
+        self._noisy = bool(np.any(self.std > 0))
+        self._ring = np.zeros((steps + 1, n_arms, 4))
+        self._i = 0
+
+    def _measure(self, state: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        return state + rng.standard_normal(4) * self.std if self._noisy else state
+
+    def reset(self, arm: int, state: np.ndarray, rng: np.random.Generator) -> None:
+        """Arm ``arm`` starts at ``state`` (4,): every slot of its ring holds one measurement."""
+        self._ring[:, arm] = self._measure(state, rng)
+
+    def store(self, states: np.ndarray, rngs: list[np.random.Generator], arms) -> None:
+        """Measures the arms ``arms`` (indices) in ``states`` (n_arms, 4), then advances."""
+        slot = self._ring[self._i]
+        for i in arms:
+            slot[i] = self._measure(states[i], rngs[i])
+        self._i = (self._i + 1) % len(self._ring)
+
+    def read(self) -> np.ndarray:
+        """Returns the measurements (n_arms, 4) the controller has now: the oldest kept."""
+        return self._ring[self._i]

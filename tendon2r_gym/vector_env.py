@@ -32,7 +32,7 @@ from tendon2r_gym.env import DIVERGENCE_WARNINGS
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.model import build_model, tendon_name
 from tendon2r_gym.ops import BATCH
-from tendon2r_gym.realism import CommandDelay, Drive
+from tendon2r_gym.realism import CommandDelay, Drive, Sensors
 from tendon2r_gym.reference import Reference
 from tendon2r_gym.task import Task, reference_params
 from tendon2r_gym.validation import boolean, integer, invalid, real_array
@@ -103,11 +103,16 @@ class Tendon2RVectorEnv(VectorEnv):
         self.drive = Drive(self.model, cfg.mechanism)
         if self.drive.has_state:
             self._scratch = mujoco.MjData(self.model)
-            self._state = {"act": b.bind("act")}
+            self._act = b.bind("act")
         self._delay: CommandDelay | None = None
         if cfg.delay_steps:
             n_motors = cfg.mechanism.n_tendons
             self._delay = CommandDelay(cfg.delay_steps, self.num_envs, n_motors, self.drive.ctrl)
+        self._sensing: Sensors | None = None
+        if cfg.sensed:  # the observation is a measurement; reward and info are true
+            self._sensing = Sensors(
+                cfg.observation_delay_steps, self.num_envs, cfg.observation_noise
+            )
         if cfg.mechanism.elastic:
             self._ten_length, self._ten_velocity = b.bind("ten_length"), b.bind("ten_velocity")
         self._warn_ids = [int(w) for w in DIVERGENCE_WARNINGS]
@@ -125,6 +130,7 @@ class Tendon2RVectorEnv(VectorEnv):
         # samples all phases of the reference instead of N copies of the same window.
         self._stagger = boolean("stagger", stagger)
         self._last_obs = np.zeros((n, self.single_observation_space.shape[0]))
+        self._last_truth = self._last_obs.copy()  # of the true state, with sensors
         self._last_action = np.zeros((n, n_act))  # the applied commands, as observed
 
     # -- references --------------------------------------------------------------------------
@@ -162,6 +168,8 @@ class Tendon2RVectorEnv(VectorEnv):
             self._steps[ids] = (ids * self.max_episode_steps) // n
         obs = self._observe()
         self._last_obs[ids] = obs[ids]
+        if self._sensing is not None:
+            self._last_truth[ids] = self._observe(measured=False)[ids]
         return obs.copy(), self._reset_info(ids)
 
     def _reset_ids(self, ids: np.ndarray, fixed: Reference | None = None) -> None:
@@ -178,6 +186,8 @@ class Tendon2RVectorEnv(VectorEnv):
                 self._settle(i, q, dq)
             else:
                 self._qpos[i], self._qvel[i] = q, dq
+            if self._sensing is not None:
+                self._sensing.reset(i, self._state(i), self._rngs[i])
         self.batch.forward(ids)
         self._steps[ids] = 0
         self._last_action[ids] = self.task.rest_command()
@@ -192,9 +202,7 @@ class Tendon2RVectorEnv(VectorEnv):
         d = self._scratch
         mujoco.mj_resetData(self.model, d)
         self.drive.settle(d, q, dq)
-        self._qpos[i], self._qvel[i], self._ctrl[i] = d.qpos, d.qvel, d.ctrl
-        for key, value in self._state.items():
-            value[i] = getattr(d, key)
+        self._qpos[i], self._qvel[i], self._ctrl[i], self._act[i] = d.qpos, d.qvel, d.ctrl, d.act
 
     def _reset_info(self, ids: np.ndarray, info: dict[str, Any] | None = None) -> dict[str, Any]:
         """Adds the single env's reset info of arms ``ids`` to ``info``, as Gymnasium's vector
@@ -240,17 +248,25 @@ class Tendon2RVectorEnv(VectorEnv):
         except mj_batch.SimulationError as e:  # MuJoCo raised: those arms diverged
             failed[e.ids] = True
         diverged = self._check_divergence(active, failed)
+        if self._sensing is not None:
+            stepped = np.flatnonzero(~resetting)
+            self._sensing.store(self._state(), self._rngs, stepped)
         obs = self._observe()
         if diverged.any():
             obs[diverged] = self._last_obs[diverged]  # the last good state, as the single env
-        rewards, terms = self._rewards(obs, a, last, diverged)
+        truth = obs
+        if self._sensing is not None:  # reward and info on the true state
+            truth = self._observe(measured=False)
+            truth[diverged] = self._last_truth[diverged]
+            self._last_truth[:] = truth
+        rewards, terms = self._rewards(truth, a, last, diverged)
         rewards[resetting] = 0.0
         self._steps[active] += 1
         terminated[active] = diverged[active]
         # As Gymnasium's TimeLimit: truncated at the step limit, terminated or not.
         truncated[active] = self._steps[active] >= self.max_episode_steps
         # As SyncVectorEnv: step info for the arms that stepped, reset info for the others.
-        info = self._step_info(obs, terms, diverged, ~resetting) if len(reset_ids) < n else {}
+        info = self._step_info(truth, terms, diverged, ~resetting) if len(reset_ids) < n else {}
         if len(reset_ids):  # as SyncVectorEnv: a resetting arm reports its reset info
             info = self._reset_info(reset_ids, info)
         done = terminated | truncated
@@ -274,6 +290,8 @@ class Tendon2RVectorEnv(VectorEnv):
             fresh = self._observe()
             obs[ids] = fresh[ids]
             self._last_obs[ids] = fresh[ids]
+            if self._sensing is not None:
+                self._last_truth[ids] = self._observe(measured=False)[ids]
             info = self._reset_info(ids, _without_empty(info))
         else:
             self._needs_reset = done
@@ -298,15 +316,24 @@ class Tendon2RVectorEnv(VectorEnv):
             w[mask] = 0.0
         return mask
 
-    def _observe(self) -> np.ndarray:
-        """The observations of every arm (tendon2r_gym.task.Task.observation on arrays)."""
-        q, w = self._qpos, self._qvel
+    def _state(self, i: int | slice = slice(None)) -> np.ndarray:
+        """Returns the true (q_A, q_B, dq_A, dq_B) of arm i (or of every arm, (N, 4))."""
+        return np.concatenate([self._qpos[i, :2], self._qvel[i, :2]], axis=-1)
+
+    def _observe(self, measured: bool = True) -> np.ndarray:
+        """The observations of every arm (tendon2r_gym.task.Task.observation on arrays): of
+        what the sensors measure, or with ``measured=False`` of the true state."""
+        if measured and self._sensing is not None:
+            q1, q2, w1, w2 = self._sensing.read().T.copy()
+        else:
+            q, w = self._qpos, self._qvel
+            q1, q2, w1, w2 = q[:, 0], q[:, 1], w[:, 0], w[:, 1]
         parts = self.task.observation(
             BATCH,
-            q[:, 0],
-            q[:, 1],
-            w[:, 0],
-            w[:, 1],
+            q1,
+            q2,
+            w1,
+            w2,
             self._time,
             tuple(self._ref),
             list(self._last_action.T),

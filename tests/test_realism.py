@@ -186,3 +186,47 @@ def test_env_starts_at_rest_and_reports_cable_tension(preset):
         env.reset(seed=3)
         runs.append([env.step(a)[4]["tendon_tension"] for a in actions])
     np.testing.assert_array_equal(*runs)
+
+
+def test_late_observation_is_the_state_k_steps_before():
+    """observation_delay = k ctrl_dt: the observed q and dq are the true ones of k steps before
+    (the reset state until then); reward and info stay on the true state."""
+    from tendon2r_gym.observation import DQ, Q
+
+    k = 3
+    env = gym.make("Tendon2R-v0", observation_delay=k * 0.001)
+    ideal = gym.make("Tendon2R-v0")
+    obs, _ = env.reset(seed=2)
+    ideal_obs, _ = ideal.reset(seed=2)
+    true = [ideal_obs]
+    actions = np.random.default_rng(0).uniform(-1, 1, (12, 2))
+    for t, a in enumerate(actions, start=1):
+        obs, reward, *_, info = env.step(a)
+        ideal_out = ideal.step(a)
+        true.append(ideal_out[0])
+        late = true[max(t - k, 0)]
+        np.testing.assert_array_equal(obs[Q], late[Q])
+        np.testing.assert_array_equal(obs[DQ], late[DQ])
+        assert reward == ideal_out[1]  # the true error
+        np.testing.assert_array_equal(info["q"], ideal_out[4]["q"])
+
+
+def test_noise_has_its_std_and_the_same_seed_gives_the_same_noise():
+    from tendon2r_gym.observation import DQ, Q
+
+    std = (1e-3, 0.05)
+    env = gym.make("Tendon2R-v0", observation_noise=list(std))
+    runs = []
+    for _ in range(2):
+        env.reset(seed=5)
+        dev = []
+        for _ in range(1500):
+            obs, *_, info = env.step(np.zeros(2))
+            dev.append(np.r_[obs[Q] - info["q"], obs[DQ]])
+        runs.append(np.array(dev))
+    np.testing.assert_array_equal(*runs)
+    np.testing.assert_allclose(runs[0][:, :2].std(0), std[0], rtol=0.1)
+    with pytest.raises(ValueError, match=r"observation_noise = \[0\.1\]"):
+        gym.make("Tendon2R-v0", observation_noise=[0.1])
+    with pytest.raises(ValueError, match=r"observation_delay = 0\.0015 .*ctrl_dt = 0\.001"):
+        gym.make("Tendon2R-v0", observation_delay=0.0015)

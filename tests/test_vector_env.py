@@ -27,7 +27,9 @@ def _native(n, **kw):
      (5, 1, {"action_mode": "joint_torque", "preset": "pull_only"}),
      (4, 1, {"action_filter_tau": 0.005, "preset": "pull_only"}),
      (3, 1, {"mechanism": REAL}), (3, 1, {"preset": "pull_only", "mechanism": REAL}),
-     (3, 1, {"action_mode": "joint_torque", "mechanism": REAL})],
+     (3, 1, {"action_mode": "joint_torque", "mechanism": REAL}),
+     (3, 1, {"observation_noise": [1e-3, 0.1], "observation_delay": 0.002}),
+     (4, 2, {"observation_noise": [0, 0.1], "mechanism": REAL, "preset": "pull_only"})],
 )  # fmt: skip
 @pytest.mark.parametrize("mode", ["NextStep", "SameStep"])
 def test_same_seeds_same_trajectories_as_single_envs_bit_for_bit(n, nthread, kwargs, mode):
