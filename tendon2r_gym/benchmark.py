@@ -260,7 +260,8 @@ def benchmark_bundled(episodes: int, out: Path, command: str) -> dict[str, Any]:
         learned = {label: _bundle_models(preset + suffix) for label, (suffix, _) in LEARNED.items()}
         rows += compare(preset, {"preset": preset}, learned, seeds, out / "plots")
     held = held_out()
-    result = {"command": command, "rows": rows, "held_out": held}
+    real = realism(episodes)
+    result = {"command": command, "rows": rows, "held_out": held, "realism": real}
     tension = tension_comparison(rows)
     bundles = [
         f"- {n}: seeds {m['seeds']}, trained by `{m['train_command']}`, bundled by `{m['command']}`"
@@ -299,6 +300,8 @@ def benchmark_bundled(episodes: int, out: Path, command: str) -> dict[str, Any]:
         "| policy | mean RMS error A / B (deg) |",
         "|---|---|",
         *(f"| {r['policy']} | {r.get('missing') or _fmt(r['rms_deg_mean'])} |" for r in held),
+        "",
+        *realism_lines(real),
     ]
     return _write(out, result, lines)
 
@@ -334,6 +337,77 @@ def tension_comparison(rows: list[dict[str, Any]]) -> list[str]:
                 f"- Target {policy.upper()} <= {limit} deg RMS per joint with no pushing "
                 f"tendon: **{'met' if ok else 'MISSED'}** ({_fmt(r['rms_deg'])} deg)."
             )
+    return lines
+
+
+#: The realism section: the real_arm preset, then REALISM_ARMS arms of
+#: tendon2r_gym.realism.perturbed_arms(REALISM_BASE, REALISM_ARMS, REALISM_SEED); the residual
+#: is the bundle trained on the ideal arm of the same geometry.
+REALISM_BASE, REALISM_ARMS, REALISM_SEED, REALISM_BUNDLE = "real_arm", 16, 0, "pull_only"
+
+
+def realism(episodes: int) -> list[dict[str, Any]]:
+    """PD, CT (nominal model) and the ideal-trained residual on the real arm and its seeded
+    perturbations: one row per arm, RMS per joint and tension rate per policy."""
+    from tendon2r_gym.realism import perturbed_arms
+
+    arms = [("real_arm", {"preset": REALISM_BASE})]
+    arms += [
+        (f"perturbed {i}", kw)
+        for i, kw in enumerate(perturbed_arms(REALISM_BASE, REALISM_ARMS, REALISM_SEED))
+    ]
+    model = bundled_model(REALISM_BUNDLE) if bundle_meta(REALISM_BUNDLE) else None
+    seeds = list(range(episodes))
+    rows = []
+    for name, kwargs in arms:
+        row: dict[str, Any] = {"arm": name, "env_kwargs": kwargs}
+        for policy in ("pd", "ct", "ppo"):
+            if policy == "ppo" and model is None:
+                continue
+            metrics, _ = evaluate(policy, kwargs, seeds, model if policy == "ppo" else None)
+            row[policy] = {
+                k: metrics[k] for k in ("rms_deg", "rms_tension_N", "rms_tension_rate_N_per_s")
+            }
+        rows.append(row)
+        shown = "  ".join(f"{p} {_fmt(row[p]['rms_deg'])}" for p in ("pd", "ct", "ppo") if p in row)
+        print(f"realism {name:12s} {shown} deg", flush=True)
+    return rows
+
+
+def realism_lines(rows: list[dict[str, Any]]) -> list[str]:
+    """Returns the realism section of benchmark.md."""
+    has_ppo = all("ppo" in r for r in rows)
+    lines = [
+        "## Real tendons, motors and sensors",
+        "",
+        f"The `{REALISM_BASE}` preset (elastic pull-only cables on motor spools, pulley "
+        "friction, motor lag and delay, sensor noise and delay: tendon2r_gym.realism) and "
+        f"{REALISM_ARMS} arms drawn from tendon2r_gym.realism.PERTURBATIONS with seed "
+        f"{REALISM_SEED}. PD and CT keep the nominal (ideal) model; the residual is the "
+        f"`{REALISM_BUNDLE}` bundle's primary model, trained on the ideal arm (no "
+        "randomization). RMS error A / B (deg).",
+        "",
+        "| arm | PD | CT | residual (ideal-trained) | residual / PD, worst joint |",
+        "|---|---|---|---|---|",
+    ]
+    ratios = []
+    for r in rows:
+        ppo = _fmt(r["ppo"]["rms_deg"]) if "ppo" in r else "-"
+        ratio = "-"
+        if "ppo" in r:
+            ratios.append(max(np.divide(r["ppo"]["rms_deg"], r["pd"]["rms_deg"])))
+            ratio = f"{ratios[-1]:.2f}"
+        lines.append(
+            f"| {r['arm']} | {_fmt(r['pd']['rms_deg'])} | {_fmt(r['ct']['rms_deg'])} | {ppo} | "
+            f"{ratio} |"
+        )
+    if has_ppo and ratios:
+        wins = sum(x <= 1.0 for x in ratios)
+        lines += [
+            "",
+            f"Ideal-trained residual <= PD on both joints on {wins} of {len(rows)} arms; "
+            f"median worst-joint ratio to PD {np.median(ratios):.2f}.",
+        ]
     return lines
 
 

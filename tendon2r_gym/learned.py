@@ -86,19 +86,21 @@ def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
     """Raises if ``env`` differs from the env config a model was trained with in any field of
     MODEL_ENV_FIELDS.  The recorded config is read back through the same constructors, so a
     field added later takes its default (for a model trained on reference_ranges, the nominal
-    reference does not matter)."""
+    reference does not matter).  The mechanisms are compared without their realism fields
+    (Mechanism.ideal): a policy trained on the ideal arm runs on the same arm with real
+    cables, motors and sensors, as it would on hardware."""
     config = env.unwrapped.config
     ranges = recorded.get("reference_ranges")
     theirs = {
         **{k: recorded.get(k) for k in ("observation", "ctrl_dt", "preview_steps", "preview_dt")},
-        "mechanism": Mechanism.from_dict(recorded["mechanism"]),
+        "mechanism": Mechanism.from_dict(recorded["mechanism"]).ideal(),
         "reference": None if ranges else Reference.from_dict(recorded["reference"]),
         "reference_ranges": ReferenceRanges.from_dict(ranges) if ranges else None,
     }
     ours = {
         **{k: getattr(config, k) for k in ("ctrl_dt", "preview_steps", "preview_dt")},
         "observation": observation.layout(config.preview_steps, config.n_actions),
-        "mechanism": config.mechanism,
+        "mechanism": config.mechanism.ideal(),
         "reference": None if ranges else config.reference,
         "reference_ranges": config.reference_ranges,
     }

@@ -212,9 +212,17 @@ class Mechanism:
         return any(getattr(self, k) > 0 for k in REALISM_LIMITS)
 
     def ideal(self) -> Mechanism:
-        """Returns the nominal mechanism: every realism field off (the model that PD's and CT's
-        distribution and inverse dynamics use)."""
-        return self.replace(**dict.fromkeys(REALISM_LIMITS, 0.0)) if self.realistic else self
+        """Returns the nominal mechanism: every realism field off, ``motor_mass`` (which only
+        elastic cables use) at its default, and no ``tendon_damping`` if the cables were
+        elastic (it was theirs); the model that PD's and CT's distribution and
+        inverse dynamics use, and what a trained policy's arm is checked against."""
+        default_mass = Mechanism.__dataclass_fields__["motor_mass"].default
+        if not self.realistic and self.motor_mass == default_mass:
+            return self
+        off = dict.fromkeys(REALISM_LIMITS, 0.0)
+        if self.elastic:  # then tendon_damping is the cable's own damping
+            off["tendon_damping"] = 0.0
+        return self.replace(**off, motor_mass=default_mass)
 
     @property
     def rest_tension(self) -> float:

@@ -30,6 +30,8 @@ measured, a 2 ms delay moved the trajectory by neither 1 nor 2 steps).
 
 from __future__ import annotations
 
+from typing import Any
+
 import mujoco
 import numpy as np
 
@@ -146,3 +148,44 @@ class Sensors:
     def read(self) -> np.ndarray:
         """Returns the measurements (n_arms, 4) the controller has now: the oldest kept."""
         return self._ring[self._i]
+
+
+#: Ranges of the seeded perturbed arms (the realism section of ``make benchmark``): each value
+#: is drawn uniformly and independently; delays are rounded to whole control steps.  They span
+#: the catalog-typical values of the ``real_arm`` preset from about half to twice.
+PERTURBATIONS: dict[str, Any] = {
+    "mechanism": {
+        "tendon_elasticity": (2500.0, 8000.0),  # N/m
+        "tendon_damping": (1.0, 4.0),  # N s/m
+        "motor_mass": (0.002, 0.004),  # kg
+        "tendon_friction": (0.0, 0.01),  # N
+        "motor_tau": (0.0, 0.004),  # s
+        "motor_delay": (0.0, 0.002),  # s
+    },
+    "observation_noise": ((0.0, 2e-4), (0.0, 0.1)),  # rad, rad/s
+    "observation_delay": (0.0, 0.002),  # s
+}
+
+
+def perturbed_arms(preset: str, n: int, seed: int) -> list[dict[str, Any]]:
+    """Returns the env kwargs of ``n`` arms: ``preset`` with every PERTURBATIONS value drawn
+    from ``np.random.default_rng(seed)``, in PERTURBATIONS' order."""
+    from tendon2r_gym.env_config import EnvConfig
+
+    ctrl_dt = EnvConfig.make(preset).ctrl_dt
+    rng = np.random.default_rng(seed)
+    draw = lambda lo_hi: float(rng.uniform(*lo_hi))  # noqa: E731
+    steps = lambda s: round(s / ctrl_dt) * ctrl_dt  # noqa: E731
+    arms = []
+    for _ in range(n):
+        mech = {k: draw(r) for k, r in PERTURBATIONS["mechanism"].items()}
+        mech["motor_delay"] = steps(mech["motor_delay"])
+        arms.append(
+            {
+                "preset": preset,
+                "mechanism": mech,
+                "observation_noise": [draw(r) for r in PERTURBATIONS["observation_noise"]],
+                "observation_delay": steps(draw(PERTURBATIONS["observation_delay"])),
+            }
+        )
+    return arms

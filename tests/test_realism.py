@@ -31,7 +31,8 @@ def test_every_effect_off_is_the_ideal_model():
     assert to_xml(zeros) == to_xml(PUSH_PULL)
     assert PUSH_PULL.ideal() is PUSH_PULL and not PUSH_PULL.realistic
     real = PUSH_PULL.replace(tendon_elasticity=1e3, motor_tau=0.01)
-    assert real.realistic and real.ideal() == PUSH_PULL.replace(motor_mass=real.motor_mass)
+    assert real.realistic and real.ideal() == PUSH_PULL
+    assert PUSH_PULL.replace(motor_mass=0.3).ideal() == PUSH_PULL
 
 
 @pytest.mark.parametrize("mech", [PUSH_PULL, PULL_ONLY], ids=["push_pull", "pull_only"])
@@ -230,3 +231,38 @@ def test_noise_has_its_std_and_the_same_seed_gives_the_same_noise():
         gym.make("Tendon2R-v0", observation_noise=[0.1])
     with pytest.raises(ValueError, match=r"observation_delay = 0\.0015 .*ctrl_dt = 0\.001"):
         gym.make("Tendon2R-v0", observation_delay=0.0015)
+
+
+def test_real_arm_preset_and_perturbed_arms():
+    """real_arm turns every effect on over the pull_only arm; the perturbed arms are valid,
+    seeded and inside PERTURBATIONS; PD keeps real_arm stable."""
+    from tendon2r_gym.env_config import EnvConfig
+    from tendon2r_gym.evaluation import evaluate
+    from tendon2r_gym.realism import PERTURBATIONS, perturbed_arms
+
+    real, ideal = EnvConfig.make("real_arm"), EnvConfig.make("pull_only")
+    assert all(getattr(real.mechanism, k) > 0 for k in REALISM_LIMITS) and real.sensed
+    assert real.mechanism.ideal() == ideal.mechanism  # same arm, same auto force limit
+    arms = perturbed_arms("real_arm", 4, 7)
+    assert arms == perturbed_arms("real_arm", 4, 7) != perturbed_arms("real_arm", 4, 8)
+    for kwargs in arms:
+        mech = EnvConfig.make(**kwargs).mechanism
+        for field, (lo, hi) in PERTURBATIONS["mechanism"].items():
+            assert lo <= getattr(mech, field) <= hi + 1e-12, field
+    metrics, _ = evaluate("pd", {"preset": "real_arm"}, [0])
+    assert max(metrics["rms_deg"]) < 1.0  # stable (the ideal arm: 0.09 deg)
+
+
+def test_a_model_of_the_ideal_arm_loads_on_the_real_one_only():
+    """check_model_env compares the nominal arms: real cables and sensors are deployment
+    conditions, another geometry is another arm."""
+    from tendon2r_gym.learned import check_model_env
+
+    recorded = gym.make("Tendon2R-v0", preset="pull_only").unwrapped.config.to_dict()
+    from tendon2r_gym import observation
+
+    recorded["observation"] = observation.layout(3, 3)
+    check_model_env(recorded, gym.make("Tendon2R-v0", preset="real_arm"), "model")
+    with pytest.raises(ValueError, match="trained for another env: mechanism"):
+        other = gym.make("Tendon2R-v0", preset="real_arm", mechanism={"R1": 0.012})
+        check_model_env(recorded, other, "model")
