@@ -135,8 +135,8 @@ class EnvConfig:
         set_("observation_noise", tuple(number("observation_noise", v, 0.0) for v in noise))
         delay = number("observation_delay", self.observation_delay, 0.0, 1.0)
         set_("observation_delay", delay)
-        for name, value in (("observation_delay", delay), ("mechanism.motor_delay", None)):
-            value = self.mechanism.motor_delay if value is None else value
+        delays = {"observation_delay": delay, "mechanism.motor_delay": self.mechanism.motor_delay}
+        for name, value in delays.items():
             if abs(round(value / self.ctrl_dt) * self.ctrl_dt - value) > 1e-6 * self.ctrl_dt:
                 raise invalid(name, value, f"a multiple of ctrl_dt = {self.ctrl_dt} s")
         self._check_reference()
