@@ -373,7 +373,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     def reset_model(self) -> np.ndarray:
         self._set_reference(self.task.episode_reference(self.np_random, self._fixed_reference))
         q, qdot = self.task.initial_state(self.np_random, self.reference)
-        if self.drive.has_state:  # spools, lags and command histories at rest
+        if self.drive.has_state:  # spools and lags at rest
             self.drive.settle(self.data, q, qdot)
         else:
             self.set_state(q, qdot)

@@ -231,6 +231,15 @@ class Mechanism:
         return self.pretension if self.pull_only else 0.0
 
     @property
+    def rest_ctrl(self) -> float:
+        """Returns the normalized motor command whose tension is :attr:`rest_tension`: 0 for
+        push-pull motors, 2 pretension / F - 1 for pull-only ones (F = max_tendon_force, once
+        resolved from "auto")."""
+        if not self.pull_only:
+            return 0.0
+        return 2.0 * self.rest_tension / self.max_tendon_force - 1.0
+
+    @property
     def joint_range_rad(self) -> tuple[float, float]:
         """Returns the joint range (rad), the same for both joints."""
         lo, hi = self.joint_range_deg

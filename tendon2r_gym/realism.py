@@ -35,16 +35,9 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from tendon2r_gym.actuation import MomentArms
 from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.model import spool_name
-
-
-def rest_ctrl(mech: Mechanism) -> float:
-    """Returns the motor command whose tension is :attr:`Mechanism.rest_tension`: 0 for
-    push-pull motors, 2 pretension / F - 1 for pull-only ones (F = max_tendon_force)."""
-    if not mech.pull_only:
-        return 0.0
-    return 2.0 * mech.rest_tension / mech.max_tendon_force - 1.0
 
 
 class Drive:
@@ -53,7 +46,7 @@ class Drive:
     def __init__(self, model: mujoco.MjModel, mech: Mechanism) -> None:
         self.model, self.mech = model, mech
         n = self.n = mech.n_tendons
-        self.ctrl = rest_ctrl(mech)
+        self.ctrl = mech.rest_ctrl
         #: Whether a reset has more to set than (q, dq): spools or lags.
         self.has_state = mech.elastic or mech.motor_tau > 0
         spools = [model.joint(spool_name(i)) for i in range(n)] if mech.elastic else []
@@ -62,7 +55,6 @@ class Drive:
         self.stretch = mech.rest_tension / mech.tendon_elasticity if mech.elastic else 0.0
         spring = model.tendon_lengthspring[:n]
         self.slack_length, self.rest_length = spring[:, 0].copy(), spring[:, 1].copy()
-        self._arms_dof = slice(0, 2)
 
     def settle(self, data: mujoco.MjData, q: np.ndarray, dq: np.ndarray) -> None:
         """Sets a freshly reset ``data`` (time 0) to the joint state (q, dq), every cable at its
@@ -77,9 +69,8 @@ class Drive:
             # length is L(q, 0) - s, and the cable is still when ds/dt = J_arm dq.
             length = data.ten_length[: self.n].copy()
             data.qpos[spools] = length - self.rest_length - self.stretch
-            J = np.zeros((m.ntendon, m.nv))
-            mujoco.mju_sparse2dense(J, data.ten_J, m.ten_J_rownnz, m.ten_J_rowadr, m.ten_J_colind)
-            data.qvel[dofs] = J[: self.n, self._arms_dof] @ np.asarray(dq, dtype=float)
+            J = MomentArms(m, data).dense()  # the motors' tendons over the arm's joints
+            data.qvel[dofs] = J @ np.asarray(dq, dtype=float)
         data.ctrl[:] = self.ctrl
         if mech.motor_tau > 0:
             data.act[:] = self.ctrl

@@ -232,10 +232,8 @@ class Task:
         """Returns the command at rest, the "last command" after a reset: no force, or for
         pull-only tendons in tension mode the pretension (-1 would be slack)."""
         cfg = self.config
-        mech = cfg.mechanism
-        if cfg.action_mode == "tension" and mech.pull_only:
-            return [2.0 * mech.pretension / mech.max_tendon_force - 1.0] * cfg.n_actions
-        return [0.0] * cfg.n_actions
+        rest = cfg.mechanism.rest_ctrl if cfg.action_mode == "tension" else 0.0
+        return [rest] * cfg.n_actions
 
     def command(self, action: Sequence[Any], last: Sequence[Any]) -> Sequence[Any]:
         """Returns the command the env applies: the clipped action through the first-order
