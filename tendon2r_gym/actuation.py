@@ -163,35 +163,72 @@ class ActuationAnalysis:
 
 
 class TorqueToTension:
-    """Joint torques -> normalized tendon commands for one mechanism, from a private copy of its
-    nominal model (:meth:`Mechanism.ideal`, never the env's MjData): the moment arms at q,
-    :func:`distribute`, then push-pull: -t / F; pull-only: 2 t / F - 1 (F = max_tendon_force),
-    clipped to [-1, 1].  PD and computed torque command the tendons through it, and so does the
-    env in ``action_mode="joint_torque"``."""
+    """Joint torques -> normalized tendon commands for one mechanism, or one per row of a batch
+    (:meth:`follow`: random arms), from a private copy of each nominal model
+    (:meth:`Mechanism.ideal`, never the env's MjData): the moment arms at q,
+    :func:`distribute`, then push-pull: -t / F; pull-only: 2 t / F - 1 (F =
+    max_tendon_force), clipped to [-1, 1].  PD and computed torque command the tendons through
+    it, and so does the env in ``action_mode="joint_torque"``."""
 
     def __init__(self, mechanism: Mechanism, damping: float = FORCE_DAMPING) -> None:
-        self.mechanism = mechanism
         self.damping = damping
+        self.mechanisms: list[Mechanism] = []
+        self._models: list[mujoco.MjModel] = []
+        self._batches: dict[int, _Kinematics] = {}
+        self.follow([mechanism])
+
+    def follow(self, mechanisms: Sequence[Mechanism]) -> None:
+        """Controls the arms ``mechanisms``: one for every row of a batch, or one per row (N
+        arms, each with its own model; an unchanged arm keeps its model)."""
+        mechanisms = list(mechanisms)
+        old = self.mechanisms
+        if len(old) == len(mechanisms) and all(
+            a is b for a, b in zip(old, mechanisms, strict=True)
+        ):
+            return
+        kept = dict(zip(map(id, old), self._models, strict=True))
         # The nominal model: a controller's model of the arm knows no stretch, lag or friction.
-        self.model = build_model(mechanism.ideal())
+        self._models = [kept.get(id(m)) or build_model(m.ideal()) for m in mechanisms]
+        self.mechanisms = mechanisms
+        self.mechanism = mechanisms[0]
+        self.model = self._models[0]
         self.data = mujoco.MjData(self.model)
         self._arms = MomentArms(self.model, self.data)
         self._M = np.zeros((self.model.nv, self.model.nv))
-        self._batches: dict[int, _Kinematics] = {}
-        self._max_force = mechanism.max_tendon_force
-        self._pull_only, self._pretension = mechanism.pull_only, mechanism.pretension
+        self._pull_only = self.mechanism.pull_only
+        per_arm = lambda name: np.array([getattr(m, name) for m in mechanisms])[:, None]  # noqa: E731
+        if len(mechanisms) == 1:
+            self._max_force, self._pretension = (
+                self.mechanism.max_tendon_force,
+                self.mechanism.pretension,
+            )
+        else:
+            self._max_force, self._pretension = per_arm("max_tendon_force"), per_arm("pretension")
+        for n, batch in self._batches.items():
+            batch.set_models(self._models if len(self._models) == n else None)
+        self.__dict__.pop("max_torque", None)  # a cached_property of the arms
+
+    def model_of(self, row: int) -> mujoco.MjModel:
+        """Returns the nominal model of a batch's row (the one model of a single arm)."""
+        return self._models[row if len(self._models) > 1 else 0]
 
     def kinematics(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Returns the moment arms J (N, n_tendons, 2) and the inertia M (N, 2, 2) at the joint
-        angles q (N, 2), from the private model (one mujoco.batch call for N > 1)."""
-        if len(q) == 1:
+        angles q (N, 2), from the private models (one mujoco.batch call for N > 1)."""
+        if len(q) == 1 and len(self._models) == 1:
             self.data.qpos[:] = q[0]
             mujoco.mj_fwdPosition(self.model, self.data)
             mujoco.mj_fullM(self.model, self.data, self._M)
             return self._arms.dense()[None].copy(), self._M[None].copy()
+        if len(self._models) not in (1, len(q)):
+            raise ValueError(
+                f"joint angles of {len(q)} arms are invalid; allowed: 1 or the "
+                f"{len(self._models)} arms this controller follows"
+            )
         batch = self._batches.get(len(q))
         if batch is None:
             batch = self._batches[len(q)] = _Kinematics(self.model, len(q))
+            batch.set_models(self._models if len(self._models) == len(q) else None)
         return batch(q)
 
     def command(self, J: np.ndarray, tau: np.ndarray) -> np.ndarray:
@@ -205,11 +242,14 @@ class TorqueToTension:
     def max_torque(self) -> np.ndarray:
         """The torque (N m) each joint alone reaches at q = 0 before a tendon saturates, with
         push-pull tendons of limit F: F / max_k |(J^+)^T_kj| (J^+ the pseudo-inverse, J
-        (J^T J)^-1 when J has full rank); the scale of a normalized joint-torque action.  A
-        joint that no tendon spans gets 0."""
-        J, _ = self.kinematics(np.zeros((1, 2)))
-        peak = np.max(np.abs(np.linalg.pinv(J[0])), axis=1)  # (2,): per joint
-        return np.where(peak > 0, self._max_force / np.where(peak > 0, peak, 1.0), 0.0)
+        (J^T J)^-1 when J has full rank); the scale of a normalized joint-torque action, (2,)
+        or (N, 2) per arm.  A joint that no tendon spans gets 0."""
+        J, _ = self.kinematics(np.zeros((len(self._models), 2)))
+        peak = np.max(np.abs(np.linalg.pinv(J)), axis=-1)  # (N, 2): per arm and joint
+        out = np.where(
+            peak > 0, np.reshape(self._max_force, (-1, 1)) / np.where(peak > 0, peak, 1.0), 0.0
+        )
+        return out[0] if len(self._models) == 1 else out
 
     def joint_torque_command(self, q: np.ndarray, action: np.ndarray) -> np.ndarray:
         """Returns the tendon commands (N, n_tendons) of normalized joint torques ``action``
@@ -225,6 +265,7 @@ class _Kinematics:
         from mujoco import batch as mj_batch
 
         self.batch = mj_batch.Batch(model, n, nthread=1)
+        self.set_models = self.batch.set_models
         self.qpos = self.batch.bind("qpos")
         self.M, self.J = self.batch.bind("M"), self.batch.bind("ten_J")  # bound before calls
         self.m_idx = _sparse_index(model.M_rownnz, model.M_rowadr, model.M_colind)

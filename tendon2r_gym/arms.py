@@ -1,4 +1,5 @@
-"""Random course arms: the course's parameter ranges and a seeded sampler of valid arms.
+"""Random arms: the course's parameter ranges, a seeded sampler of valid arms, and the ranges
+that the envs draw a new arm from at every reset (``mechanism_ranges``).
 
 The students' arms span pulley diameters of 0.011 to 0.047 m, links of 0.03 to 0.095 m,
 amplitudes up to 53 deg, biases up to 44 deg and frequencies up to 3.9 Hz (NOTES.md).
@@ -12,6 +13,11 @@ amplitudes up to 53 deg, biases up to 44 deg and frequencies up to 3.9 Hz (NOTES
 
 Each draw is an experiment file's content (``mechanism``, ``reference``,
 ``fit_to_workspace``), so ``tendon2r-benchmark --env-config`` runs it as a user's arm.
+
+:class:`MechanismRanges` is the one per-episode randomization of the arm, shared by the random
+geometry of "One policy for every arm" and the random cables and motors of "Real tendons":
+uniform ranges of Mechanism fields, drawn by ``EnvConfig.draw_arm`` at every reset, and the
+arm's features normalized over them (the optional ``arm`` slice of the observation).
 """
 
 from __future__ import annotations
@@ -22,9 +28,9 @@ from typing import Any
 
 import numpy as np
 
-from tendon2r_gym.mechanism import Mechanism
+from tendon2r_gym.mechanism import LIMITS, REALISM_LIMITS, Mechanism
 from tendon2r_gym.reference import Reference
-from tendon2r_gym.validation import invalid, pair
+from tendon2r_gym.validation import invalid, mapping, pair
 
 Range = tuple[float, float]
 
@@ -92,3 +98,98 @@ def draw_arms(seed: int, n: int, ranges: ArmRanges = COURSE, **kw: Any) -> list[
     """Returns ``n`` valid random arms drawn with ``seed`` (the same seed, the same arms)."""
     rng = np.random.default_rng(seed)
     return [draw_arm(rng, ranges, **kw) for _ in range(n)]
+
+
+#: The geometry fields of an arm (the course's ranges: ArmRanges).
+GEOMETRY = ("R1", "R2", "a", "b", "c")
+#: Mechanism fields that ``mechanism_ranges`` may draw: numbers that change the compiled model's
+#: parameters but not its layout (the routing, pull_only, the integrator and the joint range
+#: stay the nominal arm's; motor_delay is in whole control steps, not a model parameter).
+RANDOMIZABLE = (
+    *LIMITS,
+    "joint_damping",
+    "tendon_stiffness",
+    "tendon_damping",
+    "pretension",
+    "tendon_elasticity",
+    "motor_mass",
+    "tendon_friction",
+    "motor_tau",
+)
+#: Fields whose zero and non-zero values compile to models of different layouts (spools,
+#: friction tendons, actuator states): their range must not straddle 0.
+LAYOUT_FIELDS = ("tendon_elasticity", "tendon_friction", "motor_tau")
+#: ``mechanism_ranges: course``: the course's geometry (ArmRanges' defaults).
+COURSE_NAME = "course"
+
+
+@dataclass(frozen=True)
+class MechanismRanges:
+    """Uniform ranges [lo, hi] of Mechanism fields (RANDOMIZABLE), drawn independently in this
+    order at every reset; every other field keeps the nominal arm's value.  From YAML: a
+    mapping ``{field: [lo, hi]}``, or ``course`` (the course's geometry, R1 R2 a b c)."""
+
+    ranges: tuple[tuple[str, tuple[float, float]], ...]
+
+    def __post_init__(self) -> None:
+        if not self.ranges:
+            raise invalid("mechanism_ranges", {}, f"at least one of {RANDOMIZABLE}")
+        out = []
+        for name, value in self.ranges:
+            field = f"mechanism_ranges.{name}"
+            if name not in RANDOMIZABLE:
+                raise invalid("mechanism_ranges", name, f"fields among {RANDOMIZABLE}")
+            hi_limit = {**LIMITS, **REALISM_LIMITS}.get(name, 1e6)
+            lo, hi = pair(field, value, 0.0, hi_limit)
+            if lo > hi:
+                raise invalid(field, value, f"[lo, hi] with 0 <= lo <= hi <= {hi_limit:g}")
+            if name in LAYOUT_FIELDS and lo == 0.0 < hi:
+                raise invalid(
+                    field,
+                    value,
+                    "[0, 0] or 0 < lo <= hi: a zero and a non-zero value compile to models of "
+                    "different layouts, which one vector env cannot step together",
+                )
+            out.append((name, (lo, hi)))
+        object.__setattr__(self, "ranges", tuple(out))
+
+    @classmethod
+    def from_value(cls, value: Any) -> MechanismRanges:
+        """Reads ``course`` or a mapping ``{field: [lo, hi]}``."""
+        if value == COURSE_NAME:
+            return cls(tuple((k, getattr(COURSE, k)) for k in GEOMETRY))
+        if isinstance(value, MechanismRanges):
+            return value
+        values = mapping("mechanism_ranges", value)
+        return cls(tuple((str(k), v) for k, v in values.items()))
+
+    def to_dict(self) -> dict[str, list[float]]:
+        """Returns the ranges as plain YAML-friendly lists."""
+        return {name: list(r) for name, r in self.ranges}
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Returns the drawn fields, in drawing order (and the order of the arm features)."""
+        return tuple(name for name, _ in self.ranges)
+
+    def sample(self, rng: np.random.Generator, base: Mechanism) -> Mechanism:
+        """Returns ``base`` with every field drawn uniformly in its range (validated: raises
+        ValueError for a draw that is no valid Mechanism, such as pulleys that overlap)."""
+        drawn = {name: float(rng.uniform(lo, hi)) for name, (lo, hi) in self.ranges}
+        return base.replace(**drawn)
+
+    def features(self, mech: Mechanism) -> list[float]:
+        """Returns the drawn fields of ``mech`` normalized over their ranges to [-1, 1] (0 for a
+        range of one value): the ``arm`` slice of the observation."""
+        return [
+            0.0 if hi == lo else 2.0 * (getattr(mech, name) - lo) / (hi - lo) - 1.0
+            for name, (lo, hi) in self.ranges
+        ]
+
+    def violations(self, mech: Mechanism) -> list[str]:
+        """Returns the fields of ``mech`` outside the ranges (empty if it is inside)."""
+        return [
+            f"{name} = {getattr(mech, name)!r} outside [{lo:g}, {hi:g}]"
+            for name, (lo, hi) in self.ranges
+            if not lo - 1e-12 <= getattr(mech, name) <= hi + 1e-12
+        ]

@@ -20,7 +20,7 @@ from tendon2r_gym.model import CAMERA, build_model, tendon_name
 from tendon2r_gym.ops import SCALAR
 from tendon2r_gym.realism import CommandDelay, Drive, Sensors
 from tendon2r_gym.reference import Reference
-from tendon2r_gym.task import Task, reference_params, rewards_table
+from tendon2r_gym.task import Task, arm_params, reference_params, rewards_table
 from tendon2r_gym.validation import integer, invalid, real_array
 
 #: MuJoCo's warnings that mean the integration failed.
@@ -113,6 +113,8 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     | `mechanism` | `None` | dict of Mechanism fields overriding the preset, or a Mechanism |
     | `reference` | `None` | dict of Reference fields overriding the preset, or a Reference |
     | `reference_ranges` | `None` | dict of ReferenceRanges: draw a new reference every reset |
+    | `mechanism_ranges` | `None` | {{field: [lo, hi]}} of Mechanism fields, or "course": a new arm every reset |
+    | `observe_arm` | `False` | end the observation with the drawn fields, normalized (``arm``) |
     | `fit_to_workspace` | `False` | scale the amplitudes down (with a warning) instead of raising |
     | `ctrl_dt` | `0.001` | control period (s), an integer multiple of the mechanism's sim_dt |
     | `episode_duration` | `2.0` | seconds per episode |
@@ -134,6 +136,13 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     Real tendons and motors (``mechanism``: ``tendon_elasticity``, ``motor_mass``,
     ``tendon_friction``, ``motor_tau``, ``motor_delay``; all off by default) are described in
     tendon2r_gym.realism; PD and CT keep the nominal model.
+
+    Random arms (``mechanism_ranges``, tendon2r_gym.arms.MechanismRanges): at every reset the
+    env draws the listed fields uniformly (the geometry, damping, density, the cables and
+    motors), keeps only valid arms (a Mechanism, stable, the reference fitted to its
+    workspace, its own ``auto`` force limit: EnvConfig.draw_arm) and rebuilds its model with
+    MjSpec; the reset info's ``mechanism`` is the episode's arm, which PD, CT and
+    ResidualPDWrapper follow.
 
     ``mechanism.max_tendon_force`` defaults to ``"auto"``: FORCE_HEADROOM (2) times the peak
     tendon force that inverse dynamics of the reference needs (for ``reference_ranges``, of its
@@ -191,7 +200,8 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         if camera_name not in (None, CAMERA):
             raise invalid("camera_name", camera_name, f"None (free camera) or {CAMERA!r}")
         self.config = cfg = EnvConfig.make(preset, **kwargs)
-        self.mechanism = cfg.mechanism
+        self.mechanism = cfg.mechanism  # the current episode's arm (self.arm: its config)
+        self.data: mujoco.MjData | None = None
         self.nominal_reference = self.reference = cfg.reference
         self.reference_ranges = cfg.reference_ranges
         self.ctrl_dt = cfg.ctrl_dt
@@ -203,7 +213,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         # MujocoEnv insists on an existing model_path and loads it in _initialize_simulation.
         # We build the model in memory with MjSpec (parameters stay exact, no file round trip)
         # and override _initialize_simulation; this module's path only passes the check.
-        n_obs = obs_layout.size(cfg.preview_steps, cfg.n_actions)
+        n_obs = cfg.observation_size
         MujocoEnv.__init__(
             self,
             __file__,
@@ -218,7 +228,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
 
     # -- set-up ----------------------------------------------------------------------------------
     def _initialize_simulation(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
-        model = build_model(self.mechanism)
+        model = build_model(self.mechanism)  # the current arm's
         model.vis.global_.offwidth = max(model.vis.global_.offwidth, self.width)
         model.vis.global_.offheight = max(model.vis.global_.offheight, self.height)
         return model, mujoco.MjData(model)
@@ -230,24 +240,45 @@ class Tendon2REnv(MujocoEnv, EzPickle):
 
     def _resolve_ids(self) -> None:
         """Caches views and constants used on every step (no name look-ups in the hot path)."""
-        d = self.data
         self.task = Task(self.config)
-        # Views into MjData stay valid for its lifetime; fetching them once saves a binding call
-        # per access on every step.  The arm's joints are the first two (spools follow).
-        self._qpos, self._qvel, self._ctrl = d.qpos[:2], d.qvel[:2], d.ctrl
-        self.drive = Drive(self.model, self.mechanism)
         self._delay: CommandDelay | None = None
-        if self.config.delay_steps:
-            n_motors = self.mechanism.n_tendons
-            self._delay = CommandDelay(self.config.delay_steps, 1, n_motors, self.drive.ctrl)
         self._sensing: Sensors | None = None
         if self.config.sensed:  # the observation is a measurement; reward and info are true
             cfg = self.config
             self._sensing = Sensors(cfg.observation_delay_steps, 1, cfg.observation_noise)
         self._last_truth: np.ndarray | None = None
         self._n = self.config.n_actions
-        self._last_action = self.task.rest_command()
         self._filtered = self.config.action_filter_alpha != 1.0
+        self._err = obs_layout.ERROR
+        self._fixed_reference: Reference | None = None
+        self._bind_arm(self.config)
+        self._set_reference(self.reference)
+        self._last_obs: np.ndarray | None = None
+
+    def _bind_arm(self, arm: EnvConfig) -> None:
+        """Makes ``arm`` (an EnvConfig of one arm: the env's, or a draw of mechanism_ranges)
+        the simulated arm: its model (built with MjSpec unless it is the current one), and the
+        views and helpers that depend on it."""
+        self.arm, self.mechanism = arm, arm.mechanism
+        if self.data is None or arm is not self.config:
+            self.model, self.data = self._initialize_simulation()
+            if self.render_mode is not None:
+                from gymnasium.envs.mujoco.mujoco_rendering import MujocoRenderer
+
+                self.mujoco_renderer.close()
+                self.mujoco_renderer = MujocoRenderer(
+                    self.model, self.data, None, self.width, self.height, 1000, None,
+                    self.camera_name,
+                )  # fmt: skip
+        d = self.data
+        # Views into MjData stay valid for its lifetime; fetching them once saves a binding call
+        # per access on every step.  The arm's joints are the first two (spools follow).
+        self._qpos, self._qvel, self._ctrl = d.qpos[:2], d.qvel[:2], d.ctrl
+        self.drive = Drive(self.model, self.mechanism)
+        if self.config.delay_steps:
+            n_motors = self.mechanism.n_tendons
+            self._delay = CommandDelay(self.config.delay_steps, 1, n_motors, self.drive.ctrl)
+        self._last_action = self.task.rest_command(arm)
         self._torque_map: TorqueToTension | None = None
         if self.config.action_mode == "joint_torque":
             self._torque_map = TorqueToTension(self.mechanism)
@@ -255,12 +286,9 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         first = self.model.sensor(f"force_{tendon_name(0)}").adr[0]
         self._motor_force = d.sensordata[first : first + self.mechanism.n_tendons]
         self._warnings = [d.warning[w] for w in DIVERGENCE_WARNINGS]
-        self._arms = MomentArms(self.model, d)
-        self._err = obs_layout.ERROR
-        self._fixed_reference: Reference | None = None
-        self._set_reference(self.reference)
         self._warning_count = 0
-        self._last_obs: np.ndarray | None = None
+        self._arms = MomentArms(self.model, d)
+        self._arm = arm_params(arm, self.config)
 
     def _set_reference(self, ref: Reference) -> None:
         """Sets the episode's reference, cached as Python floats for the task's scalar math."""
@@ -281,7 +309,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         """Returns the peak tendon force (N) that inverse dynamics of the reference needs (of
         the worst corner of ``reference_ranges``, if set); ``max_tendon_force: auto`` is
         FORCE_HEADROOM times this."""
-        return self.config.force_need
+        return self.arm.force_need
 
     # -- gymnasium API -----------------------------------------------------------------------------
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
@@ -349,7 +377,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         else:
             (q1, q2), (w1, w2) = self._qpos.tolist(), self._qvel.tolist()
         parts = self.task.observation(
-            SCALAR, q1, q2, w1, w2, self.data.time, self._ref, self._last_action
+            SCALAR, q1, q2, w1, w2, self.data.time, self._ref, self._arm, self._last_action
         )
         return np.array(parts, dtype=np.float64)
 
@@ -371,13 +399,17 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         )
 
     def reset_model(self) -> np.ndarray:
-        self._set_reference(self.task.episode_reference(self.np_random, self._fixed_reference))
-        q, qdot = self.task.initial_state(self.np_random, self.reference)
+        rng = self.np_random
+        arm, ref = self.task.episode(rng, self._fixed_reference)
+        if arm is not self.arm:  # a drawn arm: its own model
+            self._bind_arm(arm)
+        self._set_reference(ref)
+        q, qdot = self.task.initial_state(rng, self.reference)
         if self.drive.has_state:  # spools and lags at rest
             self.drive.settle(self.data, q, qdot)
         else:
             self.set_state(q, qdot)
-        self._last_action = self.task.rest_command()
+        self._last_action = self.task.rest_command(self.arm)
         if self._delay is not None:
             self._delay.reset(slice(None))
         if self._sensing is not None:
@@ -395,7 +427,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         return super().reset(seed=seed, options=options)
 
     def _get_reset_info(self) -> dict[str, Any]:
-        return self.task.reset_info(self.reference, float(self.data.time))
+        return self.task.reset_info(self.reference, float(self.data.time), self.arm)
 
 
 Tendon2REnv.__doc__ = Tendon2REnv.__doc__.format(

@@ -21,7 +21,9 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from tendon2r_gym import observation
 from tendon2r_gym.actuation import MomentArms, distribute
+from tendon2r_gym.arms import MAX_TRIES, MechanismRanges
 from tendon2r_gym.mechanism import AUTO, Mechanism
 from tendon2r_gym.model import build_model
 from tendon2r_gym.presets import SECTIONS, load_preset, merge_env_kwargs
@@ -50,6 +52,12 @@ class EnvConfig:
     mechanism: Mechanism
     reference: Reference
     reference_ranges: ReferenceRanges | None = None
+    #: Draw a new arm at every reset (tendon2r_gym.arms.MechanismRanges; "course": the
+    #: course's geometry), and its reference: each pair valid, with its own ``auto`` force
+    #: limit, as one user's experiment file (draw_arm).
+    mechanism_ranges: MechanismRanges | None = None
+    #: Observe the drawn fields, normalized over mechanism_ranges (the ``arm`` slice).
+    observe_arm: bool = False
     fit_to_workspace: bool = False
     ctrl_dt: float = 0.001
     action_mode: str = "tension"
@@ -68,6 +76,8 @@ class EnvConfig:
     #: Peak tendon force (N) that inverse dynamics of the reference (or of the worst corner of
     #: reference_ranges) needs; computed, not an argument.
     force_need: float = field(default=math.nan, compare=False)
+    #: The mechanism as given (max_tendon_force possibly "auto"): what arms are drawn over.
+    base_mechanism: Mechanism | None = field(default=None, compare=False, repr=False)
 
     # -- construction --------------------------------------------------------------------------
     @classmethod
@@ -92,7 +102,16 @@ class EnvConfig:
         ranges = kwargs.pop("reference_ranges", None)
         if ranges is not None and not isinstance(ranges, ReferenceRanges):
             ranges = ReferenceRanges.from_dict(mapping("reference_ranges", ranges)) or None
-        return cls(mechanism=mech, reference=ref, reference_ranges=ranges, **kwargs)
+        arms = kwargs.pop("mechanism_ranges", None)
+        if arms is not None:
+            arms = MechanismRanges.from_value(arms)
+        return cls(
+            mechanism=mech,
+            reference=ref,
+            reference_ranges=ranges,
+            mechanism_ranges=arms,
+            **kwargs,
+        )
 
     def __post_init__(self) -> None:
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
@@ -139,8 +158,15 @@ class EnvConfig:
         for name, value in delays.items():
             if abs(round(value / self.ctrl_dt) * self.ctrl_dt - value) > 1e-6 * self.ctrl_dt:
                 raise invalid(name, value, f"a multiple of ctrl_dt = {self.ctrl_dt} s")
+        set_("observe_arm", boolean("observe_arm", self.observe_arm))
+        if self.observe_arm and self.mechanism_ranges is None:
+            raise invalid("observe_arm", True, "False without mechanism_ranges (nothing drawn)")
+        if self.base_mechanism is None:
+            set_("base_mechanism", self.mechanism)
         self._check_reference()
         self._size_force_limit()
+        if self.mechanism_ranges is not None:  # raises now if no valid arm can be drawn
+            self.draw_arm(np.random.default_rng(0))
 
     def _check_reference(self) -> None:
         mech, ref = self.mechanism, self.reference
@@ -198,7 +224,63 @@ class EnvConfig:
                 stacklevel=3,
             )
 
+    # -- random arms ---------------------------------------------------------------------------
+    def draw_arm(self, rng: np.random.Generator, reference: Reference | None = None) -> EnvConfig:
+        """Returns the config of a random arm of ``mechanism_ranges`` and its episode's
+        reference (``reference``, else a draw of reference_ranges on that arm, else the
+        nominal one): :meth:`for_arm`.  Draws again until the pair is valid (a Mechanism,
+        stable, the reference's bias in its workspace); raises after MAX_TRIES draws."""
+        ranges = self.mechanism_ranges
+        if ranges is None:
+            return self
+        for _ in range(MAX_TRIES):
+            try:
+                mech = ranges.sample(rng, self.base_mechanism)
+                ref = reference
+                if ref is None and self.reference_ranges is not None:
+                    ref = self.reference_ranges.sample(rng, mech)
+                return self.for_arm(mech, ref)
+            except ValueError:
+                continue
+        raise invalid(
+            "mechanism_ranges",
+            ranges.to_dict(),
+            f"ranges where a valid arm (with this reference) is found in {MAX_TRIES} draws",
+        )
+
+    def for_arm(self, mechanism: Mechanism, reference: Reference | None = None) -> EnvConfig:
+        """Returns the config of one arm and one reference (default: the nominal one), as a
+        user's experiment file gives them: nothing drawn, the reference's amplitudes fitted
+        to the arm's workspace (quietly), and an ``auto`` force limit sized for this arm and
+        this reference.  An env with this config runs the randomized env's episode exactly."""
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return dataclasses.replace(
+                self,
+                mechanism=mechanism,
+                base_mechanism=None,
+                reference=self.reference if reference is None else reference,
+                reference_ranges=None,
+                mechanism_ranges=None,
+                observe_arm=False,
+                fit_to_workspace=True,
+            )
+
     # -- derived quantities ------------------------------------------------------------------
+    @property
+    def n_arm_features(self) -> int:
+        """Returns the length of the observation's ``arm`` slice (0 unless observe_arm)."""
+        return len(self.mechanism_ranges.names) if self.observe_arm else 0
+
+    @property
+    def observation_size(self) -> int:
+        """Returns the observation's length (tendon2r_gym.observation.size)."""
+        return observation.size(self.preview_steps, self.n_actions, self.n_arm_features)
+
+    def observation_layout(self) -> list[list]:
+        """Returns the observation's named layout (tendon2r_gym.observation.layout)."""
+        return observation.layout(self.preview_steps, self.n_actions, self.n_arm_features)
+
     @property
     def n_substeps(self) -> int:
         """Returns the physics steps per control step."""
@@ -241,17 +323,23 @@ class EnvConfig:
         """Returns the config as plain YAML-friendly env kwargs (an experiment file)."""
         out: dict[str, Any] = {}
         for f in dataclasses.fields(self):
-            if f.name == "force_need":
+            if f.name in COMPUTED:
                 continue
             value = getattr(self, f.name)
             out[f.name] = value.to_dict() if hasattr(value, "to_dict") else value
         out["observation_noise"] = list(self.observation_noise)
+        if self.mechanism_ranges is not None:  # arms are drawn over the mechanism as given
+            out["mechanism"] = self.base_mechanism.to_dict()
         return out
+
+
+#: EnvConfig fields that are computed, not arguments.
+COMPUTED = ("force_need", "base_mechanism")
 
 
 def arguments() -> list[str]:
     """Returns the keyword arguments an experiment file (or gym.make) may give."""
-    return [f.name for f in dataclasses.fields(EnvConfig) if f.name != "force_need"]
+    return [f.name for f in dataclasses.fields(EnvConfig) if f.name not in COMPUTED]
 
 
 @lru_cache(maxsize=64)
@@ -288,14 +376,13 @@ def force_need(
     theta = np.linspace(0.0, 2.0 * np.pi, grid, endpoint=False)
     s = np.stack(np.meshgrid(np.sin(theta), np.sin(theta), indexing="ij"), -1).reshape(-1, 2)
     c = np.stack(np.meshgrid(np.cos(theta), np.cos(theta), indexing="ij"), -1).reshape(-1, 2)
-    peak = 0.0
+    J, tau = [], []
     for ref in references:
         amp, bias, w = ref.amp_rad, ref.bias_rad, ref.omega_array
-        for si, ci in zip(s, c, strict=True):
-            data.qpos[:] = bias + amp * si
-            data.qvel[:] = amp * w * ci
-            data.qacc[:] = -amp * w * w * si
+        for q, dq, ddq in zip(bias + amp * s, amp * w * c, -amp * w * w * s, strict=True):
+            data.qpos[:], data.qvel[:], data.qacc[:] = q, dq, ddq
             mujoco.mj_inverse(model, data)
-            t = distribute(arms.dense(), data.qfrc_inverse, pull_only, pretension)
-            peak = max(peak, float(np.max(np.abs(t))))
-    return peak
+            J.append(arms.dense().copy())
+            tau.append(data.qfrc_inverse.copy())
+    tensions = distribute(np.array(J), np.array(tau), pull_only, pretension)  # one batch
+    return float(np.max(np.abs(tensions)))

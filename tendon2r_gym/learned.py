@@ -51,6 +51,7 @@ class ResidualPDWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def reset(self, **kwargs: Any):
         self._obs, info = self.env.reset(**kwargs)
+        self.pd.reset(info)  # follows the episode's arm, if the env draws arms
         return self._obs, info
 
     def step(self, action: np.ndarray):
@@ -99,7 +100,7 @@ def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
     }
     ours = {
         **{k: getattr(config, k) for k in ("ctrl_dt", "preview_steps", "preview_dt")},
-        "observation": observation.layout(config.preview_steps, config.n_actions),
+        "observation": config.observation_layout(),
         "mechanism": config.mechanism.ideal(),
         "reference": None if ranges else config.reference,
         "reference_ranges": config.reference_ranges,

@@ -3,7 +3,8 @@
 The env writes the observation in this order, and policies, info and tests read it by name.
 The fixed entries come first, so their slices do not depend on ``preview_steps``; then the
 preview of the reference, then the last action (one value per action dimension), which makes
-the action-rate reward term a function of the observed state.
+the action-rate reward term a function of the observed state.  With ``observe_arm`` (random
+arms, ``mechanism_ranges``), the arm's drawn fields close it, normalized over their ranges.
 """
 
 from __future__ import annotations
@@ -62,16 +63,24 @@ def last_action_slice(preview_steps: int, n_actions: int) -> slice:
     return slice(start, start + n_actions)
 
 
-def size(preview_steps: int, n_actions: int) -> int:
+def arm_slice(preview_steps: int, n_actions: int, n_arm: int) -> slice:
+    """Returns the slice of the arm's features (observe_arm): each drawn Mechanism field,
+    normalized over its range to [-1, 1], in the order of mechanism_ranges."""
+    start = N_FIXED + 2 * preview_steps + n_actions
+    return slice(start, start + n_arm)
+
+
+def size(preview_steps: int, n_actions: int, n_arm: int = 0) -> int:
     """Returns the length of the observation."""
-    return N_FIXED + 2 * preview_steps + n_actions
+    return N_FIXED + 2 * preview_steps + n_actions + n_arm
 
 
-def layout(preview_steps: int, n_actions: int) -> list[list]:
+def layout(preview_steps: int, n_actions: int, n_arm: int = 0) -> list[list]:
     """Returns the layout as [[name, size], ...] in order (run.json records it, so that a
     trained model meets only the observation it was trained on)."""
     fixed = [[name, n] for name, n, _ in FIXED]
-    return [*fixed, ["preview", 2 * preview_steps], ["last_action", n_actions]]
+    out = [*fixed, ["preview", 2 * preview_steps], ["last_action", n_actions]]
+    return out + [["arm", n_arm]] if n_arm else out
 
 
 def mask(zeroed: Iterable[str], n_obs: int) -> np.ndarray:
@@ -96,5 +105,9 @@ def table(preview_steps_name: str = "P") -> str:
     rows.append(
         f"| {N_FIXED} + 2{preview_steps_name} to the end | the last applied command (the rest "
         "command after a reset), one per action dimension | 1 |"
+    )
+    rows.append(
+        "| (observe_arm only) the last entries | the arm's drawn fields, normalized over "
+        "mechanism_ranges to [-1, 1] | 1 |"
     )
     return "\n".join(rows)

@@ -94,7 +94,6 @@ class _TendonController:
         w = self.gains.natural_frequency(ctrl_dt)
         self.kp, self.kd = w * w, 2.0 * self.gains.damping_ratio * w
         self.actuation = TorqueToTension(mechanism, self.gains.force_damping)
-        self.model, self.data = self.actuation.model, self.actuation.data
         self.kinematics = self.actuation.kinematics
         self.tendon_command = self.actuation.command
         # (alpha, slice of the last command in the observation) of the env's action filter
@@ -105,6 +104,28 @@ class _TendonController:
         """Builds the controller from an env's mechanism and control period (not its state)."""
         env = env.unwrapped
         return cls(env.mechanism, env.ctrl_dt, **_env_options(env.config), **kwargs)
+
+    @property
+    def model(self) -> mujoco.MjModel:
+        """Returns the private nominal model (of the first arm it follows)."""
+        return self.actuation.model
+
+    @property
+    def data(self) -> mujoco.MjData:
+        """Returns the private MjData of :attr:`model`."""
+        return self.actuation.data
+
+    def follow(self, mechanisms: list[Mechanism]) -> None:
+        """Controls the arms ``mechanisms`` (one, or one per row of the observations; random
+        arms): each one's nominal model and force limit."""
+        self.actuation.follow(mechanisms)
+        self.mechanism = mechanisms[0]
+
+    def reset(self, info: dict[str, Any]) -> None:
+        """Follows the episode's arm, if the env draws arms (``mechanism`` in the reset info
+        of Tendon2R-v0, or of its vector env: one arm per row)."""
+        if "mechanism" in info:
+            self.follow(_per_arm(info, "mechanism", Mechanism.from_dict))
 
     def _torque(self, obs: np.ndarray, M: np.ndarray) -> np.ndarray:
         raise NotImplementedError
@@ -174,17 +195,10 @@ class ComputedTorquePolicy(_TendonController):
         self._bias = np.array([r.bias_rad for r in refs])
 
     def reset(self, info: dict[str, Any]) -> None:
-        """Follows the episode's reference: ``info`` is a reset info of Tendon2R-v0 (its
-        ``reference`` fields) or of its vector env (one reference per arm)."""
-        fields = info["reference"]
-        if "_reference" not in info:  # one env
-            self._set_references([Reference.from_dict(fields)])
-            return
-        names = [k for k in fields if not k.startswith("_")]  # a vector env's masks start so
-        n = len(info["_reference"])
-        self._set_references(
-            [Reference.from_dict({k: list(fields[k][i]) for k in names}) for i in range(n)]
-        )
+        """Follows the episode's reference and arm: ``info`` is a reset info of Tendon2R-v0
+        (its ``reference`` fields) or of its vector env (one reference per arm)."""
+        super().reset(info)
+        self._set_references(_per_arm(info, "reference", Reference.from_dict))
 
     def _torque(self, obs: np.ndarray, M: np.ndarray) -> np.ndarray:
         """Joint torques from mj_inverse, one configuration at a time (CT is an evaluation
@@ -200,9 +214,29 @@ class ComputedTorquePolicy(_TendonController):
             + self.kp * (obs[:, Q_DES] - obs[:, Q])
             + self.kd * (obs[:, DQ_DES] - obs[:, DQ])
         )
-        d, out = self.data, np.zeros((len(obs), self.model.nv))
+        out = np.zeros((len(obs), 2))
+        data: dict[int, mujoco.MjData] = {}
         for i, (o, a) in enumerate(zip(obs, qacc, strict=True)):
+            model = self.actuation.model_of(i)  # the arm's nominal model
+            d = data.get(id(model))
+            if d is None:
+                d = data[id(model)] = (
+                    self.actuation.data if model is self.actuation.model else mujoco.MjData(model)
+                )
             d.qpos[:], d.qvel[:], d.qacc[:] = o[Q], o[DQ], a
-            mujoco.mj_inverse(self.model, d)
+            mujoco.mj_inverse(model, d)
             out[i] = d.qfrc_inverse
         return out
+
+
+def _per_arm(info: dict[str, Any], key: str, read: Any) -> list[Any]:
+    """Returns ``read(fields)`` of a reset info's nested dict ``key``: one item for a single
+    env's info, one per arm for a vector env's (Gymnasium batches each field, with a
+    ``_key`` mask)."""
+    fields = info[key]
+    if f"_{key}" not in info:  # one env
+        return [read(fields)]
+    names = [k for k in fields if not k.startswith("_")]  # a vector env's masks start so
+    plain = lambda v: list(v) if isinstance(v, np.ndarray) else v  # noqa: E731
+    n = len(info[f"_{key}"])
+    return [read({k: plain(fields[k][i]) for k in names}) for i in range(n)]

@@ -76,30 +76,44 @@ class Drive:
             data.act[:] = self.ctrl
         mujoco.mj_forward(m, data)
 
+    @property
+    def cable(self) -> tuple[Any, ...]:
+        """Returns (stiffness, damping, rest length, slack length) of the cables: what
+        :func:`cable_tensions` needs (the vector env stacks one row per arm)."""
+        mech = self.mech
+        return mech.tendon_elasticity, mech.tendon_damping, self.rest_length, self.slack_length
+
     def cable_tensions(self, length: np.ndarray, velocity: np.ndarray) -> np.ndarray:
-        """Returns each elastic cable's tension (N, positive pulling) from the tendon lengths
-        and speeds (the first n_tendons entries of ``ten_length`` and ``ten_velocity``, one row
-        or N rows): stiffness times stretch past the rest length (below the slack length for
-        push-pull cables, which push), plus the cable's damping."""
-        k, c = self.mech.tendon_elasticity, self.mech.tendon_damping
-        stretch = np.maximum(length - self.rest_length, 0.0)
-        stretch += np.minimum(length - self.slack_length, 0.0)
-        return k * stretch + c * velocity
+        """Returns :func:`cable_tensions` of this model's cables."""
+        return cable_tensions(length, velocity, *self.cable)
+
+
+def cable_tensions(
+    length: np.ndarray, velocity: np.ndarray, k: Any, c: Any, rest: np.ndarray, slack: np.ndarray
+) -> np.ndarray:
+    """Returns each elastic cable's tension (N, positive pulling) from the tendon lengths and
+    speeds (the first n_tendons entries of ``ten_length`` and ``ten_velocity``, one row or N
+    rows): stiffness k times the stretch past the rest length (below the slack length for
+    push-pull cables, which push), plus the cable's damping c times its speed."""
+    stretch = np.maximum(length - rest, 0.0)
+    stretch += np.minimum(length - slack, 0.0)
+    return k * stretch + c * velocity
 
 
 class CommandDelay:
     """Holds each motor command back by ``steps`` control steps, for N arms that step together:
-    a ring of the last ``steps`` commands, each arm's filled with the rest command at its
-    reset."""
+    a ring of the last ``steps`` commands, each arm's filled with its rest command (``rest``:
+    one for all, or one per arm) at its reset."""
 
-    def __init__(self, steps: int, n_arms: int, n_motors: int, rest: float) -> None:
-        self.rest = rest
-        self._ring = np.full((steps, n_arms, n_motors), rest)
+    def __init__(self, steps: int, n_arms: int, n_motors: int, rest: Any) -> None:
+        #: The rest command of each arm's motors (n_arms, n_motors); random arms update it.
+        self.rest = np.broadcast_to(np.reshape(rest, (-1, 1)), (n_arms, n_motors)).copy()
+        self._ring = np.repeat(self.rest[None], steps, axis=0)
         self._i = 0
 
     def reset(self, arms: np.ndarray | slice) -> None:
-        """Fills the ring of ``arms`` with the rest command (the motors were at rest)."""
-        self._ring[:, arms] = self.rest
+        """Fills the ring of ``arms`` with their rest command (the motors were at rest)."""
+        self._ring[:, arms] = self.rest[arms]
 
     def __call__(self, ctrl: np.ndarray, arms: np.ndarray | slice = slice(None)) -> np.ndarray:
         """Returns the commands (n_arms, n_motors) sent ``steps`` steps ago, and stores

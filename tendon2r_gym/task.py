@@ -84,6 +84,8 @@ STEP_INFO_KEYS = (
     "time",
     "diverged",
 )
+#: Keys of ``info`` after every reset; with ``mechanism_ranges`` also ``mechanism``, the
+#: episode's arm (Mechanism fields), which PD, CT and the residual wrapper follow.
 RESET_INFO_KEYS = ("reference", "time", "force_need_N", "max_tendon_force_N")
 
 
@@ -98,6 +100,15 @@ def reference_params(ref: Reference) -> tuple[float, ...]:
     )
 
 
+def arm_params(arm: EnvConfig, observed: EnvConfig) -> tuple[float, ...]:
+    """Returns the per-arm numbers :meth:`Task.observation` reads: the link lengths (a, b, c)
+    of the episode's arm config ``arm``, then its features over the ranges of the env's
+    config ``observed`` if that observes the arm."""
+    mech = arm.mechanism
+    features = observed.mechanism_ranges.features(mech) if observed.observe_arm else []
+    return (mech.a, mech.b, mech.c, *features)
+
+
 def rewards_table() -> str:
     """Returns the docstring list of the reward terms (the env's docstring embeds it)."""
     return "\n".join(f"- ``{k}`` (weight {w:g}): {doc}." for k, (w, doc) in TERMS.items())
@@ -109,7 +120,6 @@ class Task:
     def __init__(self, config: EnvConfig) -> None:
         self.config = config
         mech = config.mechanism
-        self.a, self.b, self.c = mech.a, mech.b, mech.c
         self.q_lo, self.q_hi = mech.joint_range_rad
         # Soft joint limits let a joint overshoot a little; this far past them (NaN included)
         # the simulation has left its valid domain.
@@ -126,7 +136,7 @@ class Task:
         ]
         self.form = config.tracking_form
         self.alpha = config.action_filter_alpha
-        self.obs_size = L.size(config.preview_steps, config.n_actions)
+        self.obs_size = config.observation_size
         self._info_keys = {k: f"reward_{k}" for k in TERMS}  # formatted once, not every step
 
     # -- reset -----------------------------------------------------------------------------------
@@ -159,15 +169,22 @@ class Task:
             )
         return ref
 
-    def episode_reference(self, rng: np.random.Generator, fixed: Reference | None) -> Reference:
-        """Returns the episode's reference: ``fixed``, else a draw from ``reference_ranges``,
-        else the nominal one."""
+    def episode(
+        self, rng: np.random.Generator, fixed: Reference | None
+    ) -> tuple[EnvConfig, Reference]:
+        """Returns the episode's arm config and reference.  With ``mechanism_ranges``: a drawn
+        arm and its reference (``fixed``, else a draw of reference_ranges, else the nominal
+        one; EnvConfig.draw_arm), the arm's force limit sized for it.  Else the env's config
+        and ``fixed``, else a draw from ``reference_ranges``, else the nominal reference."""
+        cfg = self.config
+        if cfg.mechanism_ranges is not None:
+            arm = cfg.draw_arm(rng, fixed)
+            return arm, arm.reference
         if fixed is not None:
-            return fixed
-        ranges = self.config.reference_ranges
-        if ranges is not None:
-            return ranges.sample(rng, self.config.mechanism)
-        return self.config.reference
+            return cfg, fixed
+        if cfg.reference_ranges is not None:
+            return cfg, cfg.reference_ranges.sample(rng, cfg.mechanism)
+        return cfg, cfg.reference
 
     def initial_state(self, rng: np.random.Generator, ref: Reference) -> tuple[np.ndarray, ...]:
         """Returns (q, dq) on the reference at t = 0 plus uniform noise in
@@ -177,14 +194,17 @@ class Task:
         qdot = ref.qdot(0.0) + rng.uniform(-noise, noise, 2)
         return np.clip(q, self.q_lo, self.q_hi), qdot
 
-    def reset_info(self, ref: Reference, time: float) -> dict[str, Any]:
-        """Returns the info of a reset (one arm)."""
-        return {
+    def reset_info(self, ref: Reference, time: float, arm: EnvConfig) -> dict[str, Any]:
+        """Returns the info of a reset (one arm; ``arm``: its config)."""
+        info = {
             "reference": ref.to_dict(),
             "time": time,
-            "force_need_N": self.config.force_need,
-            "max_tendon_force_N": self.config.mechanism.max_tendon_force,
+            "force_need_N": arm.force_need,
+            "max_tendon_force_N": arm.mechanism.max_tendon_force,
         }
+        if self.config.mechanism_ranges is not None:
+            info["mechanism"] = arm.mechanism.to_dict()
+        return info
 
     # -- observation -----------------------------------------------------------------------------
     def observation(
@@ -196,14 +216,16 @@ class Task:
         w2: Any,
         t: Any,
         ref: Sequence[Any],
+        arm: Sequence[Any],
         last_action: Sequence[Any],
     ) -> list[Any]:
         """Returns the observation's entries in the order of tendon2r_gym.observation (q, dq,
-        q_des, dq_des, error, error_log, effector_pos, effector_vel, preview, last action),
-        from the joint angles and speeds, the time, :func:`reference_params` and the last
-        clipped action (one value, or one column of N values, per action dimension)."""
+        q_des, dq_des, error, error_log, effector_pos, effector_vel, preview, last action,
+        arm), from the joint angles and speeds, the time, :func:`reference_params`,
+        :func:`arm_params` and the last clipped action (one value, or one column of N values,
+        per action dimension)."""
         amp1, amp2, om1, om2, ph1, ph2, bias1, bias2 = ref
-        a, b, c = self.a, self.b, self.c
+        a, b, c = arm[0], arm[1], arm[2]
         c1, s1 = ops.cos(q1), ops.sin(q1)
         q12 = q1 + q2
         c12, s12 = ops.cos(q12), ops.sin(q12)
@@ -225,14 +247,16 @@ class Task:
             obs.append(amp1 * ops.sin(arg1 + om1 * dt) + bias1)
             obs.append(amp2 * ops.sin(arg2 + om2 * dt) + bias2)
         obs.extend(last_action)
+        obs.extend(arm[3:])
         return obs
 
     # -- action ----------------------------------------------------------------------------------
-    def rest_command(self) -> list[float]:
-        """Returns the command at rest, the "last command" after a reset: no force, or for
-        pull-only tendons in tension mode the pretension (-1 would be slack)."""
+    def rest_command(self, arm: EnvConfig) -> list[float]:
+        """Returns the command at rest on the arm of config ``arm``, the "last command" after a
+        reset: no force, or for pull-only tendons in tension mode the pretension (-1 would be
+        slack)."""
         cfg = self.config
-        rest = cfg.mechanism.rest_ctrl if cfg.action_mode == "tension" else 0.0
+        rest = arm.mechanism.rest_ctrl if cfg.action_mode == "tension" else 0.0
         return [rest] * cfg.n_actions
 
     def command(self, action: Sequence[Any], last: Sequence[Any]) -> Sequence[Any]:

@@ -32,9 +32,9 @@ from tendon2r_gym.env import DIVERGENCE_WARNINGS
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.model import build_model, tendon_name
 from tendon2r_gym.ops import BATCH
-from tendon2r_gym.realism import CommandDelay, Drive, Sensors
+from tendon2r_gym.realism import CommandDelay, Drive, Sensors, cable_tensions
 from tendon2r_gym.reference import Reference
-from tendon2r_gym.task import Task, reference_params
+from tendon2r_gym.task import Task, arm_params, reference_params
 from tendon2r_gym.validation import boolean, integer, invalid, real_array
 
 
@@ -76,7 +76,7 @@ class Tendon2RVectorEnv(VectorEnv):
         n_act = cfg.n_actions
         self.single_action_space = spaces.Box(-1.0, 1.0, (n_act,), np.float32)
         self.single_observation_space = spaces.Box(
-            -np.inf, np.inf, (obs_layout.size(cfg.preview_steps, n_act),), np.float64
+            -np.inf, np.inf, (cfg.observation_size,), np.float64
         )
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
@@ -119,6 +119,14 @@ class Tendon2RVectorEnv(VectorEnv):
         self.task = Task(cfg)
 
         n = self.num_envs
+        # Each arm's config, model, drive, observed numbers (arm_params, one row per number)
+        # and rest command: all the nominal arm's, until mechanism_ranges draws new arms.
+        self._arm_cfgs: list[EnvConfig] = [cfg] * n
+        self._models: list[mujoco.MjModel] = [self.model] * n
+        self._drives: list[Drive] = [self.drive] * n
+        self._arm = np.tile(np.array(arm_params(cfg, cfg))[:, None], (1, n))
+        self._rest = np.tile(np.array(self.task.rest_command(cfg)), (n, 1))
+        self._cable = self._stack_cables()
         self._rngs = [seeding.np_random()[0] for _ in range(n)]
         self._refs: list[Reference] = [cfg.reference] * n
         self._ref = np.zeros((8, n))  # reference_params of each arm, one row per number
@@ -132,6 +140,11 @@ class Tendon2RVectorEnv(VectorEnv):
         self._last_obs = np.zeros((n, self.single_observation_space.shape[0]))
         self._last_truth = self._last_obs.copy()  # of the true state, with sensors
         self._last_action = np.zeros((n, n_act))  # the applied commands, as observed
+
+    @property
+    def arms(self) -> list[EnvConfig]:
+        """Returns each slot's arm config: the env's, or the draw of mechanism_ranges."""
+        return list(self._arm_cfgs)
 
     # -- references --------------------------------------------------------------------------
     def _set_references(self, ids: np.ndarray, refs: list[Reference]) -> None:
@@ -177,8 +190,10 @@ class Tendon2RVectorEnv(VectorEnv):
         if len(ids) == 0:
             return
         task = self.task
-        refs = [task.episode_reference(self._rngs[i], fixed) for i in ids]
-        self._set_references(ids, refs)
+        arms, refs = zip(*(task.episode(self._rngs[i], fixed) for i in ids), strict=True)
+        if self.config.mechanism_ranges is not None:
+            self._set_arms(ids, list(arms))
+        self._set_references(ids, list(refs))
         self.batch.reset(ids, stage=mujoco.mjtStage.mjSTAGE_NONE.value)
         for i, ref in zip(ids, refs, strict=True):
             q, dq = task.initial_state(self._rngs[i], ref)
@@ -190,18 +205,44 @@ class Tendon2RVectorEnv(VectorEnv):
                 self._sensing.reset(i, self._state(i), self._rngs[i])
         self.batch.forward(ids)
         self._steps[ids] = 0
-        self._last_action[ids] = self.task.rest_command()
+        self._last_action[ids] = self._rest[ids]
         if self._delay is not None:
             self._delay.reset(ids)
         self._warn_count[ids] = self._warnings()[ids]
         self._needs_reset[ids] = False
 
+    def _set_arms(self, ids: np.ndarray, arms: list[EnvConfig]) -> None:
+        """Makes each of ``arms`` (drawn arm configs) the arm of its slot in ``ids``: its own
+        model in the batch (mujoco.batch's set_models: one layout, other parameters), drive,
+        observed numbers, rest command, and the joint-torque map's and delay's copies."""
+        cfg = self.config
+        for i, arm in zip(ids, arms, strict=True):
+            self._arm_cfgs[i] = arm
+            self._models[i] = model = build_model(arm.mechanism)
+            self._drives[i] = Drive(model, arm.mechanism)
+            self._arm[:, i] = arm_params(arm, cfg)
+            self._rest[i] = self.task.rest_command(arm)
+            if self._delay is not None:
+                self._delay.rest[i] = arm.mechanism.rest_ctrl
+        self.batch.set_models(self._models)
+        self._cable = self._stack_cables()
+        if self._torque_map is not None:
+            self._torque_map.follow([a.mechanism for a in self._arm_cfgs])
+
+    def _stack_cables(self) -> tuple[np.ndarray, ...] | None:
+        """Returns every arm's cable parameters (realism.Drive.cable), one row per arm."""
+        if not self.config.mechanism.elastic:
+            return None
+        k, c, rest, slack = zip(*(d.cable for d in self._drives), strict=True)
+        return np.array(k)[:, None], np.array(c)[:, None], np.array(rest), np.array(slack)
+
     def _settle(self, i: int, q: np.ndarray, dq: np.ndarray) -> None:
         """Puts arm i at rest with its motors and cables (realism.Drive.settle, as the single
         env's reset)."""
-        d = self._scratch
-        mujoco.mj_resetData(self.model, d)
-        self.drive.settle(d, q, dq)
+        model = self._models[i]
+        d = self._scratch if model is self.model else mujoco.MjData(model)
+        mujoco.mj_resetData(model, d)
+        self._drives[i].settle(d, q, dq)
         self._qpos[i], self._qvel[i], self._ctrl[i], self._act[i] = d.qpos, d.qvel, d.ctrl, d.act
 
     def _reset_info(self, ids: np.ndarray, info: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -209,7 +250,7 @@ class Tendon2RVectorEnv(VectorEnv):
         envs batch it (``_key`` masks, a mapping per nested dict)."""
         info = {} if info is None else info
         for i in ids:
-            row = self.task.reset_info(self._refs[i], float(self._time[i]))
+            row = self.task.reset_info(self._refs[i], float(self._time[i]), self._arm_cfgs[i])
             info = self._add_info(info, row, int(i))
         return info
 
@@ -336,6 +377,7 @@ class Tendon2RVectorEnv(VectorEnv):
             w2,
             self._time,
             tuple(self._ref),
+            tuple(self._arm),
             list(self._last_action.T),
         )
         return np.stack(parts, axis=1)
@@ -360,7 +402,7 @@ class Tendon2RVectorEnv(VectorEnv):
         if self.mechanism.elastic:
             n = self.mechanism.n_tendons
             lengths, speeds = self._ten_length[:, :n], self._ten_velocity[:, :n]
-            tension = self.drive.cable_tensions(lengths, speeds)
+            tension = cable_tensions(lengths, speeds, *self._cable)
         else:
             tension = -self._sensors[:, self._force]
         values = self.task.step_info(

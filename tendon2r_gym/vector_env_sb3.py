@@ -29,6 +29,7 @@ class SB3VecEnv(VecEnv):
         super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
         self.venv, self.residual_scale = venv, residual_scale
         self.pd = PDPolicy.from_env(venv) if residual_scale > 0 else None
+        self._random_arms = venv.config.mechanism_ranges is not None
         self._mask = observation.mask(zero_obs, venv.single_observation_space.shape[0])
         self._raw: np.ndarray | None = None
         self._actions: np.ndarray | None = None
@@ -46,6 +47,8 @@ class SB3VecEnv(VecEnv):
     def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
         actions = self._actions
         if self.pd is not None:
+            if self._random_arms:  # PD follows each slot's arm
+                self.pd.follow([arm.mechanism for arm in self.venv.arms])
             base, _ = self.pd.predict(self._raw)
             actions = residual_command(base, actions, self.residual_scale)
         obs, rewards, terminated, truncated, info = self.venv.step(actions)

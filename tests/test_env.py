@@ -16,6 +16,7 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import tendon2r_gym
 from tendon2r_gym import EnvConfig, Tendon2REnv
+from tendon2r_gym.env_config import COMPUTED
 from tendon2r_gym import observation as L
 
 
@@ -286,7 +287,7 @@ def test_documented_defaults_match_the_signature():
         if v.default is not inspect.Parameter.empty
     }
     for f in dataclasses.fields(EnvConfig):
-        if f.name == "force_need":
+        if f.name in COMPUTED:
             continue
         if f.default is not dataclasses.MISSING:
             params[f.name] = f.default

@@ -40,7 +40,7 @@ def test_baselines_never_read_the_env_state(policy):
     observation changes nothing."""
     env = Tendon2REnv()
     ctrl = policy.from_env(env)
-    assert ctrl.model is not env.model and ctrl.data is not env.data
+    assert ctrl.actuation.model is not env.model and ctrl.actuation.data is not env.data
     obs, _ = env.reset(seed=0)
     for _ in range(5):
         obs, *_ = env.step(ctrl.predict(obs)[0])

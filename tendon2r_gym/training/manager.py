@@ -24,7 +24,6 @@ from typing import Any
 
 import numpy as np
 
-from tendon2r_gym import observation
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.learned import make_training_env
 from tendon2r_gym.runs import (
@@ -185,7 +184,7 @@ def train_run(
             "env_kwargs": hp.env_kwargs,
             "env_config": {
                 **env_config.to_dict(),
-                "observation": observation.layout(env_config.preview_steps, env_config.n_actions),
+                "observation": env_config.observation_layout(),
             },
         },
     )
