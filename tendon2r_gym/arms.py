@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from tendon2r_gym.mechanism import LIMITS, REALISM_LIMITS, Mechanism
-from tendon2r_gym.reference import Reference
+from tendon2r_gym.reference import Reference, ReferenceRanges
 from tendon2r_gym.validation import invalid, mapping, pair
 
 Range = tuple[float, float]
@@ -193,3 +193,15 @@ class MechanismRanges:
             for name, (lo, hi) in self.ranges
             if not lo - 1e-12 <= getattr(mech, name) <= hi + 1e-12
         ]
+
+
+def reference_ranges(value: Any) -> ReferenceRanges:
+    """Reads ``reference_ranges``: ``course`` (the course's amplitudes, frequencies and biases
+    of ArmRanges, both joints, any phase) or a mapping of ReferenceRanges fields."""
+    if value == COURSE_NAME:
+        return ReferenceRanges(
+            amp_deg=(COURSE.amp_deg,) * 2,
+            freq_hz=(COURSE.freq_hz,) * 2,
+            bias_deg=(COURSE.bias_deg,) * 2,
+        )
+    return ReferenceRanges.from_dict(mapping("reference_ranges", value))

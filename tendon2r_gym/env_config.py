@@ -23,7 +23,7 @@ import numpy as np
 
 from tendon2r_gym import observation
 from tendon2r_gym.actuation import MomentArms, distribute
-from tendon2r_gym.arms import MAX_TRIES, MechanismRanges
+from tendon2r_gym.arms import MAX_TRIES, MechanismRanges, reference_ranges
 from tendon2r_gym.mechanism import AUTO, Mechanism
 from tendon2r_gym.model import build_model
 from tendon2r_gym.presets import SECTIONS, load_preset, merge_env_kwargs
@@ -101,7 +101,7 @@ class EnvConfig:
             ref = Reference.from_dict(mapping("reference", ref))
         ranges = kwargs.pop("reference_ranges", None)
         if ranges is not None and not isinstance(ranges, ReferenceRanges):
-            ranges = ReferenceRanges.from_dict(mapping("reference_ranges", ranges)) or None
+            ranges = reference_ranges(ranges)
         arms = kwargs.pop("mechanism_ranges", None)
         if arms is not None:
             arms = MechanismRanges.from_value(arms)

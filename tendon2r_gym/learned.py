@@ -21,6 +21,7 @@ import gymnasium as gym
 import numpy as np
 
 from tendon2r_gym import observation
+from tendon2r_gym.arms import MechanismRanges, reference_ranges
 from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.policies import PDPolicy
 from tendon2r_gym.reference import Reference, ReferenceRanges
@@ -36,6 +37,7 @@ MODEL_ENV_FIELDS = (
     "ctrl_dt",
     "preview_steps",
     "preview_dt",
+    "mechanism_ranges",
 )
 
 
@@ -91,6 +93,9 @@ def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
     (Mechanism.ideal): a policy trained on the ideal arm runs on the same arm with real
     cables, motors and sensors, as it would on hardware."""
     config = env.unwrapped.config
+    if recorded.get("mechanism_ranges") and config.mechanism_ranges is None:
+        _check_inside_ranges(recorded, config, where)
+        return
     ranges = recorded.get("reference_ranges")
     theirs = {
         **{k: recorded.get(k) for k in ("observation", "ctrl_dt", "preview_steps", "preview_dt")},
@@ -105,13 +110,50 @@ def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
         "reference": None if ranges else config.reference,
         "reference_ranges": config.reference_ranges,
     }
-    for name in MODEL_ENV_FIELDS:
+    arms = recorded.get("mechanism_ranges")
+    theirs["mechanism_ranges"] = MechanismRanges.from_value(arms) if arms else None
+    ours["mechanism_ranges"] = config.mechanism_ranges
+    if arms:  # arms are drawn: their nominal mechanism is not the episode's
+        theirs["mechanism"] = Mechanism.from_dict(recorded["mechanism"])
+        ours["mechanism"] = config.base_mechanism
+    _compare(theirs, ours, where)
+
+
+def _compare(theirs: dict[str, Any], ours: dict[str, Any], where: str) -> None:
+    for name in theirs:
         if _plain(theirs[name]) != _plain(ours[name]):
             raise ValueError(
                 f"{where} was trained for another env: {name} = {_shown(theirs[name])} there, "
                 f"{_shown(ours[name])} in this env; allowed: the env it was trained on "
                 "(make the env from the run's run.json env_config)"
             )
+
+
+def _check_inside_ranges(recorded: dict[str, Any], config: Any, where: str) -> None:
+    """A model trained on random arms (a generalist) runs on one arm inside its ranges: the
+    same observation, control period, preview and undrawn Mechanism fields, every drawn field
+    and the reference inside the training ranges; else a ValueError names the first field out,
+    its value and the range."""
+    theirs = {k: recorded.get(k) for k in ("ctrl_dt", "preview_steps", "preview_dt")}
+    ours = {k: getattr(config, k) for k in theirs}
+    theirs["observation"] = [*recorded.get("observation")]
+    ours["observation"] = config.observation_layout()
+    arm_ranges = MechanismRanges.from_value(recorded["mechanism_ranges"])
+    drawn = {*arm_ranges.names, "max_tendon_force"}  # auto: sized per arm
+    base = Mechanism.from_dict(recorded["mechanism"]).ideal()
+    mech = config.mechanism.ideal()
+    theirs["mechanism"] = {k: v for k, v in base.to_dict().items() if k not in drawn}
+    ours["mechanism"] = {k: v for k, v in mech.to_dict().items() if k not in drawn}
+    _compare(theirs, ours, where)
+    problems = arm_ranges.violations(config.mechanism)
+    ranges = recorded.get("reference_ranges")
+    if ranges:
+        problems += reference_ranges(ranges).violations(config.reference)
+    if problems:
+        raise ValueError(
+            f"{where} was trained on random arms and does not cover this one: "
+            f"{'; '.join(problems)}; allowed: an arm and reference inside its training ranges"
+        )
 
 
 def _shown(value: Any) -> Any:

@@ -104,7 +104,9 @@ def load_preset(preset: str | os.PathLike, allowed: Iterable[str]) -> dict[str, 
     path = preset_path(preset)
     data = load_yaml(path)
     check_keys(str(path), data, allowed)
-    return {k: (mapping(f"{path}: {k}", v) if k in SECTIONS else v) for k, v in data.items()}
+    # A section is a mapping, or a name that EnvConfig reads (reference_ranges: course).
+    section = lambda k, v: k in SECTIONS and not isinstance(v, str)  # noqa: E731
+    return {k: (mapping(f"{path}: {k}", v) if section(k, v) else v) for k, v in data.items()}
 
 
 def merge_reference(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:

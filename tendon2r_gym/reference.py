@@ -240,6 +240,24 @@ class ReferenceRanges:
             for b2 in self.bias_deg[1]
         ]
 
+    def violations(self, ref: Reference) -> list[str]:
+        """Returns the fields of ``ref`` outside the ranges (empty if it is inside; amplitudes
+        only above them, since a drawn reference's amplitudes are fitted down)."""
+        out = []
+        values = {"amp_deg": ref.amp_deg, "bias_deg": ref.bias_deg}
+        if ref.freq_hz is not None:
+            values["freq_hz"] = ref.freq_hz
+        else:
+            values["freq_hz"] = tuple(w / (2 * math.pi) for w in ref.omega_rad_s)
+        for name, pair_ in values.items():
+            for joint, x, (lo, hi) in zip("AB", pair_, getattr(self, name), strict=True):
+                lo = 0.0 if name == "amp_deg" else lo
+                if not lo - 1e-9 <= x <= hi + 1e-9:
+                    out.append(
+                        f"reference.{name} of joint {joint} = {x:g} outside [{lo:g}, {hi:g}]"
+                    )
+        return out
+
     def sample(self, rng: np.random.Generator, mech: Mechanism) -> Reference:
         """Draws a reference (uniform in each range), fitted to the workspace of ``mech``."""
         draw = {

@@ -16,8 +16,8 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import tendon2r_gym
 from tendon2r_gym import EnvConfig, Tendon2REnv
-from tendon2r_gym.env_config import COMPUTED
 from tendon2r_gym import observation as L
+from tendon2r_gym.env_config import COMPUTED
 
 
 def _rollout(env, seed, n=50):

@@ -12,6 +12,9 @@ RANGES = {"amp_deg": [[5, 20], [5, 20]], "freq_hz": [[0.5, 3], [0.5, 3]],
 #: Every realism effect on (tendon2r_gym.realism).
 REAL = {"tendon_elasticity": 3000.0, "tendon_damping": 1.0, "tendon_friction": 0.01,
         "motor_tau": 0.004, "motor_delay": 0.002}  # fmt: skip
+#: Random arms with random cables and motors (tendon2r_gym.arms.MechanismRanges).
+ARMS = {"c": [0.08, 0.1], "tendon_elasticity": [2000.0, 6000.0], "motor_tau": [0.001, 0.004],
+        "tendon_friction": [0.005, 0.02], "joint_damping": [0.0, 1e-4]}  # fmt: skip
 
 
 def _native(n, **kw):
@@ -29,7 +32,10 @@ def _native(n, **kw):
      (3, 1, {"mechanism": REAL}), (3, 1, {"preset": "pull_only", "mechanism": REAL}),
      (3, 1, {"action_mode": "joint_torque", "mechanism": REAL}),
      (3, 1, {"observation_noise": [1e-3, 0.1], "observation_delay": 0.002}),
-     (4, 2, {"observation_noise": [0, 0.1], "mechanism": REAL, "preset": "pull_only"})],
+     (4, 2, {"observation_noise": [0, 0.1], "mechanism": REAL, "preset": "pull_only"}),
+     (3, 1, {"preset": "generalist", "observe_arm": True}),
+     (3, 1, {"preset": "generalist", "action_mode": "joint_torque"}),
+     (3, 1, {"preset": "pull_only", "mechanism": REAL, "mechanism_ranges": ARMS})],
 )  # fmt: skip
 @pytest.mark.parametrize("mode", ["NextStep", "SameStep"])
 def test_same_seeds_same_trajectories_as_single_envs_bit_for_bit(n, nthread, kwargs, mode):

@@ -1,0 +1,156 @@
+"""Random arms (``mechanism_ranges``): each reset draws a valid arm and its reference; the
+episode is the one an experiment file of that arm gives; PD and CT follow the arm."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from tendon2r_gym import observation
+from tendon2r_gym.arms import COURSE, GEOMETRY, MechanismRanges
+from tendon2r_gym.env_config import EnvConfig
+from tendon2r_gym.learned import check_model_env
+from tendon2r_gym.mechanism import Mechanism
+from tendon2r_gym.policies import ComputedTorquePolicy, PDPolicy
+from tendon2r_gym.reference import Reference
+
+CABLES = {"tendon_elasticity": [2000.0, 6000.0], "motor_tau": [0.001, 0.004]}
+
+
+def _episode(env, policy, seed, steps=200):
+    obs, info = env.reset(seed=seed)
+    policy.reset(info)
+    out = [obs]
+    for _ in range(steps):
+        obs, *_ = env.step(policy.predict(obs)[0])
+        out.append(obs)
+    return info, np.array(out)
+
+
+@pytest.mark.parametrize(
+    ("ranges", "match"),
+    [({"R9": [0.01, 0.02]}, "mechanism_ranges = 'R9'"),
+     ({"c": [0.09, 0.08]}, r"mechanism_ranges.c = .*lo <= hi"),
+     ({"c": [0.08, 2.0]}, r"mechanism_ranges.c"),
+     ({"motor_tau": [0.0, 0.01]}, r"mechanism_ranges.motor_tau = .*different layouts"),
+     ({}, "mechanism_ranges = {}"),
+     ("everything", "mechanism_ranges = 'everything'"),
+     ({"a": [0.001, 0.002]}, "mechanism_ranges = .*valid arm")],
+)  # fmt: skip
+def test_bad_ranges_raise_at_construction_naming_the_field(ranges, match):
+    with pytest.raises(ValueError, match=match):
+        EnvConfig.make("default", mechanism_ranges=ranges)
+
+
+def test_observe_arm_needs_ranges():
+    with pytest.raises(ValueError, match="observe_arm = True"):
+        EnvConfig.make("default", observe_arm=True)
+
+
+def test_course_ranges_are_the_course_geometry():
+    ranges = MechanismRanges.from_value("course")
+    assert ranges.names == GEOMETRY
+    assert ranges.to_dict() == {k: list(getattr(COURSE, k)) for k in GEOMETRY}
+
+
+def test_each_reset_draws_a_valid_arm_inside_the_ranges_same_seed_same_arm():
+    env = gym.make("Tendon2R-v0", preset="generalist")
+    ranges = env.unwrapped.config.mechanism_ranges
+    arms = []
+    for seed in range(6):
+        _, info = env.reset(seed=seed)
+        mech = Mechanism.from_dict(info["mechanism"])
+        assert mech == env.unwrapped.mechanism
+        assert not ranges.violations(mech)
+        assert info["max_tendon_force_N"] == mech.max_tendon_force
+        arms.append(info["mechanism"])
+    assert len({a["c"] for a in arms}) == len(arms)  # a new arm every reset
+    _, again = env.reset(seed=3)
+    assert again["mechanism"] == arms[3] and again["reference"] == env.unwrapped.reference.to_dict()
+    # the compiled model is the drawn arm's: joint B sits c from joint A
+    m = env.unwrapped.mechanism
+    assert np.isclose(env.unwrapped.model.body("link_b").pos[0], m.c)
+
+
+REAL = {"tendon_elasticity": 4000.0, "motor_tau": 0.002}
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [{"preset": "generalist"},
+     {"preset": "pull_only", "mechanism": REAL, "mechanism_ranges": CABLES}],
+)  # fmt: skip
+def test_a_random_episode_is_the_episode_of_its_arms_experiment_file(kwargs):
+    """The drawn arm, as a static config (EnvConfig.for_arm: the arm, its reference, its own
+    auto force limit), runs the same episode under PD, bit for bit; PD follows the arm."""
+    rand = gym.make("Tendon2R-v0", reset_noise_scale=0.0, **kwargs)
+    pd = PDPolicy.from_env(rand)
+    for seed in (0, 1):
+        info, obs = _episode(rand, pd, seed)
+        arm = rand.unwrapped.arm
+        assert arm.mechanism_ranges is None and arm.reference.to_dict() == info["reference"]
+        static = gym.make("Tendon2R-v0", **{**arm.to_dict(), "preset": "default"})
+        assert static.unwrapped.config.mechanism == arm.mechanism  # its own auto limit
+        _, obs_static = _episode(static, PDPolicy.from_env(static), seed)
+        np.testing.assert_array_equal(obs, obs_static)
+
+
+def test_arm_features_are_the_drawn_fields_normalized():
+    env = gym.make("Tendon2R-v0", preset="generalist", observe_arm=True)
+    cfg = env.unwrapped.config
+    where = observation.arm_slice(cfg.preview_steps, cfg.n_actions, len(GEOMETRY))
+    assert env.observation_space.shape == (where.stop,)
+    for seed in range(3):
+        obs, info = env.reset(seed=seed)
+        mech = Mechanism.from_dict(info["mechanism"])
+        expected = [
+            2 * (getattr(mech, k) - lo) / (hi - lo) - 1
+            for k, (lo, hi) in cfg.mechanism_ranges.ranges
+        ]
+        np.testing.assert_allclose(obs[where], expected, rtol=0, atol=1e-12)
+        assert np.all(np.abs(obs[where]) <= 1)
+        obs, *_ = env.step(env.action_space.sample())
+        np.testing.assert_allclose(obs[where], expected, rtol=0, atol=1e-12)  # constant
+    assert ["arm", len(GEOMETRY)] in cfg.observation_layout()
+    assert "arm" not in dict(EnvConfig.make("default").observation_layout())
+
+
+def test_ct_follows_the_arm_and_the_reference():
+    """Computed torque with the drawn arm's model tracks it to the accuracy it has on a
+    static arm (far better than PD): it uses the arm's inverse dynamics, not the nominal's."""
+    env = gym.make("Tendon2R-v0", preset="generalist")
+    ct, pd = ComputedTorquePolicy.from_env(env), PDPolicy.from_env(env)
+    for seed in (0, 1):
+        _, obs_ct = _episode(env, ct, seed, 400)
+        _, obs_pd = _episode(env, pd, seed, 400)
+        err = lambda o: np.sqrt(np.mean(o[100:, observation.ERROR] ** 2))  # noqa: E731
+        assert err(obs_ct) < 0.2 * err(obs_pd)
+
+
+def test_generalist_loads_on_arms_inside_its_ranges_only():
+    recorded = {
+        **EnvConfig.make("generalist").to_dict(),
+        "observation": EnvConfig.make("generalist").observation_layout(),
+    }
+    inside = gym.make("Tendon2R-v0", mechanism={"c": 0.09, "R1": 0.02})
+    check_model_env(recorded, inside, "generalist")
+    outside = gym.make("Tendon2R-v0", mechanism={"c": 0.12})
+    with pytest.raises(ValueError, match=r"c = 0.12 outside \[0.03, 0.095\]"):
+        check_model_env(recorded, outside, "generalist")
+    too_fast = gym.make("Tendon2R-v0", reference={"freq_hz": [4.5, 1.0]})
+    with pytest.raises(ValueError, match=r"reference.freq_hz of joint A = 4.5 outside"):
+        check_model_env(recorded, too_fast, "generalist")
+    other_routing = gym.make("Tendon2R-v0", preset="pull_only")
+    with pytest.raises(ValueError, match="trained for another env"):
+        check_model_env(recorded, other_routing, "generalist")
+    damped = gym.make("Tendon2R-v0", mechanism={"joint_damping": 1e-3})  # not drawn
+    with pytest.raises(ValueError, match="trained for another env: mechanism"):
+        check_model_env(recorded, damped, "generalist")
+
+
+def test_fixed_reference_option_on_random_arms():
+    env = gym.make("Tendon2R-v0", preset="generalist")
+    ref = {"amp_deg": [5.0, 5.0], "bias_deg": [0.0, 0.0], "freq_hz": [1.0, 1.0]}
+    _, info = env.reset(seed=0, options={"reference": ref})
+    assert Reference.from_dict(info["reference"]) == Reference.from_dict(
+        {**ref, "phase_deg": [0.0, 0.0]}
+    )
