@@ -204,6 +204,12 @@ class PPOPolicy:
         vecnorm.training, vecnorm.norm_reward = False, False
         return cls(model, vecnorm, float(meta["residual_scale"]), env)
 
+    def reset(self, info: dict[str, Any]) -> None:
+        """Follows the episode's arm with the PD inside a residual policy (the rollouts call
+        it with each reset's info)."""
+        if self.pd is not None:
+            self.pd.reset(info)
+
     def predict(
         self,
         observation: np.ndarray,

@@ -92,3 +92,18 @@ def test_sensitivity_variants_change_one_knob():
     assert variant("8x512", None).rollout_steps == base.rollout_steps
     assert variant("log_std_0", None) is None, "the shipped value is not run twice"
     assert variant("gamma_0.95", 2048).total_timesteps == 2048
+
+
+def test_generalist_study_end_to_end(tmp_path):
+    """Unseen arms, PD and CT rows, the summary and the markdown (no bundle: baselines only)."""
+    from tendon2r_gym.studies import generalist
+
+    out = generalist.main(
+        ["--n-arms", "2", "--episodes", "1", "--bundles", "--sweep", str(tmp_path / "none"),
+         "--out", str(tmp_path)]
+    )  # fmt: skip
+    assert set(out["arms"]) == {"unseen_0", "unseen_1"}
+    for arm in out["arms"].values():
+        assert arm["rows"]["ct"]["rms_deg"][0] < arm["rows"]["pd"]["rms_deg"][0]
+    assert "| unseen_1 |" in (tmp_path / "generalist.md").read_text()
+    assert generalist.worst_ratio([1.0, 3.0], [2.0, 1.0]) == 3.0

@@ -1,0 +1,185 @@
+"""Generalist study: does one policy, trained across random arms, track arms it never saw?
+
+    python scripts/generalist.py                       # results/generalist.md and .json
+    python scripts/generalist.py --n-arms 2 --episodes 1 --out /tmp/x      # smoke
+
+Arms: ``--n-arms`` arms drawn with ``--arm-seed`` from the course's ranges by
+tendon2r_gym.arms.draw_arms (training never draws from this generator: its arms come from the
+envs' own seeded generators), each an experiment file; plus the arm sweep's arms
+(results/arm_sweep.json) that lie inside the generalist's ranges, with their per-arm
+specialist (the sweep's residual, trained on that arm alone).
+
+Per arm: PD, CT and each generalist bundle zero-shot (no training on the arm), on the same
+evaluation seeds.  Summary per learned policy: the fraction of arms where it is <= PD on both
+joints, the median worst-joint ratio of its RMS error to PD's, its tension rate as a multiple
+of PD's, and the fraction of arms where it is <= the specialist.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tendon2r_gym.arms import draw_arms
+from tendon2r_gym.bundle import bundle_names, bundled_model
+from tendon2r_gym.evaluation import evaluate
+from tendon2r_gym.metrics import beats, rms_ratio
+from tendon2r_gym.runs import command_line
+
+#: The generalist bundles (configs/ppo.yaml entries of the same names).
+BUNDLES = ("generalist", "generalist_scratch")
+
+
+def worst_ratio(rms: list[float], baseline: list[float]) -> float:
+    """Returns the larger of the two joints' RMS errors as a multiple of the baseline's."""
+    return float(max(r / b for r, b in zip(rms, baseline, strict=True)))
+
+
+def evaluate_arm(
+    env_kwargs: dict[str, Any], bundles: list[str], seeds: list[int]
+) -> dict[str, Any]:
+    """Returns PD's, CT's and each bundle's metrics on one arm (a bundle that does not cover
+    the arm is reported with its error, not run)."""
+    rows: dict[str, Any] = {}
+    for name in ("pd", "ct"):
+        rows[name], _ = evaluate(name, env_kwargs, seeds)
+    for bundle in bundles:
+        try:
+            rows[bundle], _ = evaluate("ppo", env_kwargs, seeds, bundled_model(bundle))
+        except ValueError as e:  # outside the generalist's ranges
+            rows[bundle] = {"error": str(e)}
+    return rows
+
+
+def _specialists(sweep: Path) -> dict[str, dict[str, Any]]:
+    """Returns the arm sweep's arms in tension mode with their residual's RMS (deg)."""
+    if not sweep.is_file():
+        return {}
+    arms = json.loads(sweep.read_text())["arms"]
+    return {
+        a["arm"]: {"env_config": a["env_config"], "rms_deg": a["ppo residual"]["rms_deg"]}
+        for a in arms.values()
+        if a["action_mode"] == "tension" and a.get("ppo residual")
+    }
+
+
+def summarize(arms: dict[str, Any], bundles: list[str]) -> dict[str, Any]:
+    """Returns, per bundle, over the arms it covers: <= PD fraction, median worst-joint ratio
+    to PD, median tension-rate ratio to PD and <= specialist fraction."""
+    out = {}
+    for b in bundles:
+        covered = [a for a in arms.values() if "rms_deg" in a["rows"].get(b, {})]
+        if not covered:
+            continue
+        ratios = [worst_ratio(a["rows"][b]["rms_deg"], a["rows"]["pd"]["rms_deg"]) for a in covered]
+        rate = [
+            rms_ratio(
+                a["rows"][b]["rms_tension_rate_N_per_s"],
+                a["rows"]["pd"]["rms_tension_rate_N_per_s"],
+            )
+            for a in covered
+        ]
+        vs_spec = [
+            beats(a["rows"][b]["rms_deg"], a["specialist_rms_deg"])
+            for a in covered
+            if a.get("specialist_rms_deg")
+        ]
+        out[b] = {
+            "arms": len(covered),
+            "beats_pd": sum(
+                beats(a["rows"][b]["rms_deg"], a["rows"]["pd"]["rms_deg"]) for a in covered
+            ),
+            "median_worst_ratio_to_pd": float(np.median(ratios)),
+            "max_worst_ratio_to_pd": float(np.max(ratios)),
+            "median_tension_rate_x_pd": float(np.median(rate)),
+            "specialist_arms": len(vs_spec),
+            "beats_specialist": int(sum(vs_spec)),
+        }
+    return out
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    p.add_argument("--n-arms", type=int, default=32, help="unseen random course arms")
+    p.add_argument("--arm-seed", type=int, default=9001, help="seed of the unseen arms")
+    p.add_argument("--episodes", type=int, default=3, help="evaluation seeds 0..N-1 per arm")
+    p.add_argument("--bundles", nargs="*", default=None, help="default: the shipped generalists")
+    p.add_argument("--sweep", default="results/arm_sweep.json", help="the arm sweep's results")
+    p.add_argument("--out", default="results")
+    args = p.parse_args(argv)
+    command = command_line(argv, "python scripts/generalist.py")
+    bundles = [b for b in BUNDLES if b in bundle_names()] if args.bundles is None else args.bundles
+    seeds = list(range(args.episodes))
+    arms: dict[str, dict[str, Any]] = {}
+    for i, content in enumerate(draw_arms(args.arm_seed, args.n_arms)):
+        arms[f"unseen_{i}"] = {"env_kwargs": content}
+    for name, spec in _specialists(Path(args.sweep)).items():
+        kwargs = {k: spec["env_config"][k] for k in ("mechanism", "reference")}
+        arms[f"sweep_{name}"] = {"env_kwargs": kwargs, "specialist_rms_deg": spec["rms_deg"]}
+    result: dict[str, Any] = {"command": command, "bundles": bundles, "seeds": seeds, "arms": {}}
+    for name, arm in arms.items():
+        arm["rows"] = evaluate_arm(arm["env_kwargs"], bundles, seeds)
+        result["arms"][name] = arm
+        result["summary"] = summarize(result["arms"], bundles)
+        write(result, Path(args.out))
+    return result
+
+
+def write(result: dict[str, Any], out: Path) -> None:
+    """Writes generalist.json and generalist.md."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "generalist.json").write_text(json.dumps(result, indent=1))
+    fmt = lambda v: " / ".join(f"{x:.3f}" for x in v)  # noqa: E731
+    bundles = result["bundles"]
+
+    def cell(row: dict[str, Any], pd: list[float]) -> str:
+        if "error" in row:
+            return "outside its ranges"
+        mark = "<= PD" if beats(row["rms_deg"], pd) else "**WORSE**"
+        return f"{fmt(row['rms_deg'])} ({mark}, {worst_ratio(row['rms_deg'], pd):.2f}x)"
+
+    lines = [
+        "# One policy for every arm: the generalists zero-shot",
+        "",
+        f"Produced by `{result['command']}`. RMS tracking error (deg, joint A / B) over "
+        f"evaluation seeds {result['seeds']}; for a generalist, (its worst joint's RMS as a "
+        "multiple of PD's). Unseen arms: drawn by tendon2r_gym.arms.draw_arms with a seed that "
+        "training never uses; sweep arms: results/arm_sweep.md, with their own specialist.",
+        "",
+        "## Summary",
+        "",
+        "| policy | arms | <= PD on both joints | median worst-joint ratio to PD | worst | "
+        "median tension rate (x PD) | <= specialist |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for b, s in result.get("summary", {}).items():
+        lines.append(
+            f"| {b} | {s['arms']} | {s['beats_pd']} of {s['arms']} | "
+            f"{s['median_worst_ratio_to_pd']:.3f} | {s['max_worst_ratio_to_pd']:.3f} | "
+            f"{s['median_tension_rate_x_pd']:.2f} | "
+            f"{s['beats_specialist']} of {s['specialist_arms']} |"
+        )
+    lines += [
+        "",
+        "## Per arm",
+        "",
+        "| arm | R1 / R2 / a / b / c (mm) | PD | CT | specialist | " + " | ".join(bundles) + " |",
+        "|---|---|---|---|---|" + "---|" * len(bundles),
+    ]
+    for name, arm in result["arms"].items():
+        m = arm["env_kwargs"]["mechanism"]
+        geo = " / ".join(f"{1000 * m[k]:.0f}" for k in ("R1", "R2", "a", "b", "c"))
+        rows = arm["rows"]
+        pd = rows["pd"]["rms_deg"]
+        spec = arm.get("specialist_rms_deg")
+        lines.append(
+            f"| {name} | {geo} | {fmt(pd)} | {fmt(rows['ct']['rms_deg'])} | "
+            f"{fmt(spec) if spec else '-'} | "
+            + " | ".join(cell(rows[b], pd) for b in bundles)
+            + " |"
+        )
+    (out / "generalist.md").write_text("\n".join(lines) + "\n")
