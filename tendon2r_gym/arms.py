@@ -121,13 +121,17 @@ RANDOMIZABLE = (
 LAYOUT_FIELDS = ("tendon_elasticity", "tendon_friction", "motor_tau")
 #: ``mechanism_ranges: course``: the course's geometry (ArmRanges' defaults).
 COURSE_NAME = "course"
+#: ``mechanism_ranges: real_arm``: the cables and motors of the realism section's perturbed
+#: arms (tendon2r_gym.realism.PERTURBATIONS' mechanism ranges).
+REAL_ARM_NAME = "real_arm"
 
 
 @dataclass(frozen=True)
 class MechanismRanges:
     """Uniform ranges [lo, hi] of Mechanism fields (RANDOMIZABLE), drawn independently in this
     order at every reset; every other field keeps the nominal arm's value.  From YAML: a
-    mapping ``{field: [lo, hi]}``, or ``course`` (the course's geometry, R1 R2 a b c)."""
+    mapping ``{field: [lo, hi]}``, ``course`` (the course's geometry, R1 R2 a b c) or
+    ``real_arm`` (cables and motors: tendon2r_gym.realism.PERTURBATIONS)."""
 
     ranges: tuple[tuple[str, tuple[float, float]], ...]
 
@@ -155,9 +159,13 @@ class MechanismRanges:
 
     @classmethod
     def from_value(cls, value: Any) -> MechanismRanges:
-        """Reads ``course`` or a mapping ``{field: [lo, hi]}``."""
+        """Reads ``course``, ``real_arm`` or a mapping ``{field: [lo, hi]}``."""
         if value == COURSE_NAME:
             return cls(tuple((k, getattr(COURSE, k)) for k in GEOMETRY))
+        if value == REAL_ARM_NAME:
+            from tendon2r_gym.realism import PERTURBATIONS
+
+            return cls(tuple(PERTURBATIONS["mechanism"].items()))
         if isinstance(value, MechanismRanges):
             return value
         values = mapping("mechanism_ranges", value)

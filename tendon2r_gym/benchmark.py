@@ -16,9 +16,10 @@ import time
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 
-from tendon2r_gym.bundle import bundle_meta, bundled_model, training_summary
+from tendon2r_gym.bundle import bundle_meta, bundle_names, bundled_model, training_summary
 from tendon2r_gym.evaluation import BASELINE, evaluate, names
 from tendon2r_gym.metrics import beats, rms_ratio
 from tendon2r_gym.plots import plot_trace
@@ -80,6 +81,30 @@ def compare(
             rows.append(_spread(name, label, per_seed))
     for row in rows:
         _print(row)
+    return rows
+
+
+#: The generalist bundles (configs/ppo.yaml entries of the same names): trained across random
+#: arms, run zero-shot on a user's arm when it lies inside their training ranges.
+GENERALISTS = ("generalist", "generalist_scratch")
+
+
+def generalist_rows(name: str, env_kwargs: dict[str, Any], seeds: list[int]) -> list[dict]:
+    """Returns a row per shipped generalist bundle on this arm: zero-shot (no training on it),
+    or ``missing`` with the reason when the arm is outside its training ranges."""
+    from tendon2r_gym.learned import check_model_env
+
+    rows = []
+    for bundle in (b for b in GENERALISTS if b in bundle_names()):
+        label, model = f"{bundle} zero-shot", bundled_model(bundle)
+        try:
+            meta = json.loads((model.parent / RUN_META).read_text())
+            check_model_env(meta["env_config"], gym.make("Tendon2R-v0", **env_kwargs), bundle)
+        except ValueError as e:
+            rows.append({"env": name, "policy": label, "missing": str(e)})
+            continue
+        rows.append(_row(name, label, "ppo", env_kwargs, seeds, model, None))
+        _print(rows[-1])
     return rows
 
 
@@ -344,11 +369,21 @@ def tension_comparison(rows: list[dict[str, Any]]) -> list[str]:
 #: tendon2r_gym.realism.perturbed_arms(REALISM_BASE, REALISM_ARMS, REALISM_SEED); the residual
 #: is the bundle trained on the ideal arm of the same geometry.
 REALISM_BASE, REALISM_ARMS, REALISM_SEED, REALISM_BUNDLE = "real_arm", 16, 0, "pull_only"
+#: The residual trained with per-episode random cables and motors (configs/ppo.yaml real_arm).
+RANDOMIZED_BUNDLE = "real_arm"
+#: The realism section's policies: (key, label, policy, bundle or None).
+REALISM_POLICIES = (
+    ("pd", "PD", "pd", None),
+    ("ct", "CT", "ct", None),
+    ("ppo", "residual (ideal-trained)", "ppo", REALISM_BUNDLE),
+    ("randomized", "residual (randomized)", "ppo", RANDOMIZED_BUNDLE),
+)
 
 
 def realism(episodes: int) -> list[dict[str, Any]]:
-    """PD, CT (nominal model) and the ideal-trained residual on the real arm and its seeded
-    perturbations: one row per arm, RMS per joint and tension rate per policy."""
+    """PD, CT (nominal model), the ideal-trained residual and the randomized residual on the
+    real arm and its seeded perturbations: one row per arm, RMS per joint and tension rate
+    per policy (a policy without its bundle is left out)."""
     from tendon2r_gym.realism import perturbed_arms
 
     arms = [("real_arm", {"preset": REALISM_BASE})]
@@ -356,58 +391,60 @@ def realism(episodes: int) -> list[dict[str, Any]]:
         (f"perturbed {i}", kw)
         for i, kw in enumerate(perturbed_arms(REALISM_BASE, REALISM_ARMS, REALISM_SEED))
     ]
-    model = bundled_model(REALISM_BUNDLE) if bundle_meta(REALISM_BUNDLE) else None
+    policies = [p for p in REALISM_POLICIES if p[3] is None or bundle_meta(p[3])]
     seeds = list(range(episodes))
     rows = []
     for name, kwargs in arms:
         row: dict[str, Any] = {"arm": name, "env_kwargs": kwargs}
-        for policy in ("pd", "ct", "ppo"):
-            if policy == "ppo" and model is None:
-                continue
-            metrics, _ = evaluate(policy, kwargs, seeds, model if policy == "ppo" else None)
-            row[policy] = {
+        for key, _, policy, bundle in policies:
+            model = bundled_model(bundle) if bundle else None
+            metrics, _ = evaluate(policy, kwargs, seeds, model)
+            row[key] = {
                 k: metrics[k] for k in ("rms_deg", "rms_tension_N", "rms_tension_rate_N_per_s")
             }
         rows.append(row)
-        shown = "  ".join(f"{p} {_fmt(row[p]['rms_deg'])}" for p in ("pd", "ct", "ppo") if p in row)
+        shown = "  ".join(f"{p[0]} {_fmt(row[p[0]]['rms_deg'])}" for p in policies)
         print(f"realism {name:12s} {shown} deg", flush=True)
     return rows
 
 
 def realism_lines(rows: list[dict[str, Any]]) -> list[str]:
     """Returns the realism section of benchmark.md."""
-    has_ppo = all("ppo" in r for r in rows)
+    learned = [p for p in REALISM_POLICIES if p[3] and all(p[0] in r for r in rows)]
     lines = [
         "## Real tendons, motors and sensors",
         "",
         f"The `{REALISM_BASE}` preset (elastic pull-only cables on motor spools, pulley "
         "friction, motor lag and delay, sensor noise and delay: tendon2r_gym.realism) and "
         f"{REALISM_ARMS} arms drawn from tendon2r_gym.realism.PERTURBATIONS with seed "
-        f"{REALISM_SEED}. PD and CT keep the nominal (ideal) model; the residual is the "
-        f"`{REALISM_BUNDLE}` bundle's primary model, trained on the ideal arm (no "
-        "randomization). RMS error A / B (deg).",
+        f"{REALISM_SEED}. PD and CT keep the nominal (ideal) model. Residual (ideal-trained): "
+        f"the `{REALISM_BUNDLE}` bundle's primary model, trained on the ideal arm; residual "
+        f"(randomized): the `{RANDOMIZED_BUNDLE}` bundle's, trained on `{REALISM_BASE}` with "
+        "its cables and motors drawn anew every episode from the same ranges "
+        "(`mechanism_ranges: real_arm`; delays and sensor noise fixed at the preset's). RMS "
+        "error A / B (deg); for a residual, (its worst joint as a multiple of PD's).",
         "",
-        "| arm | PD | CT | residual (ideal-trained) | residual / PD, worst joint |",
-        "|---|---|---|---|---|",
+        "| arm | PD | CT | " + " | ".join(p[1] for p in learned) + " |",
+        "|---|---|---|" + "---|" * len(learned),
     ]
-    ratios = []
+    ratios: dict[str, list[float]] = {p[0]: [] for p in learned}
     for r in rows:
-        ppo = _fmt(r["ppo"]["rms_deg"]) if "ppo" in r else "-"
-        ratio = "-"
-        if "ppo" in r:
-            ratios.append(max(np.divide(r["ppo"]["rms_deg"], r["pd"]["rms_deg"])))
-            ratio = f"{ratios[-1]:.2f}"
+        cells = []
+        for key, *_ in learned:
+            ratios[key].append(float(max(np.divide(r[key]["rms_deg"], r["pd"]["rms_deg"]))))
+            cells.append(f"{_fmt(r[key]['rms_deg'])} ({ratios[key][-1]:.2f}x)")
         lines.append(
-            f"| {r['arm']} | {_fmt(r['pd']['rms_deg'])} | {_fmt(r['ct']['rms_deg'])} | {ppo} | "
-            f"{ratio} |"
+            f"| {r['arm']} | {_fmt(r['pd']['rms_deg'])} | {_fmt(r['ct']['rms_deg'])} | "
+            + " | ".join(cells)
+            + " |"
         )
-    if has_ppo and ratios:
-        wins = sum(x <= 1.0 for x in ratios)
-        lines += [
-            "",
-            f"Ideal-trained residual <= PD on both joints on {wins} of {len(rows)} arms; "
-            f"median worst-joint ratio to PD {np.median(ratios):.2f}.",
-        ]
+    lines.append("")
+    for key, label, *_ in learned:
+        x = ratios[key]
+        lines.append(
+            f"- {label}: <= PD on both joints on {sum(v <= 1.0 for v in x)} of {len(rows)} "
+            f"arms; median worst-joint ratio to PD {np.median(x):.2f}."
+        )
     return lines
 
 
@@ -467,6 +504,7 @@ def benchmark_own_arm(
         bar.set_postfix_str("evaluating")
         name = Path(env_config).stem
         rows = compare(name, env_kwargs, learned, list(range(episodes)), out / "plots", bar)
+        rows += generalist_rows(name, env_kwargs, list(range(episodes)))
     result = {
         "command": command,
         "env_config": config.to_dict(),

@@ -155,18 +155,21 @@ class Sensors:
         return self._ring[self._i]
 
 
-#: Ranges of the seeded perturbed arms (the realism section of ``make benchmark``): each value
-#: is drawn uniformly and independently; delays are rounded to whole control steps.  They span
-#: the catalog-typical values of the ``real_arm`` preset from about half to twice.
+#: Ranges of the seeded perturbed arms (the realism section of ``make benchmark``) and of the
+#: randomized training (``mechanism_ranges: real_arm``, tendon2r_gym.arms.MechanismRanges, the
+#: ``mechanism`` part): each value drawn uniformly and independently; delays are rounded to
+#: whole control steps.  They span the catalog-typical values of the ``real_arm`` preset from
+#: about half to twice; friction and lag never vanish (a real cable rubs, a real driver lags,
+#: and a zero would change the model's layout).
 PERTURBATIONS: dict[str, Any] = {
     "mechanism": {
         "tendon_elasticity": (2500.0, 8000.0),  # N/m
         "tendon_damping": (1.0, 4.0),  # N s/m
         "motor_mass": (0.002, 0.004),  # kg
-        "tendon_friction": (0.0, 0.01),  # N
-        "motor_tau": (0.0, 0.004),  # s
-        "motor_delay": (0.0, 0.002),  # s
+        "tendon_friction": (0.001, 0.01),  # N
+        "motor_tau": (0.0005, 0.004),  # s
     },
+    "motor_delay": (0.0, 0.002),  # s
     "observation_noise": ((0.0, 2e-4), (0.0, 0.1)),  # rad, rad/s
     "observation_delay": (0.0, 0.002),  # s
 }
@@ -184,7 +187,7 @@ def perturbed_arms(preset: str, n: int, seed: int) -> list[dict[str, Any]]:
     arms = []
     for _ in range(n):
         mech = {k: draw(r) for k, r in PERTURBATIONS["mechanism"].items()}
-        mech["motor_delay"] = steps(mech["motor_delay"])
+        mech["motor_delay"] = steps(draw(PERTURBATIONS["motor_delay"]))
         arms.append(
             {
                 "preset": preset,

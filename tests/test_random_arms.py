@@ -171,3 +171,38 @@ def test_a_residual_policy_follows_the_arm_in_rollouts():
         _, ours = _episode(env, residual, seed, 50)
         _, pd = _episode(env, PDPolicy.from_env(env), seed, 50)
         np.testing.assert_array_equal(ours, pd)
+
+
+def test_real_arm_ranges_are_the_perturbed_arms_ranges():
+    """mechanism_ranges: real_arm draws the cables and motors of the benchmark's perturbed arms
+    (one home: realism.PERTURBATIONS), and every draw has the real arm's model layout."""
+    from tendon2r_gym.realism import PERTURBATIONS
+
+    env = gym.make("Tendon2R-v0", preset="real_arm", mechanism_ranges="real_arm")
+    ranges = env.unwrapped.config.mechanism_ranges
+    assert dict(ranges.ranges) == PERTURBATIONS["mechanism"]
+    nq = env.unwrapped.model.nq
+    for seed in range(3):
+        _, info = env.reset(seed=seed)
+        assert not ranges.violations(Mechanism.from_dict(info["mechanism"]))
+        assert env.unwrapped.model.nq == nq
+
+
+def test_realism_lines_report_each_residual_against_pd():
+    from tendon2r_gym.benchmark import realism_lines
+
+    row = lambda pd, ppo, rnd: {  # noqa: E731
+        "pd": {"rms_deg": pd}, "ct": {"rms_deg": [0.01, 0.01]},
+        "ppo": {"rms_deg": ppo}, "randomized": {"rms_deg": rnd},
+    }  # fmt: skip
+    rows = [
+        {"arm": "a", **row([1.0, 1.0], [2.0, 0.5], [0.5, 0.25])},
+        {"arm": "b", **row([1.0, 2.0], [0.5, 0.5], [0.5, 2.5])},
+    ]
+    text = "\n".join(realism_lines(rows))
+    assert "| a | 1.0000 / 1.0000 | 0.0100 / 0.0100 | 2.0000 / 0.5000 (2.00x) |" in text
+    assert "residual (ideal-trained): <= PD on both joints on 1 of 2 arms" in text
+    assert (
+        "residual (randomized): <= PD on both joints on 1 of 2 arms; median worst-joint "
+        "ratio to PD 0.88" in text
+    )
