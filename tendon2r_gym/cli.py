@@ -93,6 +93,7 @@ class TrainArgs:
     tendon2r-train --hyperparams default --seeds 0 1 2 --bundle default
     tendon2r-train --env-config my_arm.yaml --hyperparams default_scratch
     tendon2r-train --run-dir runs/default --resume      # after Ctrl-C or a crash
+    tendon2r-train --env-config my_arm.yaml --init-from generalist --total-timesteps 300000
 
     --resume continues the run recorded in --run-dir: its config.yaml (budget and overrides
     included) with only this command's override flags on top; --hyperparams, --config and
@@ -109,6 +110,7 @@ class TrainArgs:
     run_dir: str | None = arg(None, "default runs/<hyperparams>; seeds go in seed_<n>/")
     resume: bool = arg(False, "continue the recorded run from its newest readable state")
     bundle: str | None = arg(None, "copy the best models into the bundled models under NAME")
+    init_from: str | None = arg(None, "start from a bundle's (or model zip's) weights: fine-tune")
     progress_bar: bool = arg(False, "also on whenever stderr is a terminal")
 
 
@@ -121,7 +123,7 @@ def experiment(args: TrainArgs, command: str = "") -> Experiment:
     base = Path(args.run_dir or f"runs/{args.hyperparams}")
     overrides = {
         k: getattr(args, k)
-        for k in ("total_timesteps", "n_envs", "vec_env")
+        for k in ("total_timesteps", "n_envs", "vec_env", "init_from")
         if getattr(args, k) is not None
     }
     progress = args.progress_bar or sys.stderr.isatty()

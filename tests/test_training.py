@@ -216,3 +216,34 @@ def test_a_run_on_reference_ranges_records_them_and_loads(tmp_path):
     ]
     env = gym.make("Tendon2R-v0", **run.read_json("run.json")["env_kwargs"])
     PPOPolicy.load(run.best.with_suffix(".zip"), env)
+
+
+def test_fine_tuning_starts_from_a_generalists_weights_on_an_arm_inside_its_ranges(tmp_path):
+    """--init-from: a run on random arms, fine-tuned on one arm inside its ranges, starts from
+    its weights and observation statistics; an arm outside them is refused by name."""
+    import torch
+    from stable_baselines3 import PPO
+
+    gen = _tiny(tmp_path)
+    hp = Hyperparams.from_dict(yaml.safe_load(gen.read_text())["tiny"])
+    hp = hp.replace(env_kwargs={"preset": "generalist", "episode_duration": 0.1})
+    gen.write_text(yaml.safe_dump({"tiny": hp.to_dict()}))
+    _train(gen, tmp_path / "gen")
+    source = tmp_path / "gen" / "seed_0" / "last_model.zip"
+    arm = tmp_path / "arm.yaml"
+    arm.write_text(
+        "mechanism: {R1: 0.02, R2: 0.03, a: 0.06, b: 0.06, c: 0.09}\n"
+        "reference: {amp_deg: [10, 10], freq_hz: [1, 1], bias_deg: [0, 0]}\n"
+        "episode_duration: 0.1\n"
+    )
+    config = _tiny(tmp_path, steps=64)
+    run = tmp_path / "tuned"
+    _train(config, run, "--env-config", str(arm), "--init-from", str(source))
+    tuned = PPO.load(run / "seed_0" / "last_model.zip", device="cpu").policy.state_dict()
+    first = PPO.load(source, device="cpu").policy.state_dict()
+    # one small update away from the generalist, not a fresh network
+    assert all(torch.allclose(tuned[k], first[k], atol=0.05) for k in first)
+    far = tmp_path / "far.yaml"
+    far.write_text(arm.read_text().replace("c: 0.09", "c: 0.2"))
+    with pytest.raises(ValueError, match=r"c = 0.2 outside \[0.03, 0.095\]"):
+        _train(config, tmp_path / "far", "--env-config", str(far), "--init-from", str(source))

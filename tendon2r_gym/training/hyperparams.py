@@ -40,6 +40,9 @@ class Hyperparams:
     normalize: dict[str, Any] = field(default_factory=dict)  # VecNormalize keyword arguments
     checkpoint_minutes: float = 2.0  # and a checkpoint at least this often (wall time)
     zero_obs: tuple[str, ...] = ()  # observation entries to blank out (ablations)
+    # Start from a trained model's weights and VecNormalize statistics (fine-tuning): a bundle
+    # name (e.g. generalist) or a model zip; it must cover the env (learned.check_model_env).
+    init_from: str | None = None
 
     def __post_init__(self) -> None:
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
@@ -59,6 +62,8 @@ class Hyperparams:
         set_("eval_seeds", [integer("eval_seeds", s, 0, 2**32 - 1) for s in self.eval_seeds])
         if not self.eval_seeds:
             raise invalid("eval_seeds", self.eval_seeds, "one or more integer seeds")
+        if self.init_from is not None and not isinstance(self.init_from, str):
+            raise invalid("init_from", self.init_from, "None, a bundle name or a model .zip")
         zero = tuple(self.zero_obs or ())
         check_keys("zero_obs", zero, observation.SLICES)
         set_("zero_obs", zero)

@@ -35,8 +35,10 @@ from tendon2r_gym.runs import (
     SEEDS_SUMMARY,
     SUMMARY,
     RunFolder,
+    model_files,
     seed_dir,
     seed_dirs,
+    stem_of,
 )
 from tendon2r_gym.training.callbacks import (
     StopOnSignal,
@@ -158,6 +160,51 @@ def _load_newest(run: RunFolder, venv: Any) -> tuple[Any, Any]:
     raise FileNotFoundError(f"resume: every saved state in {run.path} is unreadable")
 
 
+def initial_model(hp: Hyperparams) -> tuple[Path, Path]:
+    """Returns (model zip, VecNormalize pkl) of ``hp.init_from`` (a bundle's primary seed, or
+    a model file) after checking that it covers the run's env and residual scale."""
+    import gymnasium as gym
+
+    from tendon2r_gym.bundle import bundle_names, bundled_model
+    from tendon2r_gym.learned import check_model_env
+
+    source = hp.init_from
+    path = bundled_model(source) if source in bundle_names() else Path(source)
+    zip_path, stats = model_files(stem_of(path))
+    meta_path = zip_path.parent / RUN_META
+    if not (zip_path.is_file() and stats.is_file() and meta_path.is_file()):
+        raise invalid(
+            "init_from", source, "a bundle name or a model .zip of a tendon2r-train run folder"
+        )
+    meta = json.loads(meta_path.read_text())
+    check_model_env(meta["env_config"], gym.make("Tendon2R-v0", **hp.env_kwargs), source)
+    if float(meta["residual_scale"]) != hp.residual_scale:
+        raise invalid(
+            "init_from",
+            source,
+            f"a model with residual_scale {hp.residual_scale} (it has {meta['residual_scale']})",
+        )
+    return zip_path, stats
+
+
+def _load_initial(hp: Hyperparams, venv: Any, seed: int, run: RunFolder) -> tuple[Any, Any]:
+    """Returns (PPO, VecNormalize) started from ``hp.init_from``'s weights and observation
+    statistics, training on ``venv`` with the run's PPO settings."""
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    zip_path, stats = initial_model(hp)
+    vecnorm = VecNormalize.load(str(stats), venv)
+    vecnorm.training = True
+    vecnorm.norm_reward = bool(hp.normalize.get("norm_reward", True))
+    model = PPO.load(
+        zip_path, env=vecnorm, device="cpu", custom_objects=dict(hp.ppo), seed=seed,
+        tensorboard_log=str(run.tensorboard),
+    )  # fmt: skip
+    print(f"initialized from {zip_path}", flush=True)
+    return model, vecnorm
+
+
 def train_run(
     hp: Hyperparams,
     run: RunFolder,
@@ -192,6 +239,8 @@ def train_run(
     venv = make_vec_env(hp, seed)
     if resume:
         model, vecnorm = _load_newest(run, venv)
+    elif hp.init_from is not None:
+        model, vecnorm = _load_initial(hp, venv, seed, run)
     else:
         vecnorm = VecNormalize(venv, gamma=hp.gamma, **hp.normalize)
         model = PPO(
