@@ -1,4 +1,23 @@
-"""Studies and benchmarks behind results/: speed, time step, actuation map, learnability.
+"""Studies and benchmarks behind results/: speed, time step, actuation map, learnability,
+the arm sweep, sensitivity and the generalists.
 
 Each module has a ``main(argv)`` and a thin wrapper in scripts/.
 """
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+
+def joints(values: Sequence[float]) -> str:
+    """Returns per-joint figures as the tables show them: ``A / B`` with 3 decimals."""
+    return " / ".join(f"{x:.3f}" for x in values)
+
+
+def save_json(out: Path, name: str, result: dict[str, Any]) -> None:
+    """Creates ``out`` and writes ``result`` to ``out/<name>.json``."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{name}.json").write_text(json.dumps(result, indent=1))

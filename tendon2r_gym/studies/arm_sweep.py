@@ -14,7 +14,6 @@ Every arm runs in each ``--action-modes`` (the experiment file's ``action_mode``
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +25,7 @@ from tendon2r_gym.env_config import ACTION_MODES
 from tendon2r_gym.metrics import beats, rms_ratio
 from tendon2r_gym.presets import load_yaml, preset_path
 from tendon2r_gym.runs import command_line
+from tendon2r_gym.studies import joints, save_json
 
 PRESETS = ("default", "report_002", "pull_only")
 EXAMPLE = Path(__file__).resolve().parents[2] / "configs" / "examples" / "my_arm.yaml"
@@ -108,9 +108,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
 def write(result: dict[str, Any], out: Path) -> None:
     """Writes arm_sweep.json and arm_sweep.md."""
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "arm_sweep.json").write_text(json.dumps(result, indent=1))
-    fmt = lambda v: " / ".join(f"{x:.3f}" for x in v)  # noqa: E731
+    save_json(out, "arm_sweep", result)
+    fmt = joints
 
     def cell(v: dict[str, Any] | None) -> str:
         if v is None:

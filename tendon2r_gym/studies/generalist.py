@@ -29,6 +29,7 @@ from tendon2r_gym.bundle import bundle_names, bundled_model
 from tendon2r_gym.evaluation import evaluate
 from tendon2r_gym.metrics import beats, rms_ratio
 from tendon2r_gym.runs import command_line
+from tendon2r_gym.studies import joints, save_json
 
 #: The generalist bundles (configs/ppo.yaml entries of the same names).
 BUNDLES = ("generalist", "generalist_scratch")
@@ -133,9 +134,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
 def write(result: dict[str, Any], out: Path) -> None:
     """Writes generalist.json and generalist.md."""
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "generalist.json").write_text(json.dumps(result, indent=1))
-    fmt = lambda v: " / ".join(f"{x:.3f}" for x in v)  # noqa: E731
+    save_json(out, "generalist", result)
+    fmt = joints
     bundles = result["bundles"]
 
     def cell(row: dict[str, Any], pd: list[float]) -> str:

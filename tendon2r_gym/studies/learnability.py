@@ -25,6 +25,8 @@ if TYPE_CHECKING:
 
 import numpy as np
 
+from tendon2r_gym.studies import joints, save_json
+
 #: Row name -> (what changes, env kwargs, hyperparameter changes).  Rows start from
 #: ``default_scratch`` unless their hyperparameter changes name another ``entry``.
 ROWS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
@@ -235,9 +237,8 @@ def pd_tension_rate(env_kwargs: dict[str, Any], seeds: list[int]) -> float:
 def write(result: dict[str, Any], out: Path) -> None:
     """Writes learnability.json and learnability.md."""
     rows, seeds = result["rows"], result["seeds"]
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "learnability.json").write_text(json.dumps(result, indent=1))
-    fmt = lambda v: " / ".join(f"{x:.3f}" for x in v)  # noqa: E731
+    save_json(out, "learnability", result)
+    fmt = joints
     lines = [
         "# Learnability study: plain PPO from scratch",
         "",

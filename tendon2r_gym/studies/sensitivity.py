@@ -11,12 +11,13 @@ variant passes if its best model is <= PD on both joints (on the eval seeds).
 from __future__ import annotations
 
 import argparse
-import json
 import multiprocessing
 import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
+
+from tendon2r_gym.studies import joints, save_json
 
 ENTRY = "default_scratch"
 
@@ -111,9 +112,8 @@ def write(result: dict[str, Any], out: Path) -> None:
     """Writes sensitivity.json and sensitivity.md."""
     from tendon2r_gym.metrics import beats
 
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "sensitivity.json").write_text(json.dumps(result, indent=1))
-    fmt = lambda v: " / ".join(f"{x:.3f}" for x in v)  # noqa: E731
+    save_json(out, "sensitivity", result)
+    fmt = joints
     rows = []
     passed = 0
     variants = [r for r in result["runs"] if r["variant"] != "defaults"]
