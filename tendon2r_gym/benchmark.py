@@ -366,8 +366,8 @@ def tension_comparison(rows: list[dict[str, Any]]) -> list[str]:
 
 
 #: The realism section: the real_arm preset, then REALISM_ARMS arms of
-#: tendon2r_gym.realism.perturbed_arms(REALISM_BASE, REALISM_ARMS, REALISM_SEED); the residual
-#: is the bundle trained on the ideal arm of the same geometry.
+#: tendon2r_gym.realism.perturbed_arms (REALISM_SEED); REALISM_BUNDLE is the residual trained
+#: on the ideal arm of the same geometry.
 REALISM_BASE, REALISM_ARMS, REALISM_SEED, REALISM_BUNDLE = "real_arm", 16, 0, "pull_only"
 #: The residual trained with per-episode random cables and motors (configs/ppo.yaml real_arm).
 RANDOMIZED_BUNDLE = "real_arm"
@@ -384,12 +384,14 @@ def realism(episodes: int) -> list[dict[str, Any]]:
     """PD, CT (nominal model), the ideal-trained residual and the randomized residual on the
     real arm and its seeded perturbations: one row per arm, RMS per joint and tension rate
     per policy (a policy without its bundle is left out)."""
+    from tendon2r_gym.env_config import EnvConfig
     from tendon2r_gym.realism import perturbed_arms
 
+    ctrl_dt = EnvConfig.make(REALISM_BASE).ctrl_dt
     arms = [("real_arm", {"preset": REALISM_BASE})]
     arms += [
         (f"perturbed {i}", kw)
-        for i, kw in enumerate(perturbed_arms(REALISM_BASE, REALISM_ARMS, REALISM_SEED))
+        for i, kw in enumerate(perturbed_arms(REALISM_BASE, REALISM_ARMS, REALISM_SEED, ctrl_dt))
     ]
     policies = [p for p in REALISM_POLICIES if p[3] is None or bundle_meta(p[3])]
     seeds = list(range(episodes))

@@ -176,6 +176,8 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         unchanged): series-elastic cables on motor spools, pulley friction, motor lag and
         delay (``mechanism``), measurement noise and delay (``observation_noise``,
         ``observation_delay``); ``info["tendon_tension"]`` is the cable's tension.
+      - random arms (``mechanism_ranges``, ``observe_arm``, the reset info's ``mechanism``),
+        off by default: the registered observation and results are unchanged.
     """  # noqa: E501
 
     metadata = {"render_modes": ["human", "rgb_array", "depth_array"]}

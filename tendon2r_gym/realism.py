@@ -175,12 +175,10 @@ PERTURBATIONS: dict[str, Any] = {
 }
 
 
-def perturbed_arms(preset: str, n: int, seed: int) -> list[dict[str, Any]]:
-    """Returns the env kwargs of ``n`` arms: ``preset`` with every PERTURBATIONS value drawn
-    from ``np.random.default_rng(seed)``, in PERTURBATIONS' order."""
-    from tendon2r_gym.env_config import EnvConfig
-
-    ctrl_dt = EnvConfig.make(preset).ctrl_dt
+def perturbed_arms(preset: str, n: int, seed: int, ctrl_dt: float) -> list[dict[str, Any]]:
+    """Returns the env kwargs of ``n`` arms: ``preset`` (control period ``ctrl_dt``, to which
+    delays are rounded) with every PERTURBATIONS value drawn from
+    ``np.random.default_rng(seed)``, in PERTURBATIONS' order."""
     rng = np.random.default_rng(seed)
     draw = lambda lo_hi: float(rng.uniform(*lo_hi))  # noqa: E731
     steps = lambda s: round(s / ctrl_dt) * ctrl_dt  # noqa: E731

@@ -93,7 +93,11 @@ def test_benchmark_on_your_own_arm(tmp_path):
          "--out", str(out), "--run-dir", str(tmp_path / "runs")]
     )  # fmt: skip
     policies = [r["policy"] for r in result["rows"]]
-    assert policies == [*names(BASELINE), *LEARNED]
+    assert policies[: len(names(BASELINE)) + len(LEARNED)] == [*names(BASELINE), *LEARNED]
+    # then each shipped generalist, zero-shot: this arm's R2 is outside the course ranges
+    zero_shot = [r for r in result["rows"] if r["policy"].endswith("zero-shot")]
+    assert [r["policy"] for r in zero_shot] == ["generalist zero-shot"]
+    assert "R2 = 0.049 outside [0.011, 0.047]" in zero_shot[0]["missing"]
     assert result["force_need_N"] > 0.5, "the course arm needs more than the old 0.5 N"
     md = (out / "benchmark.md").read_text()
     assert "| my_arm | pd |" in md and "needs" in md

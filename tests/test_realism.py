@@ -243,8 +243,8 @@ def test_real_arm_preset_and_perturbed_arms():
     real, ideal = EnvConfig.make("real_arm"), EnvConfig.make("pull_only")
     assert all(getattr(real.mechanism, k) > 0 for k in REALISM_LIMITS) and real.sensed
     assert real.mechanism.ideal() == ideal.mechanism  # same arm, same auto force limit
-    arms = perturbed_arms("real_arm", 4, 7)
-    assert arms == perturbed_arms("real_arm", 4, 7) != perturbed_arms("real_arm", 4, 8)
+    arms = perturbed_arms("real_arm", 4, 7, real.ctrl_dt)
+    assert arms == perturbed_arms("real_arm", 4, 7, 1e-3) != perturbed_arms("real_arm", 4, 8, 1e-3)
     for kwargs in arms:
         mech = EnvConfig.make(**kwargs).mechanism
         for field, (lo, hi) in PERTURBATIONS["mechanism"].items():
