@@ -91,31 +91,41 @@ def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
     field added later takes its default (for a model trained on reference_ranges, the nominal
     reference does not matter).  The mechanisms are compared without their realism fields
     (Mechanism.ideal): a policy trained on the ideal arm runs on the same arm with real
-    cables, motors and sensors, as it would on hardware."""
+    cables, motors and sensors, as it would on hardware.  A model trained on random arms (a
+    generalist) runs on one arm inside its ranges: its undrawn fields must match, its drawn
+    fields and its reference lie inside the training ranges, else the ValueError names the
+    first field out, its value and the range."""
     config = env.unwrapped.config
-    if recorded.get("mechanism_ranges") and config.mechanism_ranges is None:
-        _check_inside_ranges(recorded, config, where)
-        return
-    ranges = recorded.get("reference_ranges")
-    theirs = {
-        **{k: recorded.get(k) for k in ("observation", "ctrl_dt", "preview_steps", "preview_dt")},
-        "mechanism": Mechanism.from_dict(recorded["mechanism"]).ideal(),
-        "reference": None if ranges else Reference.from_dict(recorded["reference"]),
-        "reference_ranges": ReferenceRanges.from_dict(ranges) if ranges else None,
-    }
-    ours = {
-        **{k: getattr(config, k) for k in ("ctrl_dt", "preview_steps", "preview_dt")},
-        "observation": config.observation_layout(),
-        "mechanism": config.mechanism.ideal(),
-        "reference": None if ranges else config.reference,
-        "reference_ranges": config.reference_ranges,
-    }
+    common = ("ctrl_dt", "preview_steps", "preview_dt")
+    theirs = {"observation": recorded.get("observation"), **{k: recorded.get(k) for k in common}}
+    ours = {"observation": config.observation_layout(), **{k: getattr(config, k) for k in common}}
+    mech = Mechanism.from_dict(recorded["mechanism"])
     arms = recorded.get("mechanism_ranges")
-    theirs["mechanism_ranges"] = MechanismRanges.from_value(arms) if arms else None
-    ours["mechanism_ranges"] = config.mechanism_ranges
-    if arms:  # arms are drawn: their nominal mechanism is not the episode's
-        theirs["mechanism"] = Mechanism.from_dict(recorded["mechanism"])
-        ours["mechanism"] = config.base_mechanism
+    arm_ranges = MechanismRanges.from_value(arms) if arms else None
+    ranges = recorded.get("reference_ranges")
+    if arm_ranges is not None and config.mechanism_ranges is None:  # a generalist on one arm
+        drawn = {*arm_ranges.names, "max_tendon_force"}  # auto: sized per arm
+        undrawn = lambda m: {k: v for k, v in m.ideal().to_dict().items() if k not in drawn}  # noqa: E731
+        theirs["mechanism"], ours["mechanism"] = undrawn(mech), undrawn(config.mechanism)
+        _compare(theirs, ours, where)
+        problems = arm_ranges.violations(config.mechanism)
+        if ranges:
+            problems += reference_ranges(ranges).violations(config.reference)
+        if problems:
+            raise ValueError(
+                f"{where} was trained on random arms and does not cover this one: "
+                f"{'; '.join(problems)}; allowed: an arm and reference inside its training "
+                "ranges"
+            )
+        return
+    # Drawn arms: the nominal mechanism as given (max_tendon_force possibly "auto").
+    theirs["mechanism"] = mech if arms else mech.ideal()
+    ours["mechanism"] = config.base_mechanism if arms else config.mechanism.ideal()
+    theirs["reference"] = None if ranges else Reference.from_dict(recorded["reference"])
+    ours["reference"] = None if ranges else config.reference
+    theirs["reference_ranges"] = ReferenceRanges.from_dict(ranges) if ranges else None
+    ours["reference_ranges"] = config.reference_ranges
+    theirs["mechanism_ranges"], ours["mechanism_ranges"] = arm_ranges, config.mechanism_ranges
     _compare(theirs, ours, where)
 
 
@@ -127,33 +137,6 @@ def _compare(theirs: dict[str, Any], ours: dict[str, Any], where: str) -> None:
                 f"{_shown(ours[name])} in this env; allowed: the env it was trained on "
                 "(make the env from the run's run.json env_config)"
             )
-
-
-def _check_inside_ranges(recorded: dict[str, Any], config: Any, where: str) -> None:
-    """A model trained on random arms (a generalist) runs on one arm inside its ranges: the
-    same observation, control period, preview and undrawn Mechanism fields, every drawn field
-    and the reference inside the training ranges; else a ValueError names the first field out,
-    its value and the range."""
-    theirs = {k: recorded.get(k) for k in ("ctrl_dt", "preview_steps", "preview_dt")}
-    ours = {k: getattr(config, k) for k in theirs}
-    theirs["observation"] = [*recorded.get("observation")]
-    ours["observation"] = config.observation_layout()
-    arm_ranges = MechanismRanges.from_value(recorded["mechanism_ranges"])
-    drawn = {*arm_ranges.names, "max_tendon_force"}  # auto: sized per arm
-    base = Mechanism.from_dict(recorded["mechanism"]).ideal()
-    mech = config.mechanism.ideal()
-    theirs["mechanism"] = {k: v for k, v in base.to_dict().items() if k not in drawn}
-    ours["mechanism"] = {k: v for k, v in mech.to_dict().items() if k not in drawn}
-    _compare(theirs, ours, where)
-    problems = arm_ranges.violations(config.mechanism)
-    ranges = recorded.get("reference_ranges")
-    if ranges:
-        problems += reference_ranges(ranges).violations(config.reference)
-    if problems:
-        raise ValueError(
-            f"{where} was trained on random arms and does not cover this one: "
-            f"{'; '.join(problems)}; allowed: an arm and reference inside its training ranges"
-        )
 
 
 def _shown(value: Any) -> Any:
