@@ -148,6 +148,29 @@ def _plain(value: Any) -> Any:
     return json.loads(json.dumps(_shown(value)))
 
 
+def trained_model(
+    model_path: str | Path, env: gym.Env, field: str = "model"
+) -> tuple[Path, Path, dict[str, Any]]:
+    """Returns (``<name>.zip``, ``<name>_vecnormalize.pkl``, the run's run.json) of a model
+    that tendon2r-train wrote, after checking that it was trained for ``env``
+    (:func:`check_model_env`); raises a ValueError naming ``field`` otherwise."""
+    zip_path, stats = model_files(stem_of(model_path))
+    if zip_path.is_dir() or not zip_path.is_file():
+        raise ValueError(
+            f"{field} = {str(model_path)!r} is invalid; allowed: an existing SB3 model file "
+            f"(<name>.zip, here {zip_path}) written by tendon2r-train"
+        )
+    for needed in (stats, zip_path.parent / RUN_META):
+        if not needed.is_file():
+            raise ValueError(
+                f"{field} = {str(model_path)!r} is invalid: {needed.name} is missing beside "
+                "it; allowed: a model from a tendon2r-train run folder or bundle"
+            )
+    meta = json.loads((zip_path.parent / RUN_META).read_text())
+    check_model_env(meta["env_config"], env, f"{field} {zip_path}")
+    return zip_path, stats, meta
+
+
 class PPOPolicy:
     """A trained PPO (+ its VecNormalize statistics) behind the SB3 ``predict`` interface,
     acting on raw observations of the unwrapped env: normalizes them with VecNormalize's own
@@ -168,20 +191,7 @@ class PPOPolicy:
         from stable_baselines3 import PPO
         from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
-        zip_path, stats = model_files(stem_of(model_path))
-        if zip_path.is_dir() or not zip_path.is_file():
-            raise ValueError(
-                f"model = {str(model_path)!r} is invalid; allowed: an existing SB3 model file "
-                f"(<name>.zip, here {zip_path}) written by tendon2r-train"
-            )
-        for needed in (stats, zip_path.parent / RUN_META):
-            if not needed.is_file():
-                raise ValueError(
-                    f"model = {str(model_path)!r} is invalid: {needed.name} is missing beside "
-                    "it; allowed: a model from a tendon2r-train run folder or bundle"
-                )
-        meta = json.loads((zip_path.parent / RUN_META).read_text())
-        check_model_env(meta["env_config"], env, f"model {zip_path}")
+        zip_path, stats, meta = trained_model(model_path, env)
         model = PPO.load(zip_path, device="cpu")
         vecnorm = VecNormalize.load(str(stats), DummyVecEnv([lambda: env]))
         vecnorm.training, vecnorm.norm_reward = False, False

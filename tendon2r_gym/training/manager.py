@@ -35,10 +35,8 @@ from tendon2r_gym.runs import (
     SEEDS_SUMMARY,
     SUMMARY,
     RunFolder,
-    model_files,
     seed_dir,
     seed_dirs,
-    stem_of,
 )
 from tendon2r_gym.training.callbacks import (
     StopOnSignal,
@@ -166,18 +164,12 @@ def initial_model(hp: Hyperparams) -> tuple[Path, Path]:
     import gymnasium as gym
 
     from tendon2r_gym.bundle import bundle_names, bundled_model
-    from tendon2r_gym.learned import check_model_env
+    from tendon2r_gym.learned import trained_model
 
     source = hp.init_from
     path = bundled_model(source) if source in bundle_names() else Path(source)
-    zip_path, stats = model_files(stem_of(path))
-    meta_path = zip_path.parent / RUN_META
-    if not (zip_path.is_file() and stats.is_file() and meta_path.is_file()):
-        raise invalid(
-            "init_from", source, "a bundle name or a model .zip of a tendon2r-train run folder"
-        )
-    meta = json.loads(meta_path.read_text())
-    check_model_env(meta["env_config"], gym.make("Tendon2R-v0", **hp.env_kwargs), source)
+    env = gym.make("Tendon2R-v0", **hp.env_kwargs)
+    zip_path, stats, meta = trained_model(path, env, "init_from")
     if float(meta["residual_scale"]) != hp.residual_scale:
         raise invalid(
             "init_from",
