@@ -17,7 +17,9 @@ Each draw is an experiment file's content (``mechanism``, ``reference``,
 :class:`MechanismRanges` is the one per-episode randomization of the arm, shared by the random
 geometry of "One policy for every arm" and the random cables and motors of "Real tendons":
 uniform ranges of Mechanism fields, drawn by ``EnvConfig.draw_arm`` at every reset, and the
-arm's features normalized over them (the optional ``arm`` slice of the observation).
+arm's features normalized over them (the optional ``arm`` slice of the observation).  It
+also draws the motor's dead time and what the sensors measure (noise and delay), so that one
+mechanism randomizes every effect of a real arm.
 """
 
 from __future__ import annotations
@@ -104,7 +106,8 @@ def draw_arms(seed: int, n: int, ranges: ArmRanges = COURSE, **kw: Any) -> list[
 GEOMETRY = ("R1", "R2", "a", "b", "c")
 #: Mechanism fields that ``mechanism_ranges`` may draw: numbers that change the compiled model's
 #: parameters but not its layout (the routing, pull_only, the integrator and the joint range
-#: stay the nominal arm's; motor_delay is in whole control steps, not a model parameter).
+#: stay the nominal arm's), and the motor's dead time (whole control steps, not a model
+#: parameter).
 RANDOMIZABLE = (
     *LIMITS,
     "joint_damping",
@@ -115,35 +118,54 @@ RANDOMIZABLE = (
     "motor_mass",
     "tendon_friction",
     "motor_tau",
+    "motor_delay",
 )
+#: What the sensors measure, drawn per episode too: EnvConfig's ``observation_delay`` (s) and
+#: the two entries of its ``observation_noise`` (angle std, rad; speed std, rad/s).
+SENSING = ("observation_delay", "observation_noise_angle", "observation_noise_speed")
+#: Every field ``mechanism_ranges`` may draw.
+DRAWABLE = (*RANDOMIZABLE, *SENSING)
+#: Drawn delays are rounded to whole control steps (EnvConfig.draw_arm).
+DELAYS = ("motor_delay", "observation_delay")
 #: Fields whose zero and non-zero values compile to models of different layouts (spools,
 #: friction tendons, actuator states): their range must not straddle 0.
 LAYOUT_FIELDS = ("tendon_elasticity", "tendon_friction", "motor_tau")
 #: ``mechanism_ranges: course``: the course's geometry (ArmRanges' defaults).
 COURSE_NAME = "course"
-#: ``mechanism_ranges: real_arm``: the cables and motors of the realism section's perturbed
-#: arms (tendon2r_gym.realism.PERTURBATIONS' mechanism ranges).
+#: ``mechanism_ranges: real_arm``: the cables, motors and sensors of the realism section's
+#: perturbed arms (tendon2r_gym.realism.PERTURBATIONS).
 REAL_ARM_NAME = "real_arm"
+
+
+def drawn_value(arm: Any, name: str) -> float:
+    """Returns the value of a DRAWABLE field ``name`` in the arm config ``arm`` (an
+    EnvConfig): a mechanism field, or one of SENSING."""
+    if name == "observation_delay":
+        return arm.observation_delay
+    if name in SENSING:
+        return arm.observation_noise[SENSING.index(name) - 1]
+    return getattr(arm.mechanism, name)
 
 
 @dataclass(frozen=True)
 class MechanismRanges:
-    """Uniform ranges [lo, hi] of Mechanism fields (RANDOMIZABLE), drawn independently in this
-    order at every reset; every other field keeps the nominal arm's value.  From YAML: a
-    mapping ``{field: [lo, hi]}``, ``course`` (the course's geometry, R1 R2 a b c) or
-    ``real_arm`` (cables and motors: tendon2r_gym.realism.PERTURBATIONS)."""
+    """Uniform ranges [lo, hi] of DRAWABLE fields (Mechanism fields: RANDOMIZABLE; sensors:
+    SENSING), drawn independently in this order at every reset; every other field keeps the
+    nominal arm's value.  From YAML: a mapping ``{field: [lo, hi]}``, ``course`` (the course's
+    geometry, R1 R2 a b c) or ``real_arm`` (cables, motors and sensors:
+    tendon2r_gym.realism.PERTURBATIONS)."""
 
     ranges: tuple[tuple[str, tuple[float, float]], ...]
 
     def __post_init__(self) -> None:
         if not self.ranges:
-            raise invalid("mechanism_ranges", {}, f"at least one of {RANDOMIZABLE}")
+            raise invalid("mechanism_ranges", {}, f"at least one of {DRAWABLE}")
         out = []
         for name, value in self.ranges:
             field = f"mechanism_ranges.{name}"
-            if name not in RANDOMIZABLE:
-                raise invalid("mechanism_ranges", name, f"fields among {RANDOMIZABLE}")
-            hi_limit = {**LIMITS, **REALISM_LIMITS}.get(name, 1e6)
+            if name not in DRAWABLE:
+                raise invalid("mechanism_ranges", name, f"fields among {DRAWABLE}")
+            hi_limit = {**LIMITS, **REALISM_LIMITS, "observation_delay": 1.0}.get(name, 1e6)
             lo, hi = pair(field, value, 0.0, hi_limit)
             if lo > hi:
                 raise invalid(field, value, f"[lo, hi] with 0 <= lo <= hi <= {hi_limit:g}")
@@ -165,7 +187,7 @@ class MechanismRanges:
         if value == REAL_ARM_NAME:
             from tendon2r_gym.realism import PERTURBATIONS
 
-            return cls(tuple(PERTURBATIONS["mechanism"].items()))
+            return cls(tuple(PERTURBATIONS.items()))
         if isinstance(value, MechanismRanges):
             return value
         values = mapping("mechanism_ranges", value)
@@ -180,26 +202,30 @@ class MechanismRanges:
         """Returns the drawn fields, in drawing order (and the order of the arm features)."""
         return tuple(name for name, _ in self.ranges)
 
-    def sample(self, rng: np.random.Generator, base: Mechanism) -> Mechanism:
-        """Returns ``base`` with every field drawn uniformly in its range (validated: raises
-        ValueError for a draw that is no valid Mechanism, such as pulleys that overlap)."""
-        drawn = {name: float(rng.uniform(lo, hi)) for name, (lo, hi) in self.ranges}
-        return base.replace(**drawn)
+    def high(self, name: str) -> float:
+        """Returns the upper end of the range of ``name`` (0 if it is not drawn)."""
+        return dict(self.ranges).get(name, (0.0, 0.0))[1]
 
-    def features(self, mech: Mechanism) -> list[float]:
-        """Returns the drawn fields of ``mech`` normalized over their ranges to [-1, 1] (0 for a
-        range of one value): the ``arm`` slice of the observation."""
+    def sample(self, rng: np.random.Generator) -> dict[str, float]:
+        """Returns a uniform draw of every field, in drawing order (EnvConfig.draw_arm makes
+        it an arm and checks it)."""
+        return {name: float(rng.uniform(lo, hi)) for name, (lo, hi) in self.ranges}
+
+    def features(self, arm: Any) -> list[float]:
+        """Returns the drawn fields of the arm config ``arm`` normalized over their ranges to
+        [-1, 1] (0 for a range of one value): the ``arm`` slice of the observation."""
         return [
-            0.0 if hi == lo else 2.0 * (getattr(mech, name) - lo) / (hi - lo) - 1.0
+            0.0 if hi == lo else 2.0 * (drawn_value(arm, name) - lo) / (hi - lo) - 1.0
             for name, (lo, hi) in self.ranges
         ]
 
-    def violations(self, mech: Mechanism) -> list[str]:
-        """Returns the fields of ``mech`` outside the ranges (empty if it is inside)."""
+    def violations(self, arm: Any) -> list[str]:
+        """Returns the fields of the arm config ``arm`` outside the ranges (empty if it is
+        inside)."""
         return [
-            f"{name} = {getattr(mech, name)!r} outside [{lo:g}, {hi:g}]"
+            f"{name} = {drawn_value(arm, name)!r} outside [{lo:g}, {hi:g}]"
             for name, (lo, hi) in self.ranges
-            if not lo - 1e-12 <= getattr(mech, name) <= hi + 1e-12
+            if not lo - 1e-12 <= drawn_value(arm, name) <= hi + 1e-12
         ]
 
 

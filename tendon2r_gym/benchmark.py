@@ -366,7 +366,7 @@ def tension_comparison(rows: list[dict[str, Any]]) -> list[str]:
 
 
 #: The realism section: the real_arm preset, then REALISM_ARMS arms of
-#: tendon2r_gym.realism.perturbed_arms (REALISM_SEED); REALISM_BUNDLE is the residual trained
+#: perturbed_arms (REALISM_SEED); REALISM_BUNDLE is the residual trained
 #: on the ideal arm of the same geometry.
 REALISM_BASE, REALISM_ARMS, REALISM_SEED, REALISM_BUNDLE = "real_arm", 16, 0, "pull_only"
 #: The residual trained with per-episode random cables and motors (configs/ppo.yaml real_arm).
@@ -380,18 +380,38 @@ REALISM_POLICIES = (
 )
 
 
+def perturbed_arms(preset: str, n: int, seed: int) -> list[dict[str, Any]]:
+    """Returns the env kwargs (experiment-file content) of ``n`` arms: ``preset`` with every
+    PERTURBATIONS value drawn from ``np.random.default_rng(seed)`` as a randomized env draws
+    them (EnvConfig.draw_arm with ``mechanism_ranges: real_arm``)."""
+    from tendon2r_gym.env_config import EnvConfig
+    from tendon2r_gym.realism import PERTURBATIONS
+
+    randomized = EnvConfig.make(preset, mechanism_ranges="real_arm")
+    rng = np.random.default_rng(seed)
+    arms = []
+    for _ in range(n):
+        arm = randomized.draw_arm(rng, randomized.reference)
+        drawn = arm.to_dict()
+        arms.append(
+            {
+                "preset": preset,
+                "mechanism": {k: v for k, v in drawn["mechanism"].items() if k in PERTURBATIONS},
+                "observation_noise": drawn["observation_noise"],
+                "observation_delay": drawn["observation_delay"],
+            }
+        )
+    return arms
+
+
 def realism(episodes: int) -> list[dict[str, Any]]:
     """PD, CT (nominal model), the ideal-trained residual and the randomized residual on the
     real arm and its seeded perturbations: one row per arm, RMS per joint and tension rate
     per policy (a policy without its bundle is left out)."""
-    from tendon2r_gym.env_config import EnvConfig
-    from tendon2r_gym.realism import perturbed_arms
-
-    ctrl_dt = EnvConfig.make(REALISM_BASE).ctrl_dt
     arms = [("real_arm", {"preset": REALISM_BASE})]
     arms += [
         (f"perturbed {i}", kw)
-        for i, kw in enumerate(perturbed_arms(REALISM_BASE, REALISM_ARMS, REALISM_SEED, ctrl_dt))
+        for i, kw in enumerate(perturbed_arms(REALISM_BASE, REALISM_ARMS, REALISM_SEED))
     ]
     policies = [p for p in REALISM_POLICIES if p[3] is None or bundle_meta(p[3])]
     seeds = list(range(episodes))

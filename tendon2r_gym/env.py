@@ -243,11 +243,13 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     def _resolve_ids(self) -> None:
         """Caches views and constants used on every step (no name look-ups in the hot path)."""
         self.task = Task(self.config)
+        cfg = self.config
         self._delay: CommandDelay | None = None
+        if cfg.delay_capacity:
+            self._delay = CommandDelay(cfg.delay_capacity, 1, cfg.mechanism.n_tendons)
         self._sensing: Sensors | None = None
-        if self.config.sensed:  # the observation is a measurement; reward and info are true
-            cfg = self.config
-            self._sensing = Sensors(cfg.observation_delay_steps, 1, cfg.observation_noise)
+        if cfg.sensed:  # the observation is a measurement; reward and info are true
+            self._sensing = Sensors(cfg.observation_delay_capacity, 1, cfg.noisy)
         self._last_truth: np.ndarray | None = None
         self._n = self.config.n_actions
         self._filtered = self.config.action_filter_alpha != 1.0
@@ -277,9 +279,10 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         # per access on every step.  The arm's joints are the first two (spools follow).
         self._qpos, self._qvel, self._ctrl = d.qpos[:2], d.qvel[:2], d.ctrl
         self.drive = Drive(self.model, self.mechanism)
-        if self.config.delay_steps:
-            n_motors = self.mechanism.n_tendons
-            self._delay = CommandDelay(self.config.delay_steps, 1, n_motors, self.drive.ctrl)
+        if self._delay is not None:
+            self._delay.set_arm(0, arm.delay_steps, self.drive.ctrl)
+        if self._sensing is not None:
+            self._sensing.set_arm(0, arm.observation_delay_steps, arm.observation_noise)
         self._last_action = self.task.rest_command(arm)
         self._torque_map: TorqueToTension | None = None
         if self.config.action_mode == "joint_torque":

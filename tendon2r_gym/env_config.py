@@ -23,7 +23,7 @@ import numpy as np
 
 from tendon2r_gym import observation
 from tendon2r_gym.actuation import MomentArms, distribute
-from tendon2r_gym.arms import MAX_TRIES, MechanismRanges, reference_ranges
+from tendon2r_gym.arms import DELAYS, MAX_TRIES, SENSING, MechanismRanges, reference_ranges
 from tendon2r_gym.mechanism import AUTO, Mechanism
 from tendon2r_gym.model import build_model
 from tendon2r_gym.presets import SECTIONS, load_preset, merge_env_kwargs
@@ -234,12 +234,22 @@ class EnvConfig:
         if ranges is None:
             return self
         for _ in range(MAX_TRIES):
+            drawn = ranges.sample(rng)
+            for k in DELAYS:  # whole control steps
+                if k in drawn:
+                    drawn[k] = round(drawn[k] / self.ctrl_dt) * self.ctrl_dt
+            noise = [
+                drawn.pop(k, v) for k, v in zip(SENSING[1:], self.observation_noise, strict=True)
+            ]
+            delay = drawn.pop("observation_delay", self.observation_delay)
             try:
-                mech = ranges.sample(rng, self.base_mechanism)
+                mech = self.base_mechanism.replace(**drawn)
                 ref = reference
                 if ref is None and self.reference_ranges is not None:
                     ref = self.reference_ranges.sample(rng, mech)
-                return self.for_arm(mech, ref)
+                return self.for_arm(
+                    mech, ref, observation_noise=tuple(noise), observation_delay=delay
+                )
             except ValueError:
                 continue
         raise invalid(
@@ -248,11 +258,14 @@ class EnvConfig:
             f"ranges where a valid arm (with this reference) is found in {MAX_TRIES} draws",
         )
 
-    def for_arm(self, mechanism: Mechanism, reference: Reference | None = None) -> EnvConfig:
+    def for_arm(
+        self, mechanism: Mechanism, reference: Reference | None = None, **sensing: Any
+    ) -> EnvConfig:
         """Returns the config of one arm and one reference (default: the nominal one), as a
         user's experiment file gives them: nothing drawn, the reference's amplitudes fitted
         to the arm's workspace (quietly), and an ``auto`` force limit sized for this arm and
-        this reference.  An env with this config runs the randomized env's episode exactly."""
+        this reference; ``sensing``: its observation_noise and observation_delay, if drawn.
+        An env with this config runs the randomized env's episode exactly."""
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             return dataclasses.replace(
@@ -264,6 +277,7 @@ class EnvConfig:
                 mechanism_ranges=None,
                 observe_arm=False,
                 fit_to_workspace=True,
+                **sensing,
             )
 
     # -- derived quantities ------------------------------------------------------------------
@@ -302,10 +316,35 @@ class EnvConfig:
         """Returns the control steps each measurement is late (observation_delay)."""
         return round(self.observation_delay / self.ctrl_dt)
 
+    def _drawn_high(self, name: str, value: float) -> float:
+        """Returns the largest value of field ``name`` an episode can have: ``value`` (the
+        config's), or the top of its range if mechanism_ranges draws it."""
+        ranges = self.mechanism_ranges
+        return value if ranges is None or name not in ranges.names else ranges.high(name)
+
+    @property
+    def delay_capacity(self) -> int:
+        """Returns the most control steps any episode holds a command back (0: no delay)."""
+        return round(self._drawn_high("motor_delay", self.mechanism.motor_delay) / self.ctrl_dt)
+
+    @property
+    def observation_delay_capacity(self) -> int:
+        """Returns the most control steps any episode's measurements are late."""
+        return round(self._drawn_high("observation_delay", self.observation_delay) / self.ctrl_dt)
+
+    @property
+    def noisy(self) -> bool:
+        """Returns whether any episode's measurements can carry noise."""
+        return any(
+            self._drawn_high(k, v) > 0
+            for k, v in zip(SENSING[1:], self.observation_noise, strict=True)
+        )
+
     @property
     def sensed(self) -> bool:
-        """Returns whether the observation is a measurement (noisy or late), not the state."""
-        return self.observation_delay > 0 or any(v > 0 for v in self.observation_noise)
+        """Returns whether the observation is (or in some episode may be) a measurement, noisy
+        or late, not the state."""
+        return self.observation_delay_capacity > 0 or self.noisy
 
     @property
     def action_filter_alpha(self) -> float:

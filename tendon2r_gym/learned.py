@@ -108,7 +108,7 @@ def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
         undrawn = lambda m: {k: v for k, v in m.ideal().to_dict().items() if k not in drawn}  # noqa: E731
         theirs["mechanism"], ours["mechanism"] = undrawn(mech), undrawn(config.mechanism)
         _compare(theirs, ours, where)
-        problems = arm_ranges.violations(config.mechanism)
+        problems = arm_ranges.violations(config)
         if ranges:
             problems += reference_ranges(ranges).violations(config.reference)
         if problems:

@@ -38,6 +38,7 @@ import numpy as np
 from tendon2r_gym.actuation import MomentArms
 from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.model import spool_name
+from tendon2r_gym.validation import invalid
 
 
 class Drive:
@@ -101,97 +102,99 @@ def cable_tensions(
 
 
 class CommandDelay:
-    """Holds each motor command back by ``steps`` control steps, for N arms that step together:
-    a ring of the last ``steps`` commands, each arm's filled with its rest command (``rest``:
-    one for all, or one per arm) at its reset."""
+    """Holds each motor command back by its arm's number of control steps (0 to
+    ``capacity``), for N arms that step together: a ring of the last capacity + 1 commands,
+    each arm's filled with its rest command at its reset.  Random arms set each arm's steps
+    and rest command (:meth:`set_arm`)."""
 
-    def __init__(self, steps: int, n_arms: int, n_motors: int, rest: Any) -> None:
-        #: The rest command of each arm's motors (n_arms, n_motors); random arms update it.
-        self.rest = np.broadcast_to(np.reshape(rest, (-1, 1)), (n_arms, n_motors)).copy()
-        self._ring = np.repeat(self.rest[None], steps, axis=0)
+    def __init__(self, capacity: int, n_arms: int, n_motors: int) -> None:
+        self.steps = np.full(n_arms, capacity, dtype=np.int64)
+        #: The rest command of each arm's motors (n_arms, n_motors).
+        self.rest = np.zeros((n_arms, n_motors))
+        self._ring = np.zeros((capacity + 1, n_arms, n_motors))
+        self._cols = np.arange(n_arms)
         self._i = 0
+
+    def set_arm(self, arm: int, steps: int, rest: Any) -> None:
+        """Arm ``arm`` holds its commands ``steps`` steps (at most the capacity); ``rest`` is
+        the command of its motors at rest."""
+        if not 0 <= steps < len(self._ring):
+            raise invalid("motor delay (control steps)", steps, f"0 to {len(self._ring) - 1}")
+        self.steps[arm], self.rest[arm] = steps, rest
 
     def reset(self, arms: np.ndarray | slice) -> None:
         """Fills the ring of ``arms`` with their rest command (the motors were at rest)."""
         self._ring[:, arms] = self.rest[arms]
 
     def __call__(self, ctrl: np.ndarray, arms: np.ndarray | slice = slice(None)) -> np.ndarray:
-        """Returns the commands (n_arms, n_motors) sent ``steps`` steps ago, and stores
-        ``ctrl`` of the arms that step now (the others keep their ring)."""
-        out = self._ring[self._i].copy()
-        self._ring[self._i, arms] = ctrl[arms]
-        self._i = (self._i + 1) % len(self._ring)
+        """Stores ``ctrl`` (n_arms, n_motors) of the arms that step now (the others keep their
+        ring) and returns each arm's command of its ``steps`` steps ago."""
+        ring, n = self._ring, len(self._ring)
+        ring[self._i, arms] = ctrl[arms]
+        out = ring[(self._i - self.steps) % n, self._cols]
+        self._i = (self._i + 1) % n
         return out
 
 
 class Sensors:
     """What the controller measures of N arms that step together: (q_A, q_B, dq_A, dq_B),
-    ``steps`` control steps late, with Gaussian noise of std ``noise`` = (rad, rad/s).  Each
-    measurement draws its noise once, from its arm's generator, when it is taken (every
-    step, and at a reset, which fills the arm's ring), so that reading it draws nothing."""
+    each arm's number of control steps late (0 to ``capacity``), with Gaussian noise of its
+    std (rad, rad/s).  Each measurement draws its noise once, from its arm's generator, when
+    it is taken (every step, and at a reset, which fills the arm's ring), so that reading it
+    draws nothing; a ``noisy`` env draws for every arm, even one of zero std, so that every
+    arm's generator advances alike.  Random arms set each arm's delay and noise
+    (:meth:`set_arm`)."""
 
-    def __init__(self, steps: int, n_arms: int, noise: tuple[float, float]) -> None:
-        self.std = np.repeat(np.asarray(noise, dtype=float), 2)  # q_A, q_B, dq_A, dq_B
-        self._noisy = bool(np.any(self.std > 0))
-        self._ring = np.zeros((steps + 1, n_arms, 4))
+    def __init__(self, capacity: int, n_arms: int, noisy: bool) -> None:
+        self.steps = np.full(n_arms, capacity, dtype=np.int64)
+        self.std = np.zeros((n_arms, 4))  # q_A, q_B, dq_A, dq_B
+        self._noisy = noisy
+        self._ring = np.zeros((capacity + 1, n_arms, 4))
+        self._cols = np.arange(n_arms)
         self._i = 0
 
-    def _measure(self, state: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        return state + rng.standard_normal(4) * self.std if self._noisy else state
+    def set_arm(self, arm: int, steps: int, noise: tuple[float, float]) -> None:
+        """Arm ``arm``'s measurements are ``steps`` control steps late (at most the capacity),
+        with noise std ``noise`` = (rad, rad/s)."""
+        if not 0 <= steps < len(self._ring):
+            raise invalid("observation delay (control steps)", steps, f"0 to {len(self._ring) - 1}")
+        self.steps[arm], self.std[arm] = steps, np.repeat(noise, 2)
+
+    def _measure(self, arm: int, state: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        return state + rng.standard_normal(4) * self.std[arm] if self._noisy else state
 
     def reset(self, arm: int, state: np.ndarray, rng: np.random.Generator) -> None:
         """Arm ``arm`` starts at ``state`` (4,): every slot of its ring holds one measurement."""
-        self._ring[:, arm] = self._measure(state, rng)
+        self._ring[:, arm] = self._measure(arm, state, rng)
 
     def store(self, states: np.ndarray, rngs: list[np.random.Generator], arms) -> None:
         """Measures the arms ``arms`` (indices) in ``states`` (n_arms, 4), then advances."""
         slot = self._ring[self._i]
         for i in arms:
-            slot[i] = self._measure(states[i], rngs[i])
+            slot[i] = self._measure(i, states[i], rngs[i])
         self._i = (self._i + 1) % len(self._ring)
 
     def read(self) -> np.ndarray:
-        """Returns the measurements (n_arms, 4) the controller has now: the oldest kept."""
-        return self._ring[self._i]
+        """Returns the measurements (n_arms, 4) the controller has now: each arm's of its
+        ``steps`` steps ago (the last stored is one step back)."""
+        return self._ring[(self._i - 1 - self.steps) % len(self._ring), self._cols]
 
 
 #: Ranges of the seeded perturbed arms (the realism section of ``make benchmark``) and of the
-#: randomized training (``mechanism_ranges: real_arm``, tendon2r_gym.arms.MechanismRanges, the
-#: ``mechanism`` part): each value drawn uniformly and independently; delays are rounded to
-#: whole control steps.  They span the catalog-typical values of the ``real_arm`` preset from
-#: about half to twice; friction and lag never vanish (a real cable rubs, a real driver lags,
-#: and a zero would change the model's layout).
-PERTURBATIONS: dict[str, Any] = {
-    "mechanism": {
-        "tendon_elasticity": (2500.0, 8000.0),  # N/m
-        "tendon_damping": (1.0, 4.0),  # N s/m
-        "motor_mass": (0.002, 0.004),  # kg
-        "tendon_friction": (0.001, 0.01),  # N
-        "motor_tau": (0.0005, 0.004),  # s
-    },
+#: randomized training (``mechanism_ranges: real_arm``, tendon2r_gym.arms.MechanismRanges):
+#: each value drawn uniformly and independently, in this order; delays are rounded to whole
+#: control steps.  They span the catalog-typical values of the ``real_arm`` preset from about
+#: half to twice; friction and lag never vanish (a real cable rubs, a real driver lags, and a
+#: zero would change the model's layout).
+PERTURBATIONS: dict[str, tuple[float, float]] = {
+    "tendon_elasticity": (2500.0, 8000.0),  # N/m
+    "tendon_damping": (1.0, 4.0),  # N s/m
+    "motor_mass": (0.002, 0.004),  # kg
+    "tendon_friction": (0.001, 0.01),  # N
+    "motor_tau": (0.0005, 0.004),  # s
     "motor_delay": (0.0, 0.002),  # s
-    "observation_noise": ((0.0, 2e-4), (0.0, 0.1)),  # rad, rad/s
+    "observation_noise_angle": (0.0, 2e-4),  # rad
+    "observation_noise_speed": (0.0, 0.1),  # rad/s
     "observation_delay": (0.0, 0.002),  # s
 }
 
-
-def perturbed_arms(preset: str, n: int, seed: int, ctrl_dt: float) -> list[dict[str, Any]]:
-    """Returns the env kwargs of ``n`` arms: ``preset`` (control period ``ctrl_dt``, to which
-    delays are rounded) with every PERTURBATIONS value drawn from
-    ``np.random.default_rng(seed)``, in PERTURBATIONS' order."""
-    rng = np.random.default_rng(seed)
-    draw = lambda lo_hi: float(rng.uniform(*lo_hi))  # noqa: E731
-    steps = lambda s: round(s / ctrl_dt) * ctrl_dt  # noqa: E731
-    arms = []
-    for _ in range(n):
-        mech = {k: draw(r) for k, r in PERTURBATIONS["mechanism"].items()}
-        mech["motor_delay"] = steps(draw(PERTURBATIONS["motor_delay"]))
-        arms.append(
-            {
-                "preset": preset,
-                "mechanism": mech,
-                "observation_noise": [draw(r) for r in PERTURBATIONS["observation_noise"]],
-                "observation_delay": steps(draw(PERTURBATIONS["observation_delay"])),
-            }
-        )
-    return arms

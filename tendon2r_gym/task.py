@@ -85,7 +85,8 @@ STEP_INFO_KEYS = (
     "diverged",
 )
 #: Keys of ``info`` after every reset; with ``mechanism_ranges`` also ``mechanism``, the
-#: episode's arm (Mechanism fields), which PD, CT and the residual wrapper follow.
+#: episode's arm (Mechanism fields), which PD, CT and the residual wrapper follow, and its
+#: sensors' ``observation_noise`` and ``observation_delay``.
 RESET_INFO_KEYS = ("reference", "time", "force_need_N", "max_tendon_force_N")
 
 
@@ -105,7 +106,7 @@ def arm_params(arm: EnvConfig, observed: EnvConfig) -> tuple[float, ...]:
     of the episode's arm config ``arm``, then its features over the ranges of the env's
     config ``observed`` if that observes the arm."""
     mech = arm.mechanism
-    features = observed.mechanism_ranges.features(mech) if observed.observe_arm else []
+    features = observed.mechanism_ranges.features(arm) if observed.observe_arm else []
     return (mech.a, mech.b, mech.c, *features)
 
 
@@ -204,6 +205,8 @@ class Task:
         }
         if self.config.mechanism_ranges is not None:
             info["mechanism"] = arm.mechanism.to_dict()
+            info["observation_noise"] = list(arm.observation_noise)
+            info["observation_delay"] = arm.observation_delay
         return info
 
     # -- observation -----------------------------------------------------------------------------

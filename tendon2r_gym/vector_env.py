@@ -105,14 +105,14 @@ class Tendon2RVectorEnv(VectorEnv):
             self._scratch = mujoco.MjData(self.model)
             self._act = b.bind("act")
         self._delay: CommandDelay | None = None
-        if cfg.delay_steps:
+        if cfg.delay_capacity:
             n_motors = cfg.mechanism.n_tendons
-            self._delay = CommandDelay(cfg.delay_steps, self.num_envs, n_motors, self.drive.ctrl)
+            self._delay = CommandDelay(cfg.delay_capacity, self.num_envs, n_motors)
         self._sensing: Sensors | None = None
         if cfg.sensed:  # the observation is a measurement; reward and info are true
-            self._sensing = Sensors(
-                cfg.observation_delay_steps, self.num_envs, cfg.observation_noise
-            )
+            self._sensing = Sensors(cfg.observation_delay_capacity, self.num_envs, cfg.noisy)
+        for i in range(self.num_envs):
+            self._bind_delays(i, cfg, self.drive)
         if cfg.mechanism.elastic:
             self._ten_length, self._ten_velocity = b.bind("ten_length"), b.bind("ten_velocity")
         self._warn_ids = [int(w) for w in DIVERGENCE_WARNINGS]
@@ -222,12 +222,18 @@ class Tendon2RVectorEnv(VectorEnv):
             self._drives[i] = Drive(model, arm.mechanism)
             self._arm[:, i] = arm_params(arm, cfg)
             self._rest[i] = self.task.rest_command(arm)
-            if self._delay is not None:
-                self._delay.rest[i] = arm.mechanism.rest_ctrl
+            self._bind_delays(i, arm, self._drives[i])
         self.batch.set_models(self._models)
         self._cable = self._stack_cables()
         if self._torque_map is not None:
             self._torque_map.follow([a.mechanism for a in self._arm_cfgs])
+
+    def _bind_delays(self, i: int, arm: EnvConfig, drive: Drive) -> None:
+        """Gives slot i the motor delay, rest command and sensors of the arm config ``arm``."""
+        if self._delay is not None:
+            self._delay.set_arm(i, arm.delay_steps, drive.ctrl)
+        if self._sensing is not None:
+            self._sensing.set_arm(i, arm.observation_delay_steps, arm.observation_noise)
 
     def _stack_cables(self) -> tuple[np.ndarray, ...] | None:
         """Returns every arm's cable parameters (realism.Drive.cable), one row per arm."""

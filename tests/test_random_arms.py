@@ -14,6 +14,8 @@ from tendon2r_gym.policies import ComputedTorquePolicy, PDPolicy
 from tendon2r_gym.reference import Reference
 
 CABLES = {"tendon_elasticity": [2000.0, 6000.0], "motor_tau": [0.001, 0.004]}
+#: Random motor and sensor delays (whole control steps, 0 to 3).
+DELAYS = {"motor_delay": [0.0, 0.003], "observation_delay": [0.0, 0.003]}
 
 
 def _episode(env, policy, seed, steps=200):
@@ -60,7 +62,7 @@ def test_each_reset_draws_a_valid_arm_inside_the_ranges_same_seed_same_arm():
         _, info = env.reset(seed=seed)
         mech = Mechanism.from_dict(info["mechanism"])
         assert mech == env.unwrapped.mechanism
-        assert not ranges.violations(mech)
+        assert not ranges.violations(env.unwrapped.arm)
         assert info["max_tendon_force_N"] == mech.max_tendon_force
         arms.append(info["mechanism"])
     assert len({a["c"] for a in arms}) == len(arms)  # a new arm every reset
@@ -77,7 +79,8 @@ REAL = {"tendon_elasticity": 4000.0, "motor_tau": 0.002}
 @pytest.mark.parametrize(
     "kwargs",
     [{"preset": "generalist"},
-     {"preset": "pull_only", "mechanism": REAL, "mechanism_ranges": CABLES}],
+     {"preset": "pull_only", "mechanism": REAL, "mechanism_ranges": CABLES},
+     {"preset": "real_arm", "observation_noise": [0.0, 0.0], "mechanism_ranges": DELAYS}],
 )  # fmt: skip
 def test_a_random_episode_is_the_episode_of_its_arms_experiment_file(kwargs):
     """The drawn arm, as a static config (EnvConfig.for_arm: the arm, its reference, its own
@@ -103,7 +106,7 @@ def test_arm_features_are_the_drawn_fields_normalized():
         obs, info = env.reset(seed=seed)
         mech = Mechanism.from_dict(info["mechanism"])
         expected = [
-            2 * (getattr(mech, k) - lo) / (hi - lo) - 1
+            2 * (getattr(mech, k) - lo) / (hi - lo) - 1  # geometry: mechanism fields
             for k, (lo, hi) in cfg.mechanism_ranges.ranges
         ]
         np.testing.assert_allclose(obs[where], expected, rtol=0, atol=1e-12)
@@ -174,17 +177,18 @@ def test_a_residual_policy_follows_the_arm_in_rollouts():
 
 
 def test_real_arm_ranges_are_the_perturbed_arms_ranges():
-    """mechanism_ranges: real_arm draws the cables and motors of the benchmark's perturbed arms
-    (one home: realism.PERTURBATIONS), and every draw has the real arm's model layout."""
+    """mechanism_ranges: real_arm draws the cables, motors and sensors of the benchmark's
+    perturbed arms (one home: realism.PERTURBATIONS), and every draw has the real arm's model
+    layout."""
     from tendon2r_gym.realism import PERTURBATIONS
 
     env = gym.make("Tendon2R-v0", preset="real_arm", mechanism_ranges="real_arm")
     ranges = env.unwrapped.config.mechanism_ranges
-    assert dict(ranges.ranges) == PERTURBATIONS["mechanism"]
+    assert dict(ranges.ranges) == PERTURBATIONS
     nq = env.unwrapped.model.nq
     for seed in range(3):
         _, info = env.reset(seed=seed)
-        assert not ranges.violations(Mechanism.from_dict(info["mechanism"]))
+        assert not ranges.violations(env.unwrapped.arm)
         assert env.unwrapped.model.nq == nq
 
 
@@ -206,3 +210,42 @@ def test_realism_lines_report_each_residual_against_pd():
         "residual (randomized): <= PD on both joints on 1 of 2 arms; median worst-joint "
         "ratio to PD 0.88" in text
     )
+
+
+def test_delays_and_noise_are_drawn_per_episode_in_whole_steps():
+    """mechanism_ranges draws the motor's dead time and the sensors' delay and noise too: each
+    episode's values lie in the ranges, delays in whole control steps, and the reset info and
+    the arm features report them; each episode's delay shifts its own PD response."""
+    env = gym.make("Tendon2R-v0", preset="real_arm", mechanism_ranges="real_arm", observe_arm=True)
+    cfg = env.unwrapped.config
+    ranges, dt = cfg.mechanism_ranges, cfg.ctrl_dt
+    assert cfg.delay_capacity == cfg.observation_delay_capacity == 2
+    seen = set()
+    for seed in range(8):
+        obs, info = env.reset(seed=seed)
+        arm = env.unwrapped.arm
+        assert not ranges.violations(arm)
+        for delay in (arm.mechanism.motor_delay, arm.observation_delay):
+            assert delay / dt == round(delay / dt)
+        assert info["observation_noise"] == list(arm.observation_noise)
+        assert info["observation_delay"] == arm.observation_delay
+        assert info["mechanism"]["motor_delay"] == arm.mechanism.motor_delay
+        where = observation.arm_slice(cfg.preview_steps, cfg.n_actions, len(ranges.names))
+        np.testing.assert_allclose(obs[where], ranges.features(arm), rtol=0, atol=1e-12)
+        seen.add((arm.delay_steps, arm.observation_delay_steps))
+    assert len(seen) > 2  # several delay combinations drawn
+
+
+@pytest.mark.parametrize("steps", [[0, 2, 1], [2, 2, 2]])
+def test_command_delay_holds_each_arm_its_own_steps(steps):
+    from tendon2r_gym.realism import CommandDelay
+
+    delay = CommandDelay(max(steps), 3, 1)
+    for i, k in enumerate(steps):
+        delay.set_arm(i, k, [-1.0])
+    delay.reset(slice(None))
+    out = [delay(np.full((3, 1), float(t)))[:, 0] for t in range(6)]
+    for i, k in enumerate(steps):
+        np.testing.assert_array_equal([o[i] for o in out], [-1.0] * k + list(range(6 - k)))
+    with pytest.raises(ValueError, match="motor delay"):
+        delay.set_arm(0, max(steps) + 1, [0.0])

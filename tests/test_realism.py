@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from tendon2r_gym import Mechanism, build_model
+from tendon2r_gym.arms import MechanismRanges
 from tendon2r_gym.mechanism import REALISM_LIMITS
 from tendon2r_gym.model import motor_name, to_xml
 from tendon2r_gym.realism import Drive
@@ -236,19 +237,19 @@ def test_noise_has_its_std_and_the_same_seed_gives_the_same_noise():
 def test_real_arm_preset_and_perturbed_arms():
     """real_arm turns every effect on over the pull_only arm; the perturbed arms are valid,
     seeded and inside PERTURBATIONS; PD keeps real_arm stable."""
+    from tendon2r_gym.benchmark import perturbed_arms
     from tendon2r_gym.env_config import EnvConfig
     from tendon2r_gym.evaluation import evaluate
-    from tendon2r_gym.realism import PERTURBATIONS, perturbed_arms
+    from tendon2r_gym.realism import PERTURBATIONS
 
     real, ideal = EnvConfig.make("real_arm"), EnvConfig.make("pull_only")
     assert all(getattr(real.mechanism, k) > 0 for k in REALISM_LIMITS) and real.sensed
     assert real.mechanism.ideal() == ideal.mechanism  # same arm, same auto force limit
-    arms = perturbed_arms("real_arm", 4, 7, real.ctrl_dt)
-    assert arms == perturbed_arms("real_arm", 4, 7, 1e-3) != perturbed_arms("real_arm", 4, 8, 1e-3)
+    arms = perturbed_arms("real_arm", 4, 7)
+    assert arms == perturbed_arms("real_arm", 4, 7) != perturbed_arms("real_arm", 4, 8)
+    ranges = MechanismRanges.from_value(PERTURBATIONS)
     for kwargs in arms:
-        mech = EnvConfig.make(**kwargs).mechanism
-        for field, (lo, hi) in PERTURBATIONS["mechanism"].items():
-            assert lo <= getattr(mech, field) <= hi + 1e-12, field
+        assert not ranges.violations(EnvConfig.make(**kwargs))
     metrics, _ = evaluate("pd", {"preset": "real_arm"}, [0])
     assert max(metrics["rms_deg"]) < 1.0  # stable (the ideal arm: 0.09 deg)
 

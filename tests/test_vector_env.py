@@ -35,7 +35,8 @@ def _native(n, **kw):
      (4, 2, {"observation_noise": [0, 0.1], "mechanism": REAL, "preset": "pull_only"}),
      (3, 1, {"preset": "generalist", "observe_arm": True}),
      (3, 1, {"preset": "generalist", "action_mode": "joint_torque"}),
-     (3, 1, {"preset": "pull_only", "mechanism": REAL, "mechanism_ranges": ARMS})],
+     (3, 1, {"preset": "pull_only", "mechanism": REAL, "mechanism_ranges": ARMS}),
+     (4, 1, {"preset": "real_arm", "mechanism_ranges": "real_arm", "observe_arm": True})],
 )  # fmt: skip
 @pytest.mark.parametrize("mode", ["NextStep", "SameStep"])
 def test_same_seeds_same_trajectories_as_single_envs_bit_for_bit(n, nthread, kwargs, mode):
