@@ -25,6 +25,7 @@ from tendon2r_gym.metrics import beats, rms_ratio
 from tendon2r_gym.plots import plot_trace
 from tendon2r_gym.presets import DATA_DIR
 from tendon2r_gym.runs import RUN_META, RunFolder, model_files
+from tendon2r_gym.tuning import tune_pd
 
 #: Learned variants: label -> (bundle suffix, hyperparameter entry used to train on your arm).
 LEARNED = {
@@ -371,6 +372,8 @@ def tension_comparison(rows: list[dict[str, Any]]) -> list[str]:
 REALISM_BASE, REALISM_ARMS, REALISM_SEED, REALISM_BUNDLE = "real_arm", 16, 0, "pull_only"
 #: The residual trained with per-episode random cables and motors (configs/ppo.yaml real_arm).
 RANDOMIZED_BUNDLE = "real_arm"
+#: Held-out episodes PD is tuned on per arm (tendon2r_gym.tuning) in the realism section.
+TUNE_EPISODES = 2
 #: The realism section's policies: (key, label, policy, bundle or None).
 REALISM_POLICIES = (
     ("pd", "PD", "pd", None),
@@ -424,9 +427,17 @@ def realism(episodes: int) -> list[dict[str, Any]]:
             row[key] = {
                 k: metrics[k] for k in ("rms_deg", "rms_tension_N", "rms_tension_rate_N_per_s")
             }
+        # PD as a user would tune it on this arm (tendon2r-tune-pd, held-out episodes)
+        scan = tune_pd(kwargs, TUNE_EPISODES)
+        metrics, _ = evaluate("pd", {**kwargs, "pd_gains": scan.gains.to_dict()}, seeds)
+        row["pd_tuned"] = {
+            "rms_deg": metrics["rms_deg"],
+            "rms_tension_rate_N_per_s": metrics["rms_tension_rate_N_per_s"],
+            "bandwidth_hz": scan.chosen_hz,
+        }
         rows.append(row)
-        shown = "  ".join(f"{p[0]} {_fmt(row[p[0]]['rms_deg'])}" for p in policies)
-        print(f"realism {name:12s} {shown} deg", flush=True)
+        shown = "  ".join(f"{k} {_fmt(row[k]['rms_deg'])}" for k in [p[0] for p in policies])
+        print(f"realism {name:12s} {shown}  pd_tuned {_fmt(metrics['rms_deg'])} deg", flush=True)
     return rows
 
 
@@ -443,30 +454,33 @@ def realism_lines(rows: list[dict[str, Any]]) -> list[str]:
         f"the `{REALISM_BUNDLE}` bundle's primary model, trained on the ideal arm; residual "
         f"(randomized): the `{RANDOMIZED_BUNDLE}` bundle's, trained on `{REALISM_BASE}` with "
         "its cables and motors drawn anew every episode from the same ranges "
-        "(`mechanism_ranges: real_arm`; delays and sensor noise fixed at the preset's). RMS "
-        "error A / B (deg); for a residual, (its worst joint as a multiple of PD's).",
+        "(`mechanism_ranges: real_arm`: cables, motors, delays and sensor noise), on a PD "
+        "whose gains `tendon2r-tune-pd --hyperparams real_arm` tuned over the same ranges "
+        "(its `pd_gains`). PD (tuned): PD with the gains `tendon2r-tune-pd` finds on that arm "
+        f"({TUNE_EPISODES} held-out episodes; its bandwidth in Hz). RMS error A / B (deg); for "
+        "a residual, (its worst joint as a multiple of PD's).",
         "",
-        "| arm | PD | CT | " + " | ".join(p[1] for p in learned) + " |",
-        "|---|---|---|" + "---|" * len(learned),
+        "| arm | PD | PD (tuned) | CT | " + " | ".join(p[1] for p in learned) + " |",
+        "|---|---|---|---|" + "---|" * len(learned),
     ]
-    ratios: dict[str, list[float]] = {p[0]: [] for p in learned}
+    worst = lambda r, key, base: float(max(np.divide(r[key]["rms_deg"], r[base]["rms_deg"])))  # noqa: E731
     for r in rows:
-        cells = []
-        for key, *_ in learned:
-            ratios[key].append(float(max(np.divide(r[key]["rms_deg"], r["pd"]["rms_deg"]))))
-            cells.append(f"{_fmt(r[key]['rms_deg'])} ({ratios[key][-1]:.2f}x)")
+        cells = [f"{_fmt(r[k]['rms_deg'])} ({worst(r, k, 'pd'):.2f}x)" for k, *_ in learned]
+        tuned = r["pd_tuned"]
         lines.append(
-            f"| {r['arm']} | {_fmt(r['pd']['rms_deg'])} | {_fmt(r['ct']['rms_deg'])} | "
+            f"| {r['arm']} | {_fmt(r['pd']['rms_deg'])} | {_fmt(tuned['rms_deg'])} "
+            f"({tuned['bandwidth_hz']:.3g} Hz) | {_fmt(r['ct']['rms_deg'])} | "
             + " | ".join(cells)
             + " |"
         )
     lines.append("")
     for key, label, *_ in learned:
-        x = ratios[key]
-        lines.append(
-            f"- {label}: <= PD on both joints on {sum(v <= 1.0 for v in x)} of {len(rows)} "
-            f"arms; median worst-joint ratio to PD {np.median(x):.2f}."
-        )
+        for base, name in (("pd", "PD"), ("pd_tuned", "PD tuned per arm")):
+            x = [worst(r, key, base) for r in rows]
+            lines.append(
+                f"- {label}: <= {name} on both joints on {sum(v <= 1.0 for v in x)} of "
+                f"{len(rows)} arms; median worst-joint ratio {np.median(x):.2f}."
+            )
     return lines
 
 

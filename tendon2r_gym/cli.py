@@ -3,6 +3,7 @@
     tendon2r-train      train PPO (one run, or one per seed), resume, bundle
     tendon2r-evaluate   RMS / max tracking error of PD, CT or PPO, plots and video
     tendon2r-benchmark  PD vs CT vs PPO table; on your own arm with --env-config
+    tendon2r-tune-pd    PD's bandwidth for your arm (a lagging one needs lower gains)
     tendon2r-view       a picture (or MuJoCo's viewer) of a mechanism
     tendon2r-export     the MJCF XML of a mechanism
     tendon2r-bundle     copy finished runs into the bundled models
@@ -248,6 +249,50 @@ def benchmark_main(argv: list[str] | None = None) -> dict[str, Any]:
     )
 
 
+# -- tendon2r-tune-pd ----------------------------------------------------------------------------
+@dataclass
+class TunePDArgs:
+    """Scan PD's closed-loop bandwidth on held-out episodes of your arm and keep the best one
+    with a gain margin (tendon2r_gym.tuning); write your experiment file with its pd_gains.
+
+    tendon2r-tune-pd --env-config my_arm.yaml --out my_arm_tuned.yaml
+    tendon2r-evaluate --policy pd --env-config my_arm_tuned.yaml
+    tendon2r-tune-pd --hyperparams real_arm --episodes 16   # the env an entry trains on
+    """
+
+    env_config: str = arg("default", "preset name or experiment file")
+    hyperparams: str | None = arg(None, "tune on this ppo.yaml entry's env instead")
+    episodes: int = arg(3, "tuning episodes (seeds 1000 ..; more for an env that draws arms)")
+    out: str | None = arg(None, "write the experiment file with the tuned pd_gains here")
+
+
+def tune_pd_main(argv: list[str] | None = None) -> dict[str, Any]:
+    import yaml
+
+    from tendon2r_gym.presets import PPO_CONFIG, load_yaml, preset_path
+    from tendon2r_gym.runs import command_line
+    from tendon2r_gym.training import Hyperparams
+    from tendon2r_gym.tuning import tune_pd
+    from tendon2r_gym.validation import integer
+
+    args = parse(TunePDArgs, argv)
+    integer("--episodes", args.episodes, 1, 10**4)
+    env_kwargs: dict[str, Any] = {"preset": args.env_config}
+    if args.hyperparams is not None:
+        env_kwargs = Hyperparams.from_entry(args.hyperparams, PPO_CONFIG).env_kwargs
+    scan = tune_pd(env_kwargs, args.episodes)
+    print("\n".join(scan.lines()))
+    result = {"pd_gains": scan.gains.to_dict(), "bandwidths_hz": list(scan.bandwidths_hz),
+              "worst_deg": [list(w) for w in scan.worst_deg]}  # fmt: skip
+    if args.out:
+        data = {**load_yaml(preset_path(args.env_config)), "pd_gains": scan.gains.to_dict()}
+        header = f"# {command_line(argv, 'tendon2r-tune-pd')}: pd_gains tuned\n"
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(header + yaml.safe_dump(data, sort_keys=False))
+        print("wrote", args.out)
+    return result
+
+
 # -- tendon2r-view / tendon2r-export / tendon2r-bundle -------------------------------------------
 @dataclass
 class ViewArgs:
@@ -345,6 +390,7 @@ def bundle_main(argv: list[str] | None = None) -> Path:
 train = run(train_main)
 evaluate = run(evaluate_main)
 benchmark = run(benchmark_main)
+tune_pd = run(tune_pd_main)
 view = run(view_main)
 export = run(export_main)
 bundle = run(bundle_main)

@@ -24,6 +24,7 @@ import numpy as np
 from tendon2r_gym import observation
 from tendon2r_gym.actuation import MomentArms, distribute
 from tendon2r_gym.arms import DELAYS, MAX_TRIES, SENSING, MechanismRanges, reference_ranges
+from tendon2r_gym.gains import Gains, gains_of
 from tendon2r_gym.mechanism import AUTO, Mechanism
 from tendon2r_gym.model import build_model
 from tendon2r_gym.presets import SECTIONS, load_preset, merge_env_kwargs
@@ -73,6 +74,10 @@ class EnvConfig:
     #: and rad/s) on each joint's angle and speed, and their age (s, whole control steps).
     observation_noise: tuple[float, float] = (0.0, 0.0)
     observation_delay: float = 0.0
+    #: Gains of PD and CT on this arm (tendon2r_gym.gains.Gains fields over data/pd.yaml; None:
+    #: data/pd.yaml), and of the PD inside a residual policy trained here.  A lagging arm may
+    #: need lower ones: ``tendon2r-tune-pd`` finds them.
+    pd_gains: Gains | None = None
     #: Peak tendon force (N) that inverse dynamics of the reference (or of the worst corner of
     #: reference_ranges) needs; computed, not an argument.
     force_need: float = field(default=math.nan, compare=False)
@@ -105,6 +110,8 @@ class EnvConfig:
         arms = kwargs.pop("mechanism_ranges", None)
         if arms is not None:
             arms = MechanismRanges.from_value(arms)
+        if kwargs.get("pd_gains") is not None:
+            kwargs["pd_gains"] = gains_of(kwargs["pd_gains"])
         return cls(
             mechanism=mech,
             reference=ref,

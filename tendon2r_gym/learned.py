@@ -22,6 +22,7 @@ import numpy as np
 
 from tendon2r_gym import observation
 from tendon2r_gym.arms import MechanismRanges, reference_ranges
+from tendon2r_gym.gains import Gains, gains_of
 from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.policies import PDPolicy
 from tendon2r_gym.reference import Reference, ReferenceRanges
@@ -174,15 +175,23 @@ def trained_model(
 class PPOPolicy:
     """A trained PPO (+ its VecNormalize statistics) behind the SB3 ``predict`` interface,
     acting on raw observations of the unwrapped env: normalizes them with VecNormalize's own
-    ``normalize_obs``, and adds PD if it was residual."""
+    ``normalize_obs``, and adds PD if it was residual: the PD of its training env's gains
+    (``pd_gains``), whatever the env's are."""
 
     def __init__(
-        self, model: Any, vecnormalize: Any, residual_scale: float, env: gym.Env | None = None
+        self,
+        model: Any,
+        vecnormalize: Any,
+        residual_scale: float,
+        env: gym.Env | None = None,
+        pd_gains: Gains | dict[str, float] | None = None,
     ) -> None:
         self.model = model
         self.vecnormalize = vecnormalize
         self.residual_scale = residual_scale
-        self.pd = PDPolicy.from_env(env) if residual_scale > 0 and env is not None else None
+        self.pd = None
+        if residual_scale > 0 and env is not None:  # the PD it was trained on: its gains
+            self.pd = PDPolicy.from_env(env, gains=gains_of(pd_gains))
 
     @classmethod
     def load(cls, model_path: str | Path, env: gym.Env) -> PPOPolicy:
@@ -195,7 +204,8 @@ class PPOPolicy:
         model = PPO.load(zip_path, device="cpu")
         vecnorm = VecNormalize.load(str(stats), DummyVecEnv([lambda: env]))
         vecnorm.training, vecnorm.norm_reward = False, False
-        return cls(model, vecnorm, float(meta["residual_scale"]), env)
+        gains = meta["env_config"].get("pd_gains")
+        return cls(model, vecnorm, float(meta["residual_scale"]), env, gains)
 
     def reset(self, info: dict[str, Any]) -> None:
         """Follows the episode's arm with the PD inside a residual policy (the rollouts call

@@ -17,57 +17,28 @@ and clipped to the action box, so the force limit clips them.
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import mujoco
 import numpy as np
 
 from tendon2r_gym import observation
-from tendon2r_gym.actuation import FORCE_DAMPING, TorqueToTension
+from tendon2r_gym.actuation import TorqueToTension
 from tendon2r_gym.env_config import ACTION_MODES
+from tendon2r_gym.gains import Gains, gains_of
 from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.observation import DQ, DQ_DES, Q_DES, Q
-from tendon2r_gym.presets import PD_CONFIG, load_yaml
 from tendon2r_gym.reference import Reference
-from tendon2r_gym.validation import check_keys, invalid, number
-
-
-@dataclass(frozen=True)
-class Gains:
-    """Closed-loop gains that carry over between mechanisms and control rates.
-
-    The joint error obeys e'' + 2 zeta w e' + w^2 e = 0 with w = 2 pi bandwidth_hz, because the
-    feedback torque is scaled by the joint inertia M(q).  The bandwidth is capped at
-    ``max_bandwidth_fraction`` of the control rate so that the sampled loop stays stable."""
-
-    bandwidth_hz: float = 30.0  # closed-loop natural frequency (Hz)
-    damping_ratio: float = 1.0
-    max_bandwidth_fraction: float = 0.05  # of the control rate 1 / ctrl_dt
-    force_damping: float = FORCE_DAMPING  # damped-inverse regularization, relative to |J|
-
-    def __post_init__(self) -> None:
-        for name in ("bandwidth_hz", "damping_ratio", "max_bandwidth_fraction", "force_damping"):
-            number(f"Gains.{name}", getattr(self, name), 0.0, lo_open=True)
-
-    @classmethod
-    def from_yaml(cls, path: str | Path = PD_CONFIG) -> Gains:
-        data = load_yaml(path)
-        check_keys(str(path), data, cls.__dataclass_fields__)
-        return cls(**data)
-
-    def natural_frequency(self, ctrl_dt: float) -> float:
-        """Returns w (rad/s): the bandwidth, capped at the fraction of the control rate."""
-        return 2 * math.pi * min(self.bandwidth_hz, self.max_bandwidth_fraction / ctrl_dt)
+from tendon2r_gym.validation import invalid
 
 
 def _env_options(config: Any) -> dict[str, Any]:
-    """Returns what a baseline takes from an env config besides the mechanism: the action
-    mode, and the env's action filter (alpha, where the last command is observed)."""
+    """Returns what a baseline takes from an env config besides the mechanism: its gains
+    (``pd_gains``), the action mode, and the env's action filter (alpha, where the last
+    command is observed)."""
     where = observation.last_action_slice(config.preview_steps, config.n_actions)
     return {
+        "gains": config.pd_gains,
         "action_mode": config.action_mode,
         "action_filter": (config.action_filter_alpha, where),
     }
@@ -90,7 +61,7 @@ class _TendonController:
             raise invalid("action_mode", action_mode, f"one of {ACTION_MODES}")
         self.mechanism = mechanism
         self.action_mode = action_mode
-        self.gains = gains or Gains.from_yaml()
+        self.gains = gains_of(gains)
         w = self.gains.natural_frequency(ctrl_dt)
         self.kp, self.kd = w * w, 2.0 * self.gains.damping_ratio * w
         self.actuation = TorqueToTension(mechanism, self.gains.force_damping)
@@ -103,7 +74,7 @@ class _TendonController:
     def from_env(cls, env: Any, **kwargs: Any) -> _TendonController:
         """Builds the controller from an env's mechanism and control period (not its state)."""
         env = env.unwrapped
-        return cls(env.mechanism, env.ctrl_dt, **_env_options(env.config), **kwargs)
+        return cls(env.mechanism, env.ctrl_dt, **{**_env_options(env.config), **kwargs})
 
     @property
     def model(self) -> mujoco.MjModel:
@@ -187,7 +158,8 @@ class ComputedTorquePolicy(_TendonController):
     @classmethod
     def from_env(cls, env: Any, **kwargs: Any) -> ComputedTorquePolicy:
         env = env.unwrapped
-        return cls(env.mechanism, env.ctrl_dt, env.reference, **_env_options(env.config), **kwargs)
+        options = {**_env_options(env.config), **kwargs}
+        return cls(env.mechanism, env.ctrl_dt, env.reference, **options)
 
     def _set_references(self, refs: list[Reference]) -> None:
         self.references = refs

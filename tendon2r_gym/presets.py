@@ -35,7 +35,7 @@ PPO_CONFIG = DATA_DIR / "ppo.yaml"
 MODELS_DIR = DATA_DIR / "models"
 
 #: Sections of an experiment file that hold a mapping of fields.
-SECTIONS = ("mechanism", "reference", "reference_ranges")
+SECTIONS = ("mechanism", "reference", "reference_ranges", "pd_gains")
 
 
 class _Loader(yaml.SafeLoader):
@@ -121,12 +121,13 @@ def merge_reference(base: Mapping[str, Any], override: Mapping[str, Any]) -> dic
 
 def merge_env_kwargs(base: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
     """Returns env keyword arguments ``base`` (a preset's) with ``overrides`` applied: dicts for
-    ``mechanism`` and ``reference`` override only the fields they name, anything else (a
-    Mechanism or Reference object, a scalar, ``reference_ranges``) replaces the base value."""
+    ``mechanism``, ``reference`` and ``pd_gains`` override only the fields they name, anything
+    else (a Mechanism or Reference object, a scalar, ``reference_ranges``) replaces the base
+    value."""
     out = dict(base)
     for key, value in overrides.items():
-        if key == "mechanism" and isinstance(value, Mapping):
-            out[key] = {**_fields(key, out.get(key)), **value}
+        if key in ("mechanism", "pd_gains") and isinstance(value, Mapping):
+            out[key] = {**_fields(key, out.get(key) or {}), **value}
         elif key == "reference" and isinstance(value, Mapping):
             out[key] = merge_reference(_fields(key, out.get(key)), value)
         else:

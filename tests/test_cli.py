@@ -8,7 +8,7 @@ import sys
 import pytest
 
 from tendon2r_gym import evaluation
-from tendon2r_gym.benchmark import LEARNED, compare
+from tendon2r_gym.benchmark import GENERALISTS, LEARNED, compare
 from tendon2r_gym.cli import EvaluateArgs, benchmark_main, evaluate_main, parse
 from tendon2r_gym.evaluation import BASELINE, PolicyEntry, names
 from tendon2r_gym.policies import PDPolicy
@@ -96,8 +96,9 @@ def test_benchmark_on_your_own_arm(tmp_path):
     assert policies[: len(names(BASELINE)) + len(LEARNED)] == [*names(BASELINE), *LEARNED]
     # then each shipped generalist, zero-shot: this arm's R2 is outside the course ranges
     zero_shot = [r for r in result["rows"] if r["policy"].endswith("zero-shot")]
-    assert [r["policy"] for r in zero_shot] == ["generalist zero-shot"]
-    assert "R2 = 0.049 outside [0.011, 0.047]" in zero_shot[0]["missing"]
+    assert [r["policy"] for r in zero_shot] == [f"{g} zero-shot" for g in GENERALISTS]
+    for row in zero_shot:
+        assert "R2 = 0.049 outside [0.011, 0.047]" in row["missing"]
     assert result["force_need_N"] > 0.5, "the course arm needs more than the old 0.5 N"
     md = (out / "benchmark.md").read_text()
     assert "| my_arm | pd |" in md and "needs" in md

@@ -197,6 +197,7 @@ def test_realism_lines_report_each_residual_against_pd():
 
     row = lambda pd, ppo, rnd: {  # noqa: E731
         "pd": {"rms_deg": pd}, "ct": {"rms_deg": [0.01, 0.01]},
+        "pd_tuned": {"rms_deg": [0.5, 0.5], "bandwidth_hz": 12.3},
         "ppo": {"rms_deg": ppo}, "randomized": {"rms_deg": rnd},
     }  # fmt: skip
     rows = [
@@ -204,12 +205,16 @@ def test_realism_lines_report_each_residual_against_pd():
         {"arm": "b", **row([1.0, 2.0], [0.5, 0.5], [0.5, 2.5])},
     ]
     text = "\n".join(realism_lines(rows))
-    assert "| a | 1.0000 / 1.0000 | 0.0100 / 0.0100 | 2.0000 / 0.5000 (2.00x) |" in text
+    assert (
+        "| a | 1.0000 / 1.0000 | 0.5000 / 0.5000 (12.3 Hz) | 0.0100 / 0.0100 | "
+        "2.0000 / 0.5000 (2.00x) |" in text
+    )
     assert "residual (ideal-trained): <= PD on both joints on 1 of 2 arms" in text
     assert (
         "residual (randomized): <= PD on both joints on 1 of 2 arms; median worst-joint "
-        "ratio to PD 0.88" in text
+        "ratio 0.88" in text
     )
+    assert "residual (randomized): <= PD tuned per arm on both joints on 1 of 2 arms" in text
 
 
 def test_delays_and_noise_are_drawn_per_episode_in_whole_steps():

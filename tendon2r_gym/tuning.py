@@ -1,0 +1,83 @@
+"""PD tuning that any user can run on their own arm: a scan of the closed-loop bandwidth.
+
+PD's gains (tendon2r_gym.gains) are closed-loop quantities that carry over between ideal
+arms, but a real arm's motor lag and delays (tendon2r_gym.realism) take phase out of the loop:
+the default 30 Hz bandwidth can then oscillate or diverge.  :func:`tune_pd` rolls PD out at
+each bandwidth of a geometric grid through the default one (ratio GRID_RATIO, from
+MIN_BANDWIDTH_HZ up to the cap ``max_bandwidth_fraction / ctrl_dt``) on held-out episodes
+(seeds TUNE_SEED, ... : never the evaluation's 0, 1, 2) and keeps the bandwidth whose worst
+episode, and the next grid point's, has the least worst-joint RMS error: a gain margin of one
+grid step, so that the chosen gains are not on the edge of instability.  On an env that draws
+arms (``mechanism_ranges``) the episodes draw different arms, so the gains hold across them.
+
+``tendon2r-tune-pd --env-config my_arm.yaml --out my_arm_tuned.yaml`` writes the experiment
+file with the tuned ``pd_gains``; PD, CT and a residual trained on that file use them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from tendon2r_gym.env_config import EnvConfig
+from tendon2r_gym.evaluation import evaluate
+from tendon2r_gym.gains import Gains, default_gains, gains_of
+from tendon2r_gym.metrics import tracking_metrics
+
+#: Ratio of neighbouring bandwidths on the grid (and the gain margin the choice keeps).
+GRID_RATIO = 1.25
+#: The lowest bandwidth scanned (Hz): slower than the course's slowest reference is useless.
+MIN_BANDWIDTH_HZ = 4.0
+#: First seed of the tuning episodes (the benchmark evaluates on seeds 0, 1, 2).
+TUNE_SEED = 1000
+
+
+@dataclass(frozen=True)
+class Scan:
+    """The worst-joint RMS error (deg) of each episode at each bandwidth (Hz), and the
+    choice."""
+
+    bandwidths_hz: tuple[float, ...]
+    worst_deg: tuple[tuple[float, ...], ...]  # [bandwidth][episode]
+    chosen_hz: float
+    gains: Gains
+
+    def lines(self) -> list[str]:
+        """Returns the scan as a small table, the chosen bandwidth marked."""
+        out = ["bandwidth (Hz) | worst episode's worst-joint RMS (deg)"]
+        for bw, worst in zip(self.bandwidths_hz, self.worst_deg, strict=True):
+            mark = "  <- chosen" if bw == self.chosen_hz else ""
+            out.append(f"{bw:14.2f} | {max(worst):.4f}{mark}")
+        return out
+
+
+def bandwidth_grid(config: EnvConfig) -> list[float]:
+    """Returns the scanned bandwidths (Hz): the package default's (data/pd.yaml) times
+    GRID_RATIO^k, from MIN_BANDWIDTH_HZ up to the cap of the control rate (the env's
+    ``max_bandwidth_fraction`` / ctrl_dt).  The same grid whatever the env's own bandwidth,
+    so that tuning a tuned file finds the same gains."""
+    cap = gains_of(config.pd_gains).max_bandwidth_fraction / config.ctrl_dt
+    base = min(default_gains().bandwidth_hz, cap)
+    lo = math.ceil(math.log(MIN_BANDWIDTH_HZ / base, GRID_RATIO) - 1e-9)
+    hi = math.floor(math.log(cap / base, GRID_RATIO) + 1e-9)
+    return [round(base * GRID_RATIO**k, 6) for k in range(lo, hi + 1)]
+
+
+def tune_pd(env_kwargs: dict[str, Any], episodes: int = 3) -> Scan:
+    """Scans PD's bandwidth on ``episodes`` held-out episodes of the env (see the module
+    docstring) and returns the scan with the chosen gains (the env's others kept)."""
+    config = EnvConfig.make(**env_kwargs)
+    base = gains_of(config.pd_gains)
+    seeds = list(range(TUNE_SEED, TUNE_SEED + episodes))
+    grid = bandwidth_grid(config)
+    worst = []
+    for bw in grid:
+        kwargs = {**env_kwargs, "pd_gains": {**base.to_dict(), "bandwidth_hz": bw}}
+        _, traces = evaluate("pd", kwargs, seeds)
+        worst.append(tuple(max(tracking_metrics([t])["rms_deg"]) for t in traces))
+    # The next grid point must hold too (the last one is the cap: nothing above it).
+    score = [max(*w, *(worst[i + 1] if i + 1 < len(worst) else w)) for i, w in enumerate(worst)]
+    best = min(range(len(grid)), key=score.__getitem__)
+    gains = Gains.from_dict({"bandwidth_hz": grid[best]}, base=base)
+    return Scan(tuple(grid), tuple(worst), grid[best], gains)

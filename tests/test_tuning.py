@@ -1,0 +1,102 @@
+"""PD gains per experiment file (``pd_gains``) and the bandwidth scan that tunes them."""
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import yaml
+
+from tendon2r_gym.env_config import EnvConfig
+from tendon2r_gym.evaluation import evaluate
+from tendon2r_gym.gains import Gains, default_gains
+from tendon2r_gym.learned import PPOPolicy, ResidualPDWrapper
+from tendon2r_gym.policies import ComputedTorquePolicy, PDPolicy
+from tendon2r_gym.tuning import GRID_RATIO, MIN_BANDWIDTH_HZ, bandwidth_grid, tune_pd
+
+#: An arm whose motor lag and delays make the default 30 Hz PD diverge.
+LAGGING = {"preset": "real_arm", "mechanism": {"motor_delay": 0.002, "motor_tau": 0.004},
+           "observation_delay": 0.002, "episode_duration": 0.5}  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("gains", "match"),
+    [({"bandwidth": 10.0}, "pd_gains: unknown key 'bandwidth'; did you mean 'bandwidth_hz'"),
+     ({"bandwidth_hz": -1.0}, r"pd_gains.bandwidth_hz = -1.0 .*\(0, inf\)"),
+     ({"damping_ratio": "high"}, "pd_gains.damping_ratio = 'high'"),
+     ("fast", "pd_gains = 'fast'")],
+)  # fmt: skip
+def test_bad_gains_raise_at_construction_naming_the_field(gains, match):
+    with pytest.raises(ValueError, match=match):
+        EnvConfig.make("default", pd_gains=gains)
+
+
+def test_gains_of_the_experiment_file_reach_pd_ct_and_the_residual_wrapper():
+    env = gym.make("Tendon2R-v0", pd_gains={"bandwidth_hz": 12.0})
+    expected = Gains.from_dict({"bandwidth_hz": 12.0})
+    assert env.unwrapped.config.pd_gains == expected
+    assert expected.damping_ratio == default_gains().damping_ratio  # the others kept
+    assert PDPolicy.from_env(env).gains == expected
+    assert ComputedTorquePolicy.from_env(env).gains == expected
+    assert ResidualPDWrapper(env, 0.5).pd.gains == expected
+    assert PDPolicy.from_env(gym.make("Tendon2R-v0")).gains == default_gains()
+    pd = PDPolicy.from_env(env)
+    assert math.isclose(pd.kp, (2 * math.pi * 12.0) ** 2)
+    # an override names only the fields it changes
+    cfg = EnvConfig.make("default", pd_gains={"bandwidth_hz": 12.0})
+    assert EnvConfig.from_kwargs({**cfg.to_dict(), "pd_gains": {"damping_ratio": 0.7}}) \
+        .pd_gains.damping_ratio == 0.7  # fmt: skip
+
+
+def test_a_residual_keeps_the_pd_it_was_trained_on():
+    """PPOPolicy's inner PD has the gains recorded with the model, not the env's."""
+    env = gym.make("Tendon2R-v0", pd_gains={"bandwidth_hz": 20.0})
+    trained_on = {"bandwidth_hz": 15.0}
+    policy = PPOPolicy(None, None, 0.5, env, trained_on)
+    assert policy.pd.gains == Gains.from_dict(trained_on)
+    assert PPOPolicy(None, None, 0.5, env).pd.gains == default_gains()  # recorded: none
+
+
+def test_bandwidth_grid_is_geometric_through_the_default_up_to_the_cap():
+    for kwargs in ({}, {"ctrl_dt": 0.002}, {"pd_gains": {"bandwidth_hz": 9.0}}):
+        cfg = EnvConfig.make("default", **kwargs)
+        grid = bandwidth_grid(cfg)
+        cap = default_gains().max_bandwidth_fraction / cfg.ctrl_dt
+        assert grid[0] >= MIN_BANDWIDTH_HZ and grid[-1] <= cap + 1e-9
+        assert grid[-1] * GRID_RATIO > cap and grid[0] / GRID_RATIO < MIN_BANDWIDTH_HZ
+        np.testing.assert_allclose(np.diff(np.log(grid)), math.log(GRID_RATIO), atol=1e-6)
+        assert min(default_gains().bandwidth_hz, cap) in grid
+
+
+def test_tuning_finds_stable_gains_where_the_default_diverges():
+    """On a lagging arm the default PD fails; the scan picks a lower bandwidth whose next grid
+    point holds too, and the tuned PD tracks on the evaluation seeds (not the tuning ones)."""
+    scan = tune_pd(LAGGING, episodes=1)
+    default, _ = evaluate("pd", LAGGING, [0])
+    tuned, _ = evaluate("pd", {**LAGGING, "pd_gains": scan.gains.to_dict()}, [0])
+    assert scan.chosen_hz < default_gains().bandwidth_hz
+    assert max(default["rms_deg"]) > 10.0 > 10 * max(tuned["rms_deg"])
+    i = scan.bandwidths_hz.index(scan.chosen_hz)
+    assert max(scan.worst_deg[i + 1]) < 10.0  # the gain margin: one grid step above holds
+    assert scan.gains == Gains.from_dict({"bandwidth_hz": scan.chosen_hz})
+
+
+def test_tune_pd_command_writes_a_file_that_tunes_to_itself(tmp_path):
+    from tendon2r_gym.cli import tune_pd_main
+
+    arm = tmp_path / "arm.yaml"
+    overrides = {k: v for k, v in LAGGING.items() if k != "preset"}
+    arm.write_text(yaml.safe_dump({**yaml.safe_load(open(_preset("real_arm"))), **overrides}))
+    out = tmp_path / "tuned.yaml"
+    first = tune_pd_main(["--env-config", str(arm), "--episodes", "1", "--out", str(out)])
+    assert EnvConfig.make(str(out)).pd_gains.to_dict() == first["pd_gains"]
+    again = tune_pd_main(["--env-config", str(out), "--episodes", "1"])
+    assert again["pd_gains"] == first["pd_gains"]
+    with pytest.raises(ValueError, match="--episodes = 0"):
+        tune_pd_main(["--episodes", "0"])
+
+
+def _preset(name):
+    from tendon2r_gym.presets import preset_path
+
+    return preset_path(name)
