@@ -247,3 +247,24 @@ def test_fine_tuning_starts_from_a_generalists_weights_on_an_arm_inside_its_rang
     far.write_text(arm.read_text().replace("c: 0.09", "c: 0.2"))
     with pytest.raises(ValueError, match=r"c = 0.2 outside \[0.03, 0.095\]"):
         _train(config, tmp_path / "far", "--env-config", str(far), "--init-from", str(source))
+
+
+def test_a_residual_trained_on_tuned_gains_is_scored_and_loaded_with_them(tmp_path):
+    """pd_gains of the training env are the residual's PD everywhere: the eval callback's
+    score equals a fresh evaluation of the loaded best model on an env without pd_gains
+    (PPOPolicy.load takes the recorded gains), and the PD under it uses them."""
+    from tendon2r_gym.evaluation import evaluate
+    from tendon2r_gym.gains import Gains
+
+    config = _tiny(tmp_path)
+    cfg = yaml.safe_load(config.read_text())
+    cfg["tiny"]["env_kwargs"]["pd_gains"] = {"bandwidth_hz": 11.0}
+    config.write_text(yaml.safe_dump(cfg))
+    _train(config, tmp_path / "run")
+    run = RunFolder(tmp_path / "run" / "seed_0")
+    plain = {"preset": "default", "episode_duration": 0.1}
+    model = run.best.with_suffix(".zip")
+    policy = PPOPolicy.load(model, gym.make("Tendon2R-v0", **plain))
+    assert policy.pd.gains == Gains.from_dict({"bandwidth_hz": 11.0})
+    metrics, _ = evaluate("ppo", plain, [0], model)
+    assert metrics["rms_deg"] == run.read_json("best_metrics.json")["rms_deg"]

@@ -103,8 +103,13 @@ class TrackingEvalCallback(BaseCallback):
             self.evaluate()
 
     def evaluate(self) -> dict[str, Any]:
+        config = self._env.unwrapped.config
         policy = PPOPolicy(
-            self.model, self.model.get_vec_normalize_env(), self.residual_scale, self._env
+            self.model,
+            self.model.get_vec_normalize_env(),
+            self.residual_scale,
+            self._env,
+            config.pd_gains,  # the PD the residual trains on
         )
         metrics = tracking_metrics(rollouts(policy, self.env_kwargs, self.seeds))
         rms = float(np.mean(metrics["rms_deg"]))
