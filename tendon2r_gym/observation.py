@@ -111,3 +111,14 @@ def table(preview_steps_name: str = "P") -> str:
         "mechanism_ranges to [-1, 1] | 1 |"
     )
     return "\n".join(rows)
+
+
+def layout_mask(layout_: list[list], hidden: Iterable[str]) -> np.ndarray:
+    """Returns a multiplier over an observation of ``layout_`` ([[name, size], ...], from
+    EnvConfig.observation_layout) that blanks the entries named in ``hidden``."""
+    out, start = [], 0
+    hidden = set(hidden)
+    for name, n in layout_:
+        out += [0.0 if name in hidden else 1.0] * n
+        start += n
+    return np.array(out)

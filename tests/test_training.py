@@ -268,3 +268,41 @@ def test_a_residual_trained_on_tuned_gains_is_scored_and_loaded_with_them(tmp_pa
     assert policy.pd.gains == Gains.from_dict({"bandwidth_hz": 11.0})
     metrics, _ = evaluate("ppo", plain, [0], model)
     assert metrics["rms_deg"] == run.read_json("best_metrics.json")["rms_deg"]
+
+
+@pytest.mark.parametrize(("hidden", "who"), [("hide_from_actor", "actor"),
+                                             ("hide_from_critic", "critic")])  # fmt: skip
+def test_arm_features_for_one_network_only(tmp_path, hidden, who):
+    """hide_from_actor (privileged critic) / hide_from_critic: the hidden slice does not reach
+    that network (its output ignores it), the other still reads it, and the saved model
+    loads and acts."""
+    import torch
+    from stable_baselines3 import PPO
+
+    from tendon2r_gym.observation import arm_slice
+
+    config = _tiny(tmp_path)
+    cfg = yaml.safe_load(config.read_text())
+    cfg["tiny"]["env_kwargs"] = {"preset": "generalist", "observe_arm": True,
+                                 "episode_duration": 0.1}  # fmt: skip
+    cfg["tiny"][hidden] = ["arm"]
+    config.write_text(yaml.safe_dump(cfg))
+    _train(config, tmp_path / "run")
+    run = RunFolder(tmp_path / "run" / "seed_0")
+    model = PPO.load(run.best.with_suffix(".zip"), device="cpu")
+    policy = model.policy
+    assert type(policy).__name__ == "SplitViewPolicy"
+    obs = torch.as_tensor(np.random.default_rng(0).normal(size=(4, *model.observation_space.shape)),
+                          dtype=torch.float32)  # fmt: skip
+    other = obs.clone()
+    other[:, arm_slice(3, 2, 5)] += 1.0  # another arm
+    actor = lambda o: policy.get_distribution(o).distribution.mean  # noqa: E731
+    critic = policy.predict_values
+    hidden_net, seen_net = (actor, critic) if who == "actor" else (critic, actor)
+    with torch.no_grad():
+        assert torch.equal(hidden_net(obs), hidden_net(other))
+        assert not torch.equal(seen_net(obs), seen_net(other))
+    env = gym.make("Tendon2R-v0", **run.read_json("run.json")["env_kwargs"])
+    PPOPolicy.load(run.best.with_suffix(".zip"), env).predict(env.reset(seed=0)[0])
+    with pytest.raises(ValueError, match="hide_from_actor: unknown key 'armm'"):
+        Hyperparams.from_dict({**cfg["tiny"], "hide_from_actor": ["armm"]})

@@ -40,6 +40,11 @@ class Hyperparams:
     normalize: dict[str, Any] = field(default_factory=dict)  # VecNormalize keyword arguments
     checkpoint_minutes: float = 2.0  # and a checkpoint at least this often (wall time)
     zero_obs: tuple[str, ...] = ()  # observation entries to blank out (ablations)
+    # Observation entries (names of EnvConfig.observation_layout, e.g. arm) that only the critic
+    # sees (privileged: hide_from_actor) or only the actor (hide_from_critic):
+    # tendon2r_gym.training.split_view.
+    hide_from_actor: tuple[str, ...] = ()
+    hide_from_critic: tuple[str, ...] = ()
     # Start from a trained model's weights and VecNormalize statistics (fine-tuning): a bundle
     # name (e.g. generalist) or a model zip; it must cover the env (learned.check_model_env).
     init_from: str | None = None
@@ -71,7 +76,16 @@ class Hyperparams:
             raise invalid("vec_env", self.vec_env, f"one of {VEC_ENVS}")
         for name in ("ppo", "policy_kwargs", "normalize"):
             set_(name, mapping(name, getattr(self, name)))
-        EnvConfig.make(**self.env_kwargs)  # the env kwargs, before any worker starts
+        env_config = EnvConfig.make(**self.env_kwargs)  # before any worker starts
+        names = [name for name, _ in env_config.observation_layout()]
+        for key in ("hide_from_actor", "hide_from_critic"):
+            hidden = tuple(getattr(self, key) or ())
+            check_keys(key, hidden, names)
+            set_(key, hidden)
+        if set(self.hide_from_actor) & set(self.hide_from_critic):
+            raise invalid(
+                "hide_from_critic", list(self.hide_from_critic), "entries the actor sees"
+            )
 
     # -- construction --------------------------------------------------------------------------
     @classmethod
@@ -106,7 +120,8 @@ class Hyperparams:
     def to_dict(self) -> dict[str, Any]:
         """Returns plain YAML-friendly values (what a run's config.yaml holds)."""
         out = copy.deepcopy(dataclasses.asdict(self))
-        out["zero_obs"] = list(self.zero_obs)
+        for key in ("zero_obs", "hide_from_actor", "hide_from_critic"):
+            out[key] = list(getattr(self, key))
         return out
 
     # -- derived quantities ----------------------------------------------------------------------
@@ -119,6 +134,20 @@ class Hyperparams:
     def rollout_steps(self) -> int:
         """Returns the env steps per PPO update: n_envs x n_steps."""
         return self.n_envs * int(self.ppo.get("n_steps", 2048))
+
+    def policy(self, env_config: EnvConfig) -> tuple[Any, dict[str, Any]]:
+        """Returns SB3's policy (MlpPolicy, or SplitViewPolicy when an entry is hidden from
+        the actor or the critic) and its policy_kwargs, for an env of ``env_config``."""
+        if not (self.hide_from_actor or self.hide_from_critic):
+            return "MlpPolicy", self.policy_kwargs
+        from tendon2r_gym.training.split_view import SplitViewPolicy
+
+        layout = env_config.observation_layout()
+        keep = {
+            f"{who}_keep": observation.layout_mask(layout, hidden).tolist()
+            for who, hidden in (("actor", self.hide_from_actor), ("critic", self.hide_from_critic))
+        }
+        return SplitViewPolicy, {**self.policy_kwargs, **keep}
 
 
 def keys() -> list[str]:

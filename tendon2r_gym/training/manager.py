@@ -235,14 +235,15 @@ def train_run(
         model, vecnorm = _load_initial(hp, venv, seed, run)
     else:
         vecnorm = VecNormalize(venv, gamma=hp.gamma, **hp.normalize)
+        policy, policy_kwargs = hp.policy(env_config)
         model = PPO(
-            "MlpPolicy",
+            policy,
             vecnorm,
             seed=seed,
             device="cpu",
             verbose=0,
             tensorboard_log=str(run.tensorboard),
-            policy_kwargs=hp.policy_kwargs,
+            policy_kwargs=policy_kwargs,
             **hp.ppo,
         )
     callbacks = [
