@@ -114,6 +114,7 @@ class CommandDelay:
         self._ring = np.zeros((capacity + 1, n_arms, n_motors))
         self._cols = np.arange(n_arms)
         self._i = 0
+        self._lag: int | None = capacity  # every arm's steps, when they are all equal
 
     def set_arm(self, arm: int, steps: int, rest: Any) -> None:
         """Arm ``arm`` holds its commands ``steps`` steps (at most the capacity); ``rest`` is
@@ -121,6 +122,7 @@ class CommandDelay:
         if not 0 <= steps < len(self._ring):
             raise invalid("motor delay (control steps)", steps, f"0 to {len(self._ring) - 1}")
         self.steps[arm], self.rest[arm] = steps, rest
+        self._lag = _common(self.steps)
 
     def reset(self, arms: np.ndarray | slice) -> None:
         """Fills the ring of ``arms`` with their rest command (the motors were at rest)."""
@@ -131,7 +133,10 @@ class CommandDelay:
         ring) and returns each arm's command of its ``steps`` steps ago."""
         ring, n = self._ring, len(self._ring)
         ring[self._i, arms] = ctrl[arms]
-        out = ring[(self._i - self.steps) % n, self._cols]
+        if self._lag is not None:  # one slot for all: a cheap copy
+            out = ring[(self._i - self._lag) % n].copy()
+        else:
+            out = ring[(self._i - self.steps) % n, self._cols]
         self._i = (self._i + 1) % n
         return out
 
@@ -152,6 +157,7 @@ class Sensors:
         self._ring = np.zeros((capacity + 1, n_arms, 4))
         self._cols = np.arange(n_arms)
         self._i = 0
+        self._lag: int | None = capacity  # every arm's steps, when they are all equal
 
     def set_arm(self, arm: int, steps: int, noise: tuple[float, float]) -> None:
         """Arm ``arm``'s measurements are ``steps`` control steps late (at most the capacity),
@@ -159,6 +165,7 @@ class Sensors:
         if not 0 <= steps < len(self._ring):
             raise invalid("observation delay (control steps)", steps, f"0 to {len(self._ring) - 1}")
         self.steps[arm], self.std[arm] = steps, np.repeat(noise, 2)
+        self._lag = _common(self.steps)
 
     def _measure(self, arm: int, state: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         return state + rng.standard_normal(4) * self.std[arm] if self._noisy else state
@@ -177,7 +184,16 @@ class Sensors:
     def read(self) -> np.ndarray:
         """Returns the measurements (n_arms, 4) the controller has now: each arm's of its
         ``steps`` steps ago (the last stored is one step back)."""
-        return self._ring[(self._i - 1 - self.steps) % len(self._ring), self._cols]
+        n = len(self._ring)
+        if self._lag is not None:
+            return self._ring[(self._i - 1 - self._lag) % n]
+        return self._ring[(self._i - 1 - self.steps) % n, self._cols]
+
+
+def _common(steps: np.ndarray) -> int | None:
+    """Returns the number of steps every arm shares, or None if they differ."""
+    first = int(steps[0])
+    return first if bool(np.all(steps == first)) else None
 
 
 #: Ranges of the seeded perturbed arms (the realism section of ``make benchmark``) and of the

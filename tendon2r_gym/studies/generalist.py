@@ -31,8 +31,11 @@ from tendon2r_gym.metrics import beats, rms_ratio
 from tendon2r_gym.runs import command_line
 from tendon2r_gym.studies import joints, save_json
 
-#: The generalist bundles (configs/ppo.yaml entries of the same names).
+#: The generalist bundles (configs/ppo.yaml entries of the same names), then the ablations of
+#: the residual generalist (blind: no arm features): the drawn arm's features seen by both
+#: networks, by the actor only, by the critic only (privileged).
 BUNDLES = ("generalist", "generalist_scratch")
+ABLATIONS = ("generalist_arm", "generalist_actor_arm", "generalist_privileged")
 
 
 def worst_ratio(rms: list[float], baseline: list[float]) -> float:
@@ -115,7 +118,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--out", default="results")
     args = p.parse_args(argv)
     command = command_line(argv, "python scripts/generalist.py")
-    bundles = [b for b in BUNDLES if b in bundle_names()] if args.bundles is None else args.bundles
+    shipped = [b for b in (*BUNDLES, *ABLATIONS) if b in bundle_names()]
+    bundles = shipped if args.bundles is None else args.bundles
     seeds = list(range(args.episodes))
     arms: dict[str, dict[str, Any]] = {}
     for i, content in enumerate(draw_arms(args.arm_seed, args.n_arms)):
@@ -150,7 +154,11 @@ def write(result: dict[str, Any], out: Path) -> None:
         f"Produced by `{result['command']}`. RMS tracking error (deg, joint A / B) over "
         f"evaluation seeds {result['seeds']}; for a generalist, (its worst joint's RMS as a "
         "multiple of PD's). Unseen arms: drawn by tendon2r_gym.arms.draw_arms with a seed that "
-        "training never uses; sweep arms: results/arm_sweep.md, with their own specialist.",
+        "training never uses; sweep arms: results/arm_sweep.md, with their own specialist. "
+        "generalist: residual on PD, blind (no arm features); generalist_scratch: plain PPO; "
+        "ablations of the residual (one seed each, configs/ppo.yaml): generalist_arm (the "
+        "drawn arm's features, observe_arm, seen by actor and critic), generalist_actor_arm "
+        "(by the actor only), generalist_privileged (by the critic only).",
         "",
         "## Summary",
         "",
