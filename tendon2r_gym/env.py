@@ -113,7 +113,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     | `mechanism` | `None` | dict of Mechanism fields overriding the preset, or a Mechanism |
     | `reference` | `None` | dict of Reference fields overriding the preset, or a Reference |
     | `reference_ranges` | `None` | dict of ReferenceRanges: draw a new reference every reset |
-    | `mechanism_ranges` | `None` | {{field: [lo, hi]}} of Mechanism fields, or "course": a new arm every reset |
+    | `mechanism_ranges` | `None` | {{field: [lo, hi]}} of Mechanism or sensor fields, "course" or "real_arm": a new arm every reset |
     | `observe_arm` | `False` | end the observation with the drawn fields, normalized (``arm``) |
     | `fit_to_workspace` | `False` | scale the amplitudes down (with a warning) instead of raising |
     | `ctrl_dt` | `0.001` | control period (s), an integer multiple of the mechanism's sim_dt |
@@ -128,6 +128,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     | `preview_dt` | `0.01` | spacing of the future reference samples (s) |
     | `observation_noise` | `(0.0, 0.0)` | std of the measured angles (rad) and speeds (rad/s) |
     | `observation_delay` | `0.0` | age of the measurements (s), a multiple of ctrl_dt |
+    | `pd_gains` | `None` | PD / CT gains on this arm (tendon2r_gym.gains; None: data/pd.yaml) |
     | `render_mode` | `None` | "human", "rgb_array" or "depth_array" |
     | `width` | `480` | render width (px) |
     | `height` | `480` | render height (px) |
