@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from tendon2r_gym.arms import draw_arms
-from tendon2r_gym.bundle import bundle_names, bundled_model
+from tendon2r_gym.bundle import bundle_names, bundled_model, training_summary
 from tendon2r_gym.evaluation import evaluate
 from tendon2r_gym.metrics import beats, rms_ratio
 from tendon2r_gym.runs import command_line
@@ -108,6 +108,19 @@ def summarize(arms: dict[str, Any], bundles: list[str]) -> dict[str, Any]:
     return out
 
 
+def ablation(bundles: list[str]) -> dict[str, Any]:
+    """Returns each bundle's training evaluation (primary seed: its best model's RMS on the
+    entry's evaluation seeds, random arms and references, and PD's on the same episodes).  An
+    arm-feature model needs the ``arm`` slice, which an env of one fixed arm does not have, so
+    the ablation compares the models on the random-arm env they all trained on."""
+    out = {}
+    for b in bundles:
+        summary = training_summary(bundled_model(b))
+        out[b] = {k: summary[k] for k in ("best_rms_deg", "pd_eval_rms_deg", "timesteps",
+                                          "wall_time_s", "best_tension_rate_N_per_s")}  # fmt: skip
+    return out
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("--n-arms", type=int, default=32, help="unseen random course arms")
@@ -118,7 +131,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--out", default="results")
     args = p.parse_args(argv)
     command = command_line(argv, "python scripts/generalist.py")
-    shipped = [b for b in (*BUNDLES, *ABLATIONS) if b in bundle_names()]
+    shipped = [b for b in BUNDLES if b in bundle_names()]
     bundles = shipped if args.bundles is None else args.bundles
     seeds = list(range(args.episodes))
     arms: dict[str, dict[str, Any]] = {}
@@ -128,6 +141,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         kwargs = {k: spec["env_config"][k] for k in ("mechanism", "reference")}
         arms[f"sweep_{name}"] = {"env_kwargs": kwargs, "specialist_rms_deg": spec["rms_deg"]}
     result: dict[str, Any] = {"command": command, "bundles": bundles, "seeds": seeds, "arms": {}}
+    result["ablation"] = ablation([b for b in ("generalist", *ABLATIONS) if b in bundle_names()])
     for name, arm in arms.items():
         arm["rows"] = evaluate_arm(arm["env_kwargs"], bundles, seeds)
         result["arms"][name] = arm
@@ -173,6 +187,31 @@ def write(result: dict[str, Any], out: Path) -> None:
             f"{s['median_tension_rate_x_pd']:.2f} | "
             f"{s['beats_specialist']} of {s['specialist_arms']} |"
         )
+    if result.get("ablation"):
+        lines += [
+            "",
+            "## Ablation: the arm's features",
+            "",
+            "Each residual's training evaluation (primary seed, best model: RMS on the entry's "
+            "evaluation seeds, random course arms and references, the same episodes for all; "
+            "PD on them). An arm-feature model needs the observation's `arm` slice, which an "
+            "env of one fixed arm does not have, so it is compared here, on random arms.",
+            "",
+            "| residual | arm features seen by | RMS A / B (deg) | PD A / B (deg) | steps | "
+            "wall time (s) |",
+            "|---|---|---|---|---|---|",
+        ]
+        seen = {
+            "generalist": "nobody (blind)",
+            "generalist_arm": "actor and critic",
+            "generalist_actor_arm": "actor only",
+            "generalist_privileged": "critic only",
+        }
+        for b, a in result["ablation"].items():
+            lines.append(
+                f"| {b} | {seen.get(b, '?')} | {fmt(a['best_rms_deg'])} | "
+                f"{fmt(a['pd_eval_rms_deg'])} | {a['timesteps']:,} | {a['wall_time_s']:.0f} |"
+            )
     lines += [
         "",
         "## Per arm",
