@@ -101,99 +101,109 @@ def cable_tensions(
     return k * stretch + c * velocity
 
 
+class LagRing:
+    """The last capacity + 1 rows of N arms that step together, each arm read back its own
+    number of steps late (0 to ``capacity``): what CommandDelay and Sensors hold."""
+
+    def __init__(self, capacity: int, n_arms: int, width: int, what: str) -> None:
+        self.steps = np.full(n_arms, capacity, dtype=np.int64)
+        self.rows = np.zeros((capacity + 1, n_arms, width))
+        self._what, self._cols, self._i = what, np.arange(n_arms), 0
+        self._lag: int | None = capacity  # every arm's steps, when they are all equal
+
+    def set_steps(self, arm: int, steps: int) -> None:
+        """Arm ``arm`` is read ``steps`` steps late (at most the capacity)."""
+        if not 0 <= steps < len(self.rows):
+            raise invalid(f"{self._what} (control steps)", steps, f"0 to {len(self.rows) - 1}")
+        self.steps[arm] = steps
+        first = int(self.steps[0])
+        self._lag = first if bool(np.all(self.steps == first)) else None
+
+    @property
+    def slot(self) -> np.ndarray:
+        """Returns the row (n_arms, width) this step writes."""
+        return self.rows[self._i]
+
+    def advance(self) -> None:
+        """Closes the step: the slot just written becomes the newest row."""
+        self._i = (self._i + 1) % len(self.rows)
+
+    def lagged(self) -> np.ndarray:
+        """Returns each arm's row of its ``steps`` steps before the newest (a view when every
+        arm's steps agree: one slot for all)."""
+        n = len(self.rows)
+        if self._lag is not None:
+            return self.rows[(self._i - 1 - self._lag) % n]
+        return self.rows[(self._i - 1 - self.steps) % n, self._cols]
+
+
 class CommandDelay:
     """Holds each motor command back by its arm's number of control steps (0 to
-    ``capacity``), for N arms that step together: a ring of the last capacity + 1 commands,
-    each arm's filled with its rest command at its reset.  Random arms set each arm's steps
-    and rest command (:meth:`set_arm`)."""
+    ``capacity``), for N arms that step together (a LagRing), each arm's ring filled with its
+    rest command at its reset.  Random arms set each arm's steps and rest command
+    (:meth:`set_arm`)."""
 
     def __init__(self, capacity: int, n_arms: int, n_motors: int) -> None:
-        self.steps = np.full(n_arms, capacity, dtype=np.int64)
+        self.ring = LagRing(capacity, n_arms, n_motors, "motor delay")
         #: The rest command of each arm's motors (n_arms, n_motors).
         self.rest = np.zeros((n_arms, n_motors))
-        self._ring = np.zeros((capacity + 1, n_arms, n_motors))
-        self._cols = np.arange(n_arms)
-        self._i = 0
-        self._lag: int | None = capacity  # every arm's steps, when they are all equal
 
     def set_arm(self, arm: int, steps: int, rest: Any) -> None:
         """Arm ``arm`` holds its commands ``steps`` steps (at most the capacity); ``rest`` is
         the command of its motors at rest."""
-        if not 0 <= steps < len(self._ring):
-            raise invalid("motor delay (control steps)", steps, f"0 to {len(self._ring) - 1}")
-        self.steps[arm], self.rest[arm] = steps, rest
-        self._lag = _common(self.steps)
+        self.ring.set_steps(arm, steps)
+        self.rest[arm] = rest
 
     def reset(self, arms: np.ndarray | slice) -> None:
         """Fills the ring of ``arms`` with their rest command (the motors were at rest)."""
-        self._ring[:, arms] = self.rest[arms]
+        self.ring.rows[:, arms] = self.rest[arms]
 
     def __call__(self, ctrl: np.ndarray, arms: np.ndarray | slice = slice(None)) -> np.ndarray:
         """Stores ``ctrl`` (n_arms, n_motors) of the arms that step now (the others keep their
         ring) and returns each arm's command of its ``steps`` steps ago."""
-        ring, n = self._ring, len(self._ring)
-        ring[self._i, arms] = ctrl[arms]
-        if self._lag is not None:  # one slot for all: a cheap copy
-            out = ring[(self._i - self._lag) % n].copy()
-        else:
-            out = ring[(self._i - self.steps) % n, self._cols]
-        self._i = (self._i + 1) % n
-        return out
+        self.ring.slot[arms] = ctrl[arms]
+        self.ring.advance()
+        return self.ring.lagged().copy()
 
 
 class Sensors:
     """What the controller measures of N arms that step together: (q_A, q_B, dq_A, dq_B),
-    each arm's number of control steps late (0 to ``capacity``), with Gaussian noise of its
-    std (rad, rad/s).  Each measurement draws its noise once, from its arm's generator, when
-    it is taken (every step, and at a reset, which fills the arm's ring), so that reading it
-    draws nothing; a ``noisy`` env draws for every arm, even one of zero std, so that every
-    arm's generator advances alike.  Random arms set each arm's delay and noise
+    each arm's number of control steps late (0 to ``capacity``, a LagRing), with Gaussian
+    noise of its std (rad, rad/s).  Each measurement draws its noise once, from its arm's
+    generator, when it is taken (every step, and at a reset, which fills the arm's ring), so
+    that reading it draws nothing; a ``noisy`` env draws for every arm, even one of zero std,
+    so that every arm's generator advances alike.  Random arms set each arm's delay and noise
     (:meth:`set_arm`)."""
 
     def __init__(self, capacity: int, n_arms: int, noisy: bool) -> None:
-        self.steps = np.full(n_arms, capacity, dtype=np.int64)
+        self.ring = LagRing(capacity, n_arms, 4, "observation delay")
         self.std = np.zeros((n_arms, 4))  # q_A, q_B, dq_A, dq_B
         self._noisy = noisy
-        self._ring = np.zeros((capacity + 1, n_arms, 4))
-        self._cols = np.arange(n_arms)
-        self._i = 0
-        self._lag: int | None = capacity  # every arm's steps, when they are all equal
 
     def set_arm(self, arm: int, steps: int, noise: tuple[float, float]) -> None:
         """Arm ``arm``'s measurements are ``steps`` control steps late (at most the capacity),
         with noise std ``noise`` = (rad, rad/s)."""
-        if not 0 <= steps < len(self._ring):
-            raise invalid("observation delay (control steps)", steps, f"0 to {len(self._ring) - 1}")
-        self.steps[arm], self.std[arm] = steps, np.repeat(noise, 2)
-        self._lag = _common(self.steps)
+        self.ring.set_steps(arm, steps)
+        self.std[arm] = np.repeat(noise, 2)
 
     def _measure(self, arm: int, state: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         return state + rng.standard_normal(4) * self.std[arm] if self._noisy else state
 
     def reset(self, arm: int, state: np.ndarray, rng: np.random.Generator) -> None:
         """Arm ``arm`` starts at ``state`` (4,): every slot of its ring holds one measurement."""
-        self._ring[:, arm] = self._measure(arm, state, rng)
+        self.ring.rows[:, arm] = self._measure(arm, state, rng)
 
     def store(self, states: np.ndarray, rngs: list[np.random.Generator], arms) -> None:
         """Measures the arms ``arms`` (indices) in ``states`` (n_arms, 4), then advances."""
-        slot = self._ring[self._i]
+        slot = self.ring.slot
         for i in arms:
             slot[i] = self._measure(i, states[i], rngs[i])
-        self._i = (self._i + 1) % len(self._ring)
+        self.ring.advance()
 
     def read(self) -> np.ndarray:
         """Returns the measurements (n_arms, 4) the controller has now: each arm's of its
         ``steps`` steps ago (the last stored is one step back)."""
-        n = len(self._ring)
-        if self._lag is not None:
-            return self._ring[(self._i - 1 - self._lag) % n]
-        return self._ring[(self._i - 1 - self.steps) % n, self._cols]
-
-
-def _common(steps: np.ndarray) -> int | None:
-    """Returns the number of steps every arm shares, or None if they differ."""
-    first = int(steps[0])
-    return first if bool(np.all(steps == first)) else None
+        return self.ring.lagged()
 
 
 #: Ranges of the seeded perturbed arms (the realism section of ``make benchmark``) and of the
