@@ -481,6 +481,15 @@ def realism_lines(rows: list[dict[str, Any]]) -> list[str]:
                 f"- {label}: <= {name} on both joints on {sum(v <= 1.0 for v in x)} of "
                 f"{len(rows)} arms; median worst-joint ratio {np.median(x):.2f}."
             )
+        effort = [rms_ratio(r[key]["rms_tension_N"], r["pd"]["rms_tension_N"]) for r in rows]
+        rate = [
+            rms_ratio(r[key]["rms_tension_rate_N_per_s"], r["pd"]["rms_tension_rate_N_per_s"])
+            for r in rows
+        ]
+        lines.append(
+            f"- {label}: RMS tension {np.median(effort):.2f}x PD's, RMS tension rate "
+            f"{np.median(rate):.2f}x PD's (medians over the arms)."
+        )
     return lines
 
 

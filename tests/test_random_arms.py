@@ -195,10 +195,11 @@ def test_real_arm_ranges_are_the_perturbed_arms_ranges():
 def test_realism_lines_report_each_residual_against_pd():
     from tendon2r_gym.benchmark import realism_lines
 
+    force = lambda f: {"rms_tension_N": [f] * 3, "rms_tension_rate_N_per_s": [10 * f] * 3}  # noqa: E731
     row = lambda pd, ppo, rnd: {  # noqa: E731
-        "pd": {"rms_deg": pd}, "ct": {"rms_deg": [0.01, 0.01]},
+        "pd": {"rms_deg": pd, **force(1.0)}, "ct": {"rms_deg": [0.01, 0.01]},
         "pd_tuned": {"rms_deg": [0.5, 0.5], "bandwidth_hz": 12.3},
-        "ppo": {"rms_deg": ppo}, "randomized": {"rms_deg": rnd},
+        "ppo": {"rms_deg": ppo, **force(2.0)}, "randomized": {"rms_deg": rnd, **force(0.5)},
     }  # fmt: skip
     rows = [
         {"arm": "a", **row([1.0, 1.0], [2.0, 0.5], [0.5, 0.25])},
@@ -215,6 +216,7 @@ def test_realism_lines_report_each_residual_against_pd():
         "ratio 0.88" in text
     )
     assert "residual (randomized): <= PD tuned per arm on both joints on 1 of 2 arms" in text
+    assert "residual (ideal-trained): RMS tension 2.00x PD's, RMS tension rate 2.00x" in text
 
 
 def test_delays_and_noise_are_drawn_per_episode_in_whole_steps():
