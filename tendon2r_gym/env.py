@@ -290,7 +290,10 @@ class Tendon2REnv(MujocoEnv, EzPickle):
             self._torque_map = TorqueToTension(self.mechanism)
         # Named sensor reads: each tendon's motor force (N, positive lengthens), contiguous.
         first = self.model.sensor(f"force_{tendon_name(0)}").adr[0]
-        self._motor_force = d.sensordata[first : first + self.mechanism.n_tendons]
+        n = self.mechanism.n_tendons
+        self._motor_force = d.sensordata[first : first + n]
+        #: Elastic cables: views of their lengths and speeds (their tension's inputs).
+        self._cables = (d.ten_length[:n], d.ten_velocity[:n]) if self.mechanism.elastic else None
         self._warnings = [d.warning[w] for w in DIVERGENCE_WARNINGS]
         self._warning_count = 0
         self._arms = MomentArms(self.model, d)
@@ -306,9 +309,8 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         """Returns each tendon's tension (N, positive when it pulls) in the last step: minus the
         motor force along the tendon that the model's force sensors read, or for elastic cables
         the force of their stretch (tendon2r_gym.realism.Drive.cable_tensions)."""
-        if self.mechanism.elastic:
-            n, d = self.mechanism.n_tendons, self.data
-            return self.drive.cable_tensions(d.ten_length[:n], d.ten_velocity[:n])
+        if self._cables is not None:
+            return self.drive.cable_tensions(*self._cables)
         return -self._motor_force
 
     def force_need(self) -> float:
@@ -329,17 +331,17 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         else:  # joint_torque: PD's tension distribution at the current q
             u = self._torque_map.joint_torque_command(self._qpos[None], np.array([a]))[0]
         if self._delay is not None:  # the motors get the command of delay_steps ago
-            u = self._delay(np.array([u], dtype=np.float64))[0]
+            u = self._delay.one(u)
         self._ctrl[:] = u
         mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
         diverged = self._check_divergence()
-        if self._sensing is not None:
-            self._sensing.store(np.array([self._state()]), [self.np_random], (0,))
+        if self._sensing is not None:  # what the controller gets this step
+            self._measured = self._sensing.one(self._state(), self.np_random)
         # A diverged step reports the last good state: nothing enormous reaches a learner.
         obs = self._last_obs.copy() if diverged else self._get_obs()
         truth = obs
         if self._sensing is not None:  # reward and info on the true state
-            truth = self._last_truth.copy() if diverged else self._get_obs(measured=False)
+            truth = self._last_truth.copy() if diverged else self._true_obs(obs)
             self._last_truth = truth
         reward, terms = self._get_rew(truth, a, last, diverged)
         info = self._get_info(truth, terms, diverged)
@@ -379,13 +381,23 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         """Returns the observation (tendon2r_gym.task.Task.observation on this arm): of what
         the sensors measure, or with ``measured=False`` of the true state."""
         if measured and self._sensing is not None:
-            q1, q2, w1, w2 = self._sensing.read()[0].tolist()
+            q1, q2, w1, w2 = self._measured
         else:
             (q1, q2), (w1, w2) = self._qpos.tolist(), self._qvel.tolist()
         parts = self.task.observation(
             SCALAR, q1, q2, w1, w2, self.data.time, self._ref, self._arm, self._last_action
         )
         return np.array(parts, dtype=np.float64)
+
+    def _true_obs(self, measured: np.ndarray) -> np.ndarray:
+        """Returns the observation of the true state: ``measured`` (the sensors' observation
+        of this step) with the entries the joint state sets rewritten (Task.state_entries)."""
+        truth = measured.copy()
+        qd1, qd2 = measured[obs_layout.Q_DES].tolist()
+        joints, rest = self.task.state_entries(SCALAR, *self._state(), qd1, qd2, self._arm)
+        head, tail = obs_layout.STATE
+        truth[head], truth[tail] = joints, rest
+        return truth
 
     def _get_rew(
         self, obs: np.ndarray, action: list[float], last: list[float], diverged: bool
@@ -419,7 +431,8 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         if self._delay is not None:
             self._delay.reset(slice(None))
         if self._sensing is not None:
-            self._sensing.reset(0, np.array(self._state()), self.np_random)
+            self._sensing.reset(0, self._state(), self.np_random)
+            self._measured = self._sensing.read()[0].tolist()
             self._last_truth = self._get_obs(measured=False)
         self._warning_count = sum(w.number for w in self._warnings)
         self._last_obs = self._get_obs()

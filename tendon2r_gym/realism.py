@@ -38,6 +38,7 @@ import numpy as np
 from tendon2r_gym.actuation import MomentArms
 from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.model import spool_name
+from tendon2r_gym.ops import SCALAR, Ops
 from tendon2r_gym.validation import invalid
 
 
@@ -56,6 +57,7 @@ class Drive:
         self.stretch = mech.rest_tension / mech.tendon_elasticity if mech.elastic else 0.0
         spring = model.tendon_lengthspring[:n]
         self.slack_length, self.rest_length = spring[:, 0].copy(), spring[:, 1].copy()
+        self._rest, self._slack = self.rest_length.tolist(), self.slack_length.tolist()
 
     def settle(self, data: mujoco.MjData, q: np.ndarray, dq: np.ndarray) -> None:
         """Sets a freshly reset ``data`` (time 0) to the joint state (q, dq), every cable at its
@@ -85,19 +87,28 @@ class Drive:
         return mech.tendon_elasticity, mech.tendon_damping, self.rest_length, self.slack_length
 
     def cable_tensions(self, length: np.ndarray, velocity: np.ndarray) -> np.ndarray:
-        """Returns :func:`cable_tensions` of this model's cables."""
-        return cable_tensions(length, velocity, *self.cable)
+        """Returns :func:`cable_tensions` of this model's cables (scalar math per cable: a
+        few cables are faster in Python floats than in numpy, and give the same bits)."""
+        k, c = self.mech.tendon_elasticity, self.mech.tendon_damping
+        return np.array(
+            [
+                cable_tensions(SCALAR, x, v, k, c, rest, slack)
+                for x, v, rest, slack in zip(
+                    length.tolist(), velocity.tolist(), self._rest, self._slack, strict=True
+                )
+            ]
+        )
 
 
 def cable_tensions(
-    length: np.ndarray, velocity: np.ndarray, k: Any, c: Any, rest: np.ndarray, slack: np.ndarray
-) -> np.ndarray:
+    ops: Ops, length: Any, velocity: Any, k: Any, c: Any, rest: Any, slack: Any
+) -> Any:
     """Returns each elastic cable's tension (N, positive pulling) from the tendon lengths and
-    speeds (the first n_tendons entries of ``ten_length`` and ``ten_velocity``, one row or N
-    rows): stiffness k times the stretch past the rest length (below the slack length for
-    push-pull cables, which push), plus the cable's damping c times its speed."""
-    stretch = np.maximum(length - rest, 0.0)
-    stretch += np.minimum(length - slack, 0.0)
+    speeds (the first n_tendons entries of ``ten_length`` and ``ten_velocity``: one cable's
+    floats with SCALAR, or one row or N rows with BATCH): stiffness k times the stretch past
+    the rest length (below the slack length for push-pull cables, which push), plus the
+    cable's damping c times its speed."""
+    stretch = ops.maximum(length - rest, 0.0) + ops.minimum(length - slack, 0.0)
     return k * stretch + c * velocity
 
 
@@ -165,19 +176,38 @@ class CommandDelay:
         self.ring.advance()
         return self.ring.lagged().copy()
 
+    def one(self, ctrl: list[float]) -> np.ndarray:
+        """The single env's call (one arm, ``ctrl`` its n_motors floats): returns the
+        command of its ``steps`` steps ago (a view of the ring: use it before the next
+        call)."""
+        ring = self.ring
+        ring.slot[0] = ctrl
+        ring.advance()
+        return ring.lagged()[0]
+
+
+#: Noise rows (q_A, q_B, dq_A, dq_B) that Sensors draws from an arm's generator at once: one
+#: call per block instead of one per step.
+NOISE_BLOCK = 256
+
 
 class Sensors:
     """What the controller measures of N arms that step together: (q_A, q_B, dq_A, dq_B),
     each arm's number of control steps late (0 to ``capacity``, a LagRing), with Gaussian
-    noise of its std (rad, rad/s).  Each measurement draws its noise once, from its arm's
-    generator, when it is taken (every step, and at a reset, which fills the arm's ring), so
-    that reading it draws nothing; a ``noisy`` env draws for every arm, even one of zero std,
+    noise of its std (rad, rad/s).  Each arm's noise comes from its own generator in blocks
+    of NOISE_BLOCK standard normal rows, drawn when the arm's block runs out; a reset
+    discards the block, so that an episode depends on its own seed only.  Each measurement
+    is taken when the state is (every step, and at a reset, which fills the arm's ring), so
+    that reading draws nothing; a ``noisy`` env draws for every arm, even one of zero std,
     so that every arm's generator advances alike.  Random arms set each arm's delay and noise
-    (:meth:`set_arm`)."""
+    (:meth:`set_arm`).  The measurement is x + noise * std in Python floats, one arm at a
+    time, in both envs (the same bits)."""
 
     def __init__(self, capacity: int, n_arms: int, noisy: bool) -> None:
         self.ring = LagRing(capacity, n_arms, 4, "observation delay")
         self.std = np.zeros((n_arms, 4))  # q_A, q_B, dq_A, dq_B
+        self._std = self.std.tolist()  # as floats, per arm
+        self._blocks: list[list[list[float]]] = [[] for _ in range(n_arms)]
         self._noisy = noisy
 
     def set_arm(self, arm: int, steps: int, noise: tuple[float, float]) -> None:
@@ -185,19 +215,37 @@ class Sensors:
         with noise std ``noise`` = (rad, rad/s)."""
         self.ring.set_steps(arm, steps)
         self.std[arm] = np.repeat(noise, 2)
+        self._std[arm] = self.std[arm].tolist()
 
-    def _measure(self, arm: int, state: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        return state + rng.standard_normal(4) * self.std[arm] if self._noisy else state
+    def _measure(self, arm: int, state: list[float], rng: np.random.Generator) -> list[float]:
+        """Returns the measurement of arm ``arm``'s true ``state`` (4 floats)."""
+        if not self._noisy:
+            return state
+        block = self._blocks[arm]
+        if not block:  # rows are popped from the end: reversed, they come in drawing order
+            block.extend(reversed(rng.standard_normal((NOISE_BLOCK, 4)).tolist()))
+        noise = block.pop()
+        return [x + n * s for x, n, s in zip(state, noise, self._std[arm], strict=True)]
 
-    def reset(self, arm: int, state: np.ndarray, rng: np.random.Generator) -> None:
-        """Arm ``arm`` starts at ``state`` (4,): every slot of its ring holds one measurement."""
+    def one(self, state: list[float], rng: np.random.Generator) -> list[float]:
+        """The single env's step (arm 0, ``state`` its 4 floats): :meth:`store`, then
+        :meth:`read`'s row, as floats."""
+        ring = self.ring
+        ring.slot[0] = self._measure(0, state, rng)
+        ring.advance()
+        return ring.lagged()[0].tolist()
+
+    def reset(self, arm: int, state: list[float], rng: np.random.Generator) -> None:
+        """Arm ``arm`` starts at ``state`` (4 floats): its noise block is discarded, and
+        every slot of its ring holds one measurement."""
+        self._blocks[arm].clear()
         self.ring.rows[:, arm] = self._measure(arm, state, rng)
 
     def store(self, states: np.ndarray, rngs: list[np.random.Generator], arms) -> None:
         """Measures the arms ``arms`` (indices) in ``states`` (n_arms, 4), then advances."""
         slot = self.ring.slot
         for i in arms:
-            slot[i] = self._measure(i, states[i], rngs[i])
+            slot[i] = self._measure(i, states[i].tolist(), rngs[i])
         self.ring.advance()
 
     def read(self) -> np.ndarray:
@@ -223,4 +271,3 @@ PERTURBATIONS: dict[str, tuple[float, float]] = {
     "observation_noise_speed": (0.0, 0.1),  # rad/s
     "observation_delay": (0.0, 0.002),  # s
 }
-

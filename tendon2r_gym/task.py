@@ -228,30 +228,40 @@ class Task:
         :func:`arm_params` and the last clipped action (one value, or one column of N values,
         per action dimension)."""
         amp1, amp2, om1, om2, ph1, ph2, bias1, bias2 = ref
-        a, b, c = arm[0], arm[1], arm[2]
-        c1, s1 = ops.cos(q1), ops.sin(q1)
-        q12 = q1 + q2
-        c12, s12 = ops.cos(q12), ops.sin(q12)
-        w12 = w1 + w2
         arg1, arg2 = om1 * t + ph1, om2 * t + ph2
         qd1, qd2 = amp1 * ops.sin(arg1) + bias1, amp2 * ops.sin(arg2) + bias2
-        e1, e2 = qd1 - q1, qd2 - q2
-        scale = L.ERROR_LOG_SCALE
-        obs = [
-            q1, q2, w1, w2,
-            qd1, qd2, amp1 * om1 * ops.cos(arg1), amp2 * om2 * ops.cos(arg2),
-            e1, e2,
-            ops.copysign(ops.log1p(abs(e1) / scale), e1),
-            ops.copysign(ops.log1p(abs(e2) / scale), e2),
-            a + c * c1 + b * c12, c * s1 + b * s12,  # effector x, z
-            -c * s1 * w1 - b * s12 * w12, c * c1 * w1 + b * c12 * w12,  # effector velocity
-        ]  # fmt: skip
+        joints, rest = self.state_entries(ops, q1, q2, w1, w2, qd1, qd2, arm)
+        obs = joints + [qd1, qd2, amp1 * om1 * ops.cos(arg1), amp2 * om2 * ops.cos(arg2)] + rest
         for dt in self.offsets:
             obs.append(amp1 * ops.sin(arg1 + om1 * dt) + bias1)
             obs.append(amp2 * ops.sin(arg2 + om2 * dt) + bias2)
         obs.extend(last_action)
         obs.extend(arm[3:])
         return obs
+
+    def state_entries(
+        self, ops: Ops, q1: Any, q2: Any, w1: Any, w2: Any, qd1: Any, qd2: Any, arm: Sequence[Any]
+    ) -> tuple[list[Any], list[Any]]:
+        """Returns the observation's entries that the joint state sets, in two runs:
+        (q, dq) and (error, error_log, effector_pos, effector_vel), from the joint angles and
+        speeds, the reference q_des and :func:`arm_params` (tendon2r_gym.observation.STATE
+        gives their slices).  With sensors, the envs rewrite these of the measured observation
+        with the true state for the reward and info."""
+        a, b, c = arm[0], arm[1], arm[2]
+        c1, s1 = ops.cos(q1), ops.sin(q1)
+        q12 = q1 + q2
+        c12, s12 = ops.cos(q12), ops.sin(q12)
+        w12 = w1 + w2
+        e1, e2 = qd1 - q1, qd2 - q2
+        scale = L.ERROR_LOG_SCALE
+        rest = [
+            e1, e2,
+            ops.copysign(ops.log1p(abs(e1) / scale), e1),
+            ops.copysign(ops.log1p(abs(e2) / scale), e2),
+            a + c * c1 + b * c12, c * s1 + b * s12,  # effector x, z
+            -c * s1 * w1 - b * s12 * w12, c * c1 * w1 + b * c12 * w12,  # effector velocity
+        ]  # fmt: skip
+        return [q1, q2, w1, w2], rest
 
     # -- action ----------------------------------------------------------------------------------
     def rest_command(self, arm: EnvConfig) -> list[float]:

@@ -202,7 +202,7 @@ class Tendon2RVectorEnv(VectorEnv):
             else:
                 self._qpos[i], self._qvel[i] = q, dq
             if self._sensing is not None:
-                self._sensing.reset(i, self._state(i), self._rngs[i])
+                self._sensing.reset(i, self._state(i).tolist(), self._rngs[i])
         self.batch.forward(ids)
         self._steps[ids] = 0
         self._last_action[ids] = self._rest[ids]
@@ -303,7 +303,7 @@ class Tendon2RVectorEnv(VectorEnv):
             obs[diverged] = self._last_obs[diverged]  # the last good state, as the single env
         truth = obs
         if self._sensing is not None:  # reward and info on the true state
-            truth = self._observe(measured=False)
+            truth = self._true_obs(obs)
             truth[diverged] = self._last_truth[diverged]
             self._last_truth[:] = truth
         rewards, terms = self._rewards(truth, a, last, diverged)
@@ -388,6 +388,18 @@ class Tendon2RVectorEnv(VectorEnv):
         )
         return np.stack(parts, axis=1)
 
+    def _true_obs(self, measured: np.ndarray) -> np.ndarray:
+        """Returns the observations of the true state: ``measured`` (the sensors' observations
+        of this step) with the entries the joint state sets rewritten (Task.state_entries)."""
+        truth = measured.copy()
+        q, w, q_des = self._qpos, self._qvel, measured[:, obs_layout.Q_DES]
+        joints, rest = self.task.state_entries(
+            BATCH, q[:, 0], q[:, 1], w[:, 0], w[:, 1], q_des[:, 0], q_des[:, 1], tuple(self._arm)
+        )
+        head, tail = obs_layout.STATE
+        truth[:, head], truth[:, tail] = np.stack(joints, axis=1), np.stack(rest, axis=1)
+        return truth
+
     def _rewards(
         self, obs: np.ndarray, a: np.ndarray, last: np.ndarray, diverged: np.ndarray
     ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
@@ -408,7 +420,7 @@ class Tendon2RVectorEnv(VectorEnv):
         if self.mechanism.elastic:
             n = self.mechanism.n_tendons
             lengths, speeds = self._ten_length[:, :n], self._ten_velocity[:, :n]
-            tension = cable_tensions(lengths, speeds, *self._cable)
+            tension = cable_tensions(BATCH, lengths, speeds, *self._cable)
         else:
             tension = -self._sensors[:, self._force]
         values = self.task.step_info(

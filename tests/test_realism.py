@@ -55,7 +55,9 @@ def test_steady_stretch_is_tension_over_stiffness(mech):
     commanded = -np.array([data.actuator(motor_name(i)).force[0] for i in range(n)])
     stretch = data.ten_length[:n] - drive.rest_length
     np.testing.assert_allclose(stretch, commanded / k, rtol=1e-4, atol=1e-9)
-    np.testing.assert_allclose(drive.cable_tensions(data.ten_length[:n], 0.0), commanded, 1e-4)
+    np.testing.assert_allclose(
+        drive.cable_tensions(data.ten_length[:n], np.zeros(n)), commanded, 1e-4
+    )
 
 
 def test_slack_cable_transmits_no_force():

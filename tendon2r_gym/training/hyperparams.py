@@ -83,9 +83,7 @@ class Hyperparams:
             check_keys(key, hidden, names)
             set_(key, hidden)
         if set(self.hide_from_actor) & set(self.hide_from_critic):
-            raise invalid(
-                "hide_from_critic", list(self.hide_from_critic), "entries the actor sees"
-            )
+            raise invalid("hide_from_critic", list(self.hide_from_critic), "entries the actor sees")
 
     # -- construction --------------------------------------------------------------------------
     @classmethod
