@@ -87,22 +87,37 @@ def compare(
 
 #: The generalist bundles (configs/ppo.yaml entries of the same names): trained across random
 #: arms, run zero-shot on a user's arm when it lies inside their training ranges.
-GENERALISTS = ("generalist", "generalist_scratch")
+GENERALISTS = ("generalist", "generalist_scratch", "generalist_pull_only")
+
+
+#: Fine-tuning a generalist on a user's arm: row label -> configs/ppo.yaml entry (its
+#: ``init_from`` names the bundle it starts from).
+FINETUNED = {"generalist fine-tuned": "generalist_finetune"}
+
+
+def not_covered(bundle: str, env_kwargs: dict[str, Any]) -> str | None:
+    """Returns why the bundle's primary model cannot run on this arm (outside its training
+    ranges, another observation...), or None if it can."""
+    from tendon2r_gym.learned import check_model_env
+
+    model = bundled_model(bundle)
+    try:
+        meta = json.loads((model.parent / RUN_META).read_text())
+        check_model_env(meta["env_config"], gym.make("Tendon2R-v0", **env_kwargs), bundle)
+    except ValueError as e:
+        return str(e)
+    return None
 
 
 def generalist_rows(name: str, env_kwargs: dict[str, Any], seeds: list[int]) -> list[dict]:
     """Returns a row per shipped generalist bundle on this arm: zero-shot (no training on it),
     or ``missing`` with the reason when the arm is outside its training ranges."""
-    from tendon2r_gym.learned import check_model_env
-
     rows = []
     for bundle in (b for b in GENERALISTS if b in bundle_names()):
         label, model = f"{bundle} zero-shot", bundled_model(bundle)
-        try:
-            meta = json.loads((model.parent / RUN_META).read_text())
-            check_model_env(meta["env_config"], gym.make("Tendon2R-v0", **env_kwargs), bundle)
-        except ValueError as e:
-            rows.append({"env": name, "policy": label, "missing": str(e)})
+        reason = not_covered(bundle, env_kwargs)
+        if reason is not None:
+            rows.append({"env": name, "policy": label, "missing": reason})
             continue
         rows.append(_row(name, label, "ppo", env_kwargs, seeds, model, None))
         _print(rows[-1])
@@ -534,7 +549,17 @@ def benchmark_own_arm(
     env_kwargs = {"preset": env_config}
     config = EnvConfig.make(env_config)  # every error before any training
     cfgs = {}
-    for label, (_, entry) in LEARNED.items():
+    entries = {label: entry for label, (_, entry) in LEARNED.items()}
+    uncovered = {}
+    for label, entry in FINETUNED.items():  # only where the generalist covers the arm
+        hp = Hyperparams.from_entry(entry, env_config=env_config)
+        if hp.init_from not in bundle_names():
+            uncovered[label] = f"bundle {hp.init_from} is not installed"
+        elif (reason := not_covered(hp.init_from, env_kwargs)) is not None:
+            uncovered[label] = reason
+        else:
+            entries[label] = entry
+    for label, entry in entries.items():
         hp = Hyperparams.from_entry(entry, env_config=env_config)
         cfgs[label] = hp if train_steps is None else hp.replace(total_timesteps=train_steps)
     out.mkdir(parents=True, exist_ok=True)
@@ -550,6 +575,7 @@ def benchmark_own_arm(
         name = Path(env_config).stem
         rows = compare(name, env_kwargs, learned, list(range(episodes)), out / "plots", bar)
         rows += generalist_rows(name, env_kwargs, list(range(episodes)))
+        rows += [{"env": name, "policy": k, "missing": v} for k, v in uncovered.items()]
     result = {
         "command": command,
         "env_config": config.to_dict(),

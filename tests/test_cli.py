@@ -8,7 +8,7 @@ import sys
 import pytest
 
 from tendon2r_gym import evaluation
-from tendon2r_gym.benchmark import GENERALISTS, LEARNED, compare
+from tendon2r_gym.benchmark import FINETUNED, GENERALISTS, LEARNED, compare
 from tendon2r_gym.cli import EvaluateArgs, benchmark_main, evaluate_main, parse
 from tendon2r_gym.evaluation import BASELINE, PolicyEntry, names
 from tendon2r_gym.policies import PDPolicy
@@ -97,13 +97,32 @@ def test_benchmark_on_your_own_arm(tmp_path):
     # then each shipped generalist, zero-shot: this arm's R2 is outside the course ranges
     zero_shot = [r for r in result["rows"] if r["policy"].endswith("zero-shot")]
     assert [r["policy"] for r in zero_shot] == [f"{g} zero-shot" for g in GENERALISTS]
-    for row in zero_shot:
-        assert "R2 = 0.049 outside [0.011, 0.047]" in row["missing"]
+    for row in zero_shot:  # the pull-only one has another observation (three commands)
+        assert "R2 = 0.049 outside [0.011, 0.047]" in row["missing"] or (
+            "pull_only" in row["policy"] and "was trained for another env" in row["missing"]
+        ), row
+    finetuned = [r for r in result["rows"] if r["policy"] in FINETUNED]
+    assert [r["policy"] for r in finetuned] == list(FINETUNED)  # nothing to start from
+    assert all("R2 = 0.049 outside [0.011, 0.047]" in r["missing"] for r in finetuned)
     assert result["force_need_N"] > 0.5, "the course arm needs more than the old 0.5 N"
     md = (out / "benchmark.md").read_text()
     assert "| my_arm | pd |" in md and "needs" in md
     assert (out / "plots" / "my_arm" / "pd" / "tracking.png").is_file()
     assert (tmp_path / "runs" / "ppo_scratch" / "seed_0" / "run.json").is_file()
+
+
+def test_benchmark_fine_tunes_the_generalist_on_an_arm_it_covers(tmp_path):
+    """Inside the generalist's ranges, the own-arm benchmark also fine-tunes it: a row with
+    its steps and wall time, trained from the bundle's weights (its run's config says so)."""
+    result = benchmark_main(
+        ["--env-config", "default", "--train-steps", "256", "--seeds", "0", "--episodes", "1",
+         "--out", str(tmp_path / "out"), "--run-dir", str(tmp_path / "runs")]
+    )  # fmt: skip
+    (label,) = FINETUNED
+    row = next(r for r in result["rows"] if r["policy"] == label)
+    assert "rms_deg" in row and row["train_steps"] > 0 and row["train_wall_s"] > 0
+    config = (tmp_path / "runs" / label.replace(" ", "_") / "seed_0" / "config.yaml").read_text()
+    assert "init_from: generalist" in config
 
 
 def test_a_new_baseline_is_one_registry_line(monkeypatch):

@@ -14,7 +14,8 @@ def test_bench_speed_writes_every_figure(tmp_path):
     result = speed.main(
         ["--steps", "200", "--ppo-timesteps", "512", "--eval-freq", "4096",
          "--first-win-timesteps", "512", "--vector-seconds",
-         "0.05", "--repeats", "1", "--num-envs", "1", "2", "--max-processes", "1",
+         "0.05", "--repeats", "1", "--single-rounds", "1", "--num-envs", "1", "2",
+         "--max-processes", "1",
          "--out", str(tmp_path)]
     )  # fmt: skip
     saved = json.loads((tmp_path / "speed.json").read_text())
@@ -107,3 +108,27 @@ def test_generalist_study_end_to_end(tmp_path):
         assert arm["rows"]["ct"]["rms_deg"][0] < arm["rows"]["pd"]["rms_deg"][0]
     assert "| unseen_1 |" in (tmp_path / "generalist.md").read_text()
     assert generalist.worst_ratio([1.0, 3.0], [2.0, 1.0]) == 3.0
+
+
+def test_generalist_fine_tuning_curve(tmp_path):
+    """The fine-tuning section trains the entry from the generalist and from scratch on the
+    arm where the generalist is worst, and reports both curves from step 0."""
+    from tendon2r_gym.studies import generalist
+
+    out = generalist.main(
+        ["--n-arms", "2", "--episodes", "1", "--bundles", "generalist", "--sweep",
+         str(tmp_path / "none"), "--finetune-arms", "1", "--finetune-steps", "256",
+         "--finetune-runs", str(tmp_path / "runs"), "--out", str(tmp_path)]
+    )  # fmt: skip
+    (name,) = out["finetune"]
+    assert name == generalist.hardest_arms(out["arms"], 1)[0]
+    row = out["finetune"][name]
+    for label in ("fine-tuned", "scratch"):
+        assert row[label]["curve"] and row[label]["wall_time_s"] > 0
+    config = (tmp_path / "runs" / name / "fine-tuned" / "seed_0" / "config.yaml").read_text()
+    assert "init_from: generalist" in config
+    scratch = (tmp_path / "runs" / name / "scratch" / "seed_0" / "config.yaml").read_text()
+    assert "init_from: null" in scratch
+    assert (
+        "## Fine-tuning against training from scratch" in (tmp_path / "generalist.md").read_text()
+    )

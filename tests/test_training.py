@@ -241,8 +241,13 @@ def test_fine_tuning_starts_from_a_generalists_weights_on_an_arm_inside_its_rang
     _train(config, run, "--env-config", str(arm), "--init-from", str(source))
     tuned = PPO.load(run / "seed_0" / "last_model.zip", device="cpu").policy.state_dict()
     first = PPO.load(source, device="cpu").policy.state_dict()
-    # one small update away from the generalist, not a fresh network
+    # one small update away from the generalist, not a fresh network, nor no update at all
     assert all(torch.allclose(tuned[k], first[k], atol=0.05) for k in first)
+    assert any(not torch.equal(tuned[k], first[k]) for k in first)
+    # its own steps: the source's count does not eat the fine-tune's budget
+    steps = json.loads((run / "seed_0" / "summary.json").read_text())["timesteps"]
+    source_steps = json.loads((tmp_path / "gen" / "seed_0" / "summary.json").read_text())
+    assert 0 < steps < source_steps["timesteps"], steps
     far = tmp_path / "far.yaml"
     far.write_text(arm.read_text().replace("c: 0.09", "c: 0.2"))
     with pytest.raises(ValueError, match=r"c = 0.2 outside \[0.03, 0.095\]"):

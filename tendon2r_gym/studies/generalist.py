@@ -10,9 +10,13 @@ envs' own seeded generators), each an experiment file; plus the arm sweep's arms
 specialist (the sweep's residual, trained on that arm alone).
 
 Per arm: PD, CT and each generalist bundle zero-shot (no training on the arm), on the same
-evaluation seeds.  Summary per learned policy: the fraction of arms where it is <= PD on both
-joints, the median worst-joint ratio of its RMS error to PD's, its tension rate as a multiple
-of PD's, and the fraction of arms where it is <= the specialist.
+evaluation seeds; the pull-only generalist on the same geometries with its preset's cables.
+The fine-tuning curve: on the ``--finetune-arms`` arms where the generalist does worst, the
+generalist fine-tuned against the same training from scratch.
+
+Summary per learned policy: the fraction of arms where it is <= PD on both joints, the
+median worst-joint ratio of its RMS error to PD's, its tension rate as a multiple of PD's,
+and the fraction of arms where it is <= the specialist.
 """
 
 from __future__ import annotations
@@ -23,19 +27,34 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
-from tendon2r_gym.arms import draw_arms
+from tendon2r_gym.arms import GEOMETRY, draw_arms
 from tendon2r_gym.bundle import bundle_names, bundled_model, training_summary
 from tendon2r_gym.evaluation import evaluate
 from tendon2r_gym.metrics import beats, rms_ratio
+from tendon2r_gym.presets import load_yaml, preset_path
 from tendon2r_gym.runs import command_line
 from tendon2r_gym.studies import joints, save_json
 
-#: The generalist bundles (configs/ppo.yaml entries of the same names), then the ablations of
+#: The generalist bundles (configs/ppo.yaml entries of the same names: the residual, plain PPO,
+#: the residual on pull-only cables), then the ablations of
 #: the residual generalist (blind: no arm features): the drawn arm's features seen by both
 #: networks, by the actor only, by the critic only (privileged).
-BUNDLES = ("generalist", "generalist_scratch")
+BUNDLES = ("generalist", "generalist_scratch", "generalist_pull_only")
 ABLATIONS = ("generalist_arm", "generalist_actor_arm", "generalist_privileged")
+
+#: The pull-only generalist's preset: its arms are the unseen geometries with this preset's
+#: cables (routing, pull_only, pretension), named ``unseen_<i>_pull_only``.
+PULL_ONLY_PRESET = "generalist_pull_only"
+
+
+def with_pull_only_cables(content: dict[str, Any]) -> dict[str, Any]:
+    """Returns the experiment file ``content`` (a drawn arm) with the cables of
+    PULL_ONLY_PRESET: its mechanism's fields other than the geometry."""
+    cables = load_yaml(preset_path(PULL_ONLY_PRESET))["mechanism"]
+    cables = {k: v for k, v in cables.items() if k not in GEOMETRY}
+    return {**content, "mechanism": {**content["mechanism"], **cables}}
 
 
 def worst_ratio(rms: list[float], baseline: list[float]) -> float:
@@ -121,6 +140,67 @@ def ablation(bundles: list[str]) -> dict[str, Any]:
     return out
 
 
+#: The fine-tuning curve's configs/ppo.yaml entry: the generalist residual's hyperparameters,
+#: ``init_from: generalist``; "scratch" is the same entry started from fresh weights.
+FINETUNE_ENTRY = "generalist_finetune"
+
+
+def hardest_arms(arms: dict[str, Any], n: int, bundle: str = "generalist") -> list[str]:
+    """Returns the ``n`` unseen arms where ``bundle`` zero-shot has the highest worst-joint
+    ratio to PD (the arms a user would fine-tune on)."""
+    ratio = {
+        k: worst_ratio(a["rows"][bundle]["rms_deg"], a["rows"]["pd"]["rms_deg"])
+        for k, a in arms.items()
+        if k.startswith("unseen_") and "rms_deg" in a["rows"].get(bundle, {})
+    }
+    return sorted(ratio, key=ratio.get, reverse=True)[:n]
+
+
+def finetune_curves(
+    arms: dict[str, Any],
+    names: list[str],
+    run_root: Path,
+    command: str,
+    steps: int | None = None,
+) -> dict[str, Any]:
+    """Trains FINETUNE_ENTRY on each named arm twice, one seed each: from the generalist's
+    weights and normalization statistics (fine-tuned) and from fresh ones (scratch), with the
+    same hyperparameters and budget (``steps``, default the entry's; finished runs in
+    ``run_root`` are reused).  Returns each
+    run's curve: its training evaluations (steps, RMS on the entry's evaluation seeds), with
+    the generalist zero-shot and PD on the same episodes at step 0."""
+    from tendon2r_gym.presets import PPO_CONFIG
+    from tendon2r_gym.runs import EVALUATIONS, SUMMARY
+    from tendon2r_gym.training import Experiment, Hyperparams
+
+    out: dict[str, Any] = {}
+    for name in names:
+        folder = run_root / name
+        folder.mkdir(parents=True, exist_ok=True)
+        arm_file = folder / "arm.yaml"
+        arm_file.write_text(yaml.safe_dump(arms[name]["env_kwargs"], sort_keys=False))
+        hp = Hyperparams.from_entry(FINETUNE_ENTRY, PPO_CONFIG, str(arm_file))
+        if steps is not None:
+            hp = hp.replace(total_timesteps=steps)
+        zero, _ = evaluate(
+            "ppo", arms[name]["env_kwargs"], hp.eval_seeds, bundled_model(hp.init_from)
+        )
+        row: dict[str, Any] = {"zero_shot_rms_deg": zero["rms_deg"]}
+        for label, init in (("fine-tuned", hp.init_from), ("scratch", None)):
+            exp = Experiment(hp.replace(init_from=init), folder / label, [0], command)
+            exp.train(resume=True)
+            run = exp.run_folder(0)
+            summary = run.read_json(SUMMARY)
+            row["pd_rms_deg"] = summary["pd_eval_rms_deg"]
+            row[label] = {
+                "curve": [[e["timesteps"], e["rms_deg"]] for e in run.read_json(EVALUATIONS)],
+                "wall_time_s": summary["wall_time_s"],
+            }
+        out[name] = row
+        print("fine-tuning", name, {k: v for k, v in row.items() if "rms" in k}, flush=True)
+    return out
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("--n-arms", type=int, default=32, help="unseen random course arms")
@@ -128,6 +208,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--episodes", type=int, default=3, help="evaluation seeds 0..N-1 per arm")
     p.add_argument("--bundles", nargs="*", default=None, help="default: the shipped generalists")
     p.add_argument("--sweep", default="results/arm_sweep.json", help="the arm sweep's results")
+    p.add_argument("--finetune-arms", type=int, default=3, help="fine-tuning curve on N arms")
+    p.add_argument("--finetune-runs", default="runs/finetune", help="its training run folders")
+    p.add_argument("--finetune-steps", type=int, default=None, help="default: the entry's")
     p.add_argument("--out", default="results")
     args = p.parse_args(argv)
     command = command_line(argv, "python scripts/generalist.py")
@@ -135,8 +218,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     bundles = shipped if args.bundles is None else args.bundles
     seeds = list(range(args.episodes))
     arms: dict[str, dict[str, Any]] = {}
-    for i, content in enumerate(draw_arms(args.arm_seed, args.n_arms)):
+    drawn = draw_arms(args.arm_seed, args.n_arms)
+    for i, content in enumerate(drawn):
         arms[f"unseen_{i}"] = {"env_kwargs": content}
+    if PULL_ONLY_PRESET in bundles:
+        for i, content in enumerate(drawn):
+            arms[f"unseen_{i}_pull_only"] = {"env_kwargs": with_pull_only_cables(content)}
     for name, spec in _specialists(Path(args.sweep)).items():
         kwargs = {k: spec["env_config"][k] for k in ("mechanism", "reference")}
         arms[f"sweep_{name}"] = {"env_kwargs": kwargs, "specialist_rms_deg": spec["rms_deg"]}
@@ -146,6 +233,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         arm["rows"] = evaluate_arm(arm["env_kwargs"], bundles, seeds)
         result["arms"][name] = arm
         result["summary"] = summarize(result["arms"], bundles)
+        write(result, Path(args.out))
+    if args.finetune_arms and "generalist" in bundles:
+        names = hardest_arms(result["arms"], args.finetune_arms)
+        result["finetune"] = finetune_curves(
+            result["arms"], names, Path(args.finetune_runs), command, args.finetune_steps
+        )
         write(result, Path(args.out))
     return result
 
@@ -170,6 +263,8 @@ def write(result: dict[str, Any], out: Path) -> None:
         "multiple of PD's). Unseen arms: drawn by tendon2r_gym.arms.draw_arms with a seed that "
         "training never uses; sweep arms: results/arm_sweep.md, with their own specialist. "
         "generalist: residual on PD, blind (no arm features); generalist_scratch: plain PPO; "
+        "generalist_pull_only: the residual on arms with three pull-only cables (its "
+        "preset's), run on the unseen geometries with those cables (unseen_<i>_pull_only); "
         "ablations of the residual (one seed each, configs/ppo.yaml): generalist_arm (the "
         "drawn arm's features, observe_arm, seen by actor and critic), generalist_actor_arm "
         "(by the actor only), generalist_privileged (by the critic only).",
@@ -212,6 +307,7 @@ def write(result: dict[str, Any], out: Path) -> None:
                 f"| {b} | {seen.get(b, '?')} | {fmt(a['best_rms_deg'])} | "
                 f"{fmt(a['pd_eval_rms_deg'])} | {a['timesteps']:,} | {a['wall_time_s']:.0f} |"
             )
+    lines += finetune_lines(result.get("finetune", {}))
     lines += [
         "",
         "## Per arm",
@@ -232,3 +328,36 @@ def write(result: dict[str, Any], out: Path) -> None:
             + " |"
         )
     (out / "generalist.md").write_text("\n".join(lines) + "\n")
+
+
+def finetune_lines(curves: dict[str, Any]) -> list[str]:
+    """Returns the fine-tuning section of generalist.md: per arm, the worst-joint RMS against
+    training steps, fine-tuned from the generalist and from scratch."""
+    if not curves:
+        return []
+    lines = [
+        "",
+        "## Fine-tuning against training from scratch",
+        "",
+        f"configs/ppo.yaml `{FINETUNE_ENTRY}` on the unseen arms where the generalist "
+        "zero-shot is worst against PD, one seed each: from the generalist's weights and "
+        "normalization statistics (fine-tuned), and the same entry from fresh weights "
+        "(scratch: residual on PD, so it starts at PD). RMS A / B (deg) of the training "
+        "evaluations (the entry's evaluation seeds); step 0: the generalist zero-shot and PD "
+        "on the same episodes.",
+        "",
+        "| arm | steps | fine-tuned | scratch |",
+        "|---|---|---|---|",
+    ]
+    for name, row in curves.items():
+        lines.append(
+            f"| {name} | 0 | {joints(row['zero_shot_rms_deg'])} | {joints(row['pd_rms_deg'])} |"
+        )
+        tuned, scratch = row["fine-tuned"]["curve"], row["scratch"]["curve"]
+        for (steps, a), (_, b) in zip(tuned, scratch, strict=False):
+            lines.append(f"| {name} | {steps:,} | {joints(a)} | {joints(b)} |")
+        lines.append(
+            f"| {name} | wall time (s) | {row['fine-tuned']['wall_time_s']:.0f} | "
+            f"{row['scratch']['wall_time_s']:.0f} |"
+        )
+    return lines

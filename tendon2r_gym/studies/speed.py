@@ -406,7 +406,14 @@ def targets(result: dict[str, Any], num_envs: list[int]) -> list[str]:
 
 def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(description=__doc__)
-    p.add_argument("--steps", type=int, default=20000)
+    p.add_argument("--steps", type=int, default=5000, help="per single-env timing")
+    p.add_argument(
+        "--single-rounds",
+        type=int,
+        default=15,
+        help="best of, per single-env timing (this machine's speed drifts by 1.5x for seconds "
+        "at a time: many short rounds over all envs catch each env at full speed)",
+    )
     p.add_argument("--ppo-timesteps", type=int, default=200_000)
     p.add_argument(
         "--eval-freq",
@@ -469,7 +476,7 @@ def main(argv: list[str] | None = None) -> dict:
     envs[REAL_IDEAL] = gym.make("Tendon2R-v0", preset="pull_only")  # the same arm, ideal
     raw: dict[str, float] = {}
     step: dict[str, float] = {}
-    for _ in range(args.repeats):
+    for _ in range(args.single_rounds):
         for env_id, env in envs.items():
             raw[env_id] = min(raw.get(env_id, np.inf), time_raw_physics(env, args.steps))
             step[env_id] = min(step.get(env_id, np.inf), time_env_step(env, args.steps))
@@ -520,8 +527,10 @@ def main(argv: list[str] | None = None) -> dict:
     lines = [
         "# Speed",
         "",
-        f"Produced by `{command}` (one run, 2 CPU cores; best of {args.repeats} repeats, taken "
-        "in rounds over all settings; unwrapped envs, zero action).",
+        f"Produced by `{command}` (one run, 2 CPU cores; single envs: best of "
+        f"{args.single_rounds} rounds of {args.steps} steps; other timings: best of "
+        f"{args.repeats} repeats; taken in rounds over all settings; unwrapped envs, zero "
+        "action; raw physics on the states the env steps through).",
         "",
         "| env | substeps | raw mj_step (us) | env.step (us) | overhead (us) | steps/s |",
         "|---|---|---|---|---|---|",

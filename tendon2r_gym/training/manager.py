@@ -193,6 +193,7 @@ def _load_initial(hp: Hyperparams, venv: Any, seed: int, run: RunFolder) -> tupl
         zip_path, env=vecnorm, device="cpu", custom_objects=dict(hp.ppo), seed=seed,
         tensorboard_log=str(run.tensorboard),
     )  # fmt: skip
+    model.num_timesteps = 0  # a fine-tune counts its own steps (the zip holds the source's)
     print(f"initialized from {zip_path}", flush=True)
     return model, vecnorm
 
