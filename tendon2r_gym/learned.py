@@ -105,6 +105,8 @@ def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
     arm_ranges = MechanismRanges.from_value(arms) if arms else None
     ranges = recorded.get("reference_ranges")
     if arm_ranges is not None and config.mechanism_ranges is None:  # a generalist on one arm
+        if arm_features(recorded, env) is not None:  # PPOPolicy appends the arm's features
+            ours["observation"] = [*ours["observation"], theirs["observation"][-1]]
         drawn = {*arm_ranges.names, "max_tendon_force"}  # auto: sized per arm
         undrawn = lambda m: {k: v for k, v in m.ideal().to_dict().items() if k not in drawn}  # noqa: E731
         theirs["mechanism"], ours["mechanism"] = undrawn(mech), undrawn(config.mechanism)
@@ -128,6 +130,19 @@ def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
     ours["reference_ranges"] = config.reference_ranges
     theirs["mechanism_ranges"], ours["mechanism_ranges"] = arm_ranges, config.mechanism_ranges
     _compare(theirs, ours, where)
+
+
+def arm_features(recorded: dict[str, Any], env: gym.Env) -> np.ndarray | None:
+    """Returns the ``arm`` slice a model trained with ``observe_arm`` expects, for an env of
+    one fixed arm (no mechanism_ranges, so its observation has no such slice): the arm's
+    fields normalized over the model's training ranges, as its training env computed them.
+    None if the model did not observe its arm or the env draws arms itself."""
+    layout = recorded.get("observation") or []
+    config = env.unwrapped.config
+    if not layout or layout[-1][0] != "arm" or config.mechanism_ranges is not None:
+        return None
+    ranges = MechanismRanges.from_value(recorded["mechanism_ranges"])
+    return np.array(ranges.features(config), dtype=np.float64)
 
 
 def _compare(theirs: dict[str, Any], ours: dict[str, Any], where: str) -> None:
@@ -185,10 +200,13 @@ class PPOPolicy:
         residual_scale: float,
         env: gym.Env | None = None,
         pd_gains: Gains | dict[str, float] | None = None,
+        arm: np.ndarray | None = None,
     ) -> None:
         self.model = model
         self.vecnormalize = vecnormalize
         self.residual_scale = residual_scale
+        #: The ``arm`` slice appended to each observation (:func:`arm_features`), or None.
+        self.arm = arm
         self.pd = None
         if residual_scale > 0 and env is not None:  # the PD it was trained on: its gains
             self.pd = PDPolicy.from_env(env, gains=gains_of(pd_gains))
@@ -202,10 +220,12 @@ class PPOPolicy:
 
         zip_path, stats, meta = trained_model(model_path, env)
         model = PPO.load(zip_path, device="cpu")
-        vecnorm = VecNormalize.load(str(stats), DummyVecEnv([lambda: env]))
+        arm = arm_features(meta["env_config"], env)
+        seen = env if arm is None else _with_arm(env, arm)
+        vecnorm = VecNormalize.load(str(stats), DummyVecEnv([lambda: seen]))
         vecnorm.training, vecnorm.norm_reward = False, False
         gains = meta["env_config"].get("pd_gains")
-        return cls(model, vecnorm, float(meta["residual_scale"]), env, gains)
+        return cls(model, vecnorm, float(meta["residual_scale"]), env, gains, arm)
 
     def reset(self, info: dict[str, Any]) -> None:
         """Follows the episode's arm with the PD inside a residual policy (the rollouts call
@@ -221,9 +241,25 @@ class PPOPolicy:
         deterministic: bool = True,
     ) -> tuple[np.ndarray, Any]:
         obs = np.asarray(observation, dtype=np.float64)
-        norm = self.vecnormalize.normalize_obs(obs) if self.vecnormalize is not None else obs
+        seen = obs
+        if self.arm is not None:  # one observation or a batch of them
+            arm = np.broadcast_to(self.arm, (*obs.shape[:-1], self.arm.size))
+            seen = np.concatenate([obs, arm], axis=-1)
+        norm = self.vecnormalize.normalize_obs(seen) if self.vecnormalize is not None else seen
         action, state = self.model.predict(norm, state, episode_start, deterministic)
         if self.pd is None:
             return np.clip(action, -1.0, 1.0).astype(np.float32), state
         base, _ = self.pd.predict(obs)
         return residual_command(base, action, self.residual_scale).astype(np.float32), state
+
+
+def _with_arm(env: gym.Env, arm: np.ndarray) -> gym.Env:
+    """Returns ``env`` observed with the constant ``arm`` slice appended (what a model trained
+    with observe_arm saw)."""
+    space = env.observation_space
+    box = gym.spaces.Box(
+        np.concatenate([space.low, np.full(arm.size, -np.inf)]),
+        np.concatenate([space.high, np.full(arm.size, np.inf)]),
+        dtype=space.dtype,
+    )
+    return gym.wrappers.TransformObservation(env, lambda o: np.concatenate([o, arm]), box)

@@ -14,7 +14,7 @@ import yaml
 
 from tendon2r_gym.bundle import bundle_meta, bundle_runs, bundled_model
 from tendon2r_gym.cli import TrainArgs, experiment, parse, train_main
-from tendon2r_gym.learned import PPOPolicy
+from tendon2r_gym.learned import PPOPolicy, residual_command
 from tendon2r_gym.presets import PPO_CONFIG
 from tendon2r_gym.runs import RunFolder
 from tendon2r_gym.training import Hyperparams
@@ -311,3 +311,38 @@ def test_arm_features_for_one_network_only(tmp_path, hidden, who):
     PPOPolicy.load(run.best.with_suffix(".zip"), env).predict(env.reset(seed=0)[0])
     with pytest.raises(ValueError, match="hide_from_actor: unknown key 'armm'"):
         Hyperparams.from_dict({**cfg["tiny"], "hide_from_actor": ["armm"]})
+
+
+def test_a_model_that_observed_its_arm_runs_on_one_fixed_arm(tmp_path):
+    """observe_arm on random arms, deployed on an env of one arm inside the ranges (no arm
+    slice of its own): PPOPolicy appends the arm's fields normalized over the training ranges,
+    the very features the training env would compute for that arm, and acts on them."""
+    from tendon2r_gym.arms import MechanismRanges
+    from tendon2r_gym.evaluation import evaluate
+
+    config = _tiny(tmp_path)
+    cfg = yaml.safe_load(config.read_text())
+    cfg["tiny"]["env_kwargs"] = {"preset": "generalist", "observe_arm": True,
+                                 "episode_duration": 0.1}  # fmt: skip
+    config.write_text(yaml.safe_dump(cfg))
+    _train(config, tmp_path / "run")
+    best = RunFolder(tmp_path / "run" / "seed_0").best.with_suffix(".zip")
+    arm = {"mechanism": {"R1": 0.02, "R2": 0.03, "a": 0.06, "b": 0.06, "c": 0.09},
+           "reference": {"amp_deg": [10, 10], "freq_hz": [1, 1], "bias_deg": [0, 0]},
+           "episode_duration": 0.1}  # fmt: skip
+    env = gym.make("Tendon2R-v0", **arm)
+    policy = PPOPolicy.load(best, env)
+    expected = MechanismRanges.from_value("course").features(env.unwrapped.config)
+    np.testing.assert_array_equal(policy.arm, expected)
+    obs, _ = env.reset(seed=0)
+    seen = policy.vecnormalize.normalize_obs(np.concatenate([obs, expected]))
+    raw, _ = policy.model.predict(seen, deterministic=True)
+    base, _ = policy.pd.predict(obs)
+    np.testing.assert_array_equal(
+        policy.predict(obs)[0], residual_command(base, raw, 0.5).astype(np.float32)
+    )
+    metrics, _ = evaluate("ppo", arm, [0], best)
+    assert np.all(np.isfinite(metrics["rms_deg"]))
+    far = {**arm, "mechanism": {**arm["mechanism"], "c": 0.2}}
+    with pytest.raises(ValueError, match=r"c = 0.2 outside \[0.03, 0.095\]"):
+        PPOPolicy.load(best, gym.make("Tendon2R-v0", **far))

@@ -129,9 +129,8 @@ def summarize(arms: dict[str, Any], bundles: list[str]) -> dict[str, Any]:
 
 def ablation(bundles: list[str]) -> dict[str, Any]:
     """Returns each bundle's training evaluation (primary seed: its best model's RMS on the
-    entry's evaluation seeds, random arms and references, and PD's on the same episodes).  An
-    arm-feature model needs the ``arm`` slice, which an env of one fixed arm does not have, so
-    the ablation compares the models on the random-arm env they all trained on."""
+    entry's evaluation seeds, random arms and references, and PD's on the same episodes): the
+    models compared on the random-arm env they all trained on."""
     out = {}
     for b in bundles:
         summary = training_summary(bundled_model(b))
@@ -289,8 +288,7 @@ def write(result: dict[str, Any], out: Path) -> None:
             "",
             "Each residual's training evaluation (primary seed, best model: RMS on the entry's "
             "evaluation seeds, random course arms and references, the same episodes for all; "
-            "PD on them). An arm-feature model needs the observation's `arm` slice, which an "
-            "env of one fixed arm does not have, so it is compared here, on random arms.",
+            "PD on them).",
             "",
             "| residual | arm features seen by | RMS A / B (deg) | PD A / B (deg) | steps | "
             "wall time (s) |",
