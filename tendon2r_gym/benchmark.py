@@ -98,12 +98,10 @@ FINETUNED = {"generalist fine-tuned": "generalist_finetune"}
 def not_covered(bundle: str, env_kwargs: dict[str, Any]) -> str | None:
     """Returns why the bundle's primary model cannot run on this arm (outside its training
     ranges, another observation...), or None if it can."""
-    from tendon2r_gym.learned import check_model_env
+    from tendon2r_gym.learned import trained_model
 
-    model = bundled_model(bundle)
     try:
-        meta = json.loads((model.parent / RUN_META).read_text())
-        check_model_env(meta["env_config"], gym.make("Tendon2R-v0", **env_kwargs), bundle)
+        trained_model(bundled_model(bundle), gym.make("Tendon2R-v0", **env_kwargs), bundle)
     except ValueError as e:
         return str(e)
     return None
@@ -548,20 +546,19 @@ def benchmark_own_arm(
 
     env_kwargs = {"preset": env_config}
     config = EnvConfig.make(env_config)  # every error before any training
-    cfgs = {}
-    entries = {label: entry for label, (_, entry) in LEARNED.items()}
+    entries = {label: entry for label, (_, entry) in LEARNED.items()} | FINETUNED
+    cfgs = {k: Hyperparams.from_entry(e, env_config=env_config) for k, e in entries.items()}
     uncovered = {}
-    for label, entry in FINETUNED.items():  # only where the generalist covers the arm
-        hp = Hyperparams.from_entry(entry, env_config=env_config)
-        if hp.init_from not in bundle_names():
-            uncovered[label] = f"bundle {hp.init_from} is not installed"
-        elif (reason := not_covered(hp.init_from, env_kwargs)) is not None:
+    for label in FINETUNED:  # only where the generalist covers the arm
+        source = cfgs[label].init_from
+        if source not in bundle_names():
+            uncovered[label] = f"bundle {source} is not installed"
+        elif (reason := not_covered(source, env_kwargs)) is not None:
             uncovered[label] = reason
-        else:
-            entries[label] = entry
-    for label, entry in entries.items():
-        hp = Hyperparams.from_entry(entry, env_config=env_config)
-        cfgs[label] = hp if train_steps is None else hp.replace(total_timesteps=train_steps)
+        if label in uncovered:
+            del cfgs[label]
+    if train_steps is not None:
+        cfgs = {k: hp.replace(total_timesteps=train_steps) for k, hp in cfgs.items()}
     out.mkdir(parents=True, exist_ok=True)
     learned: dict[str, list[Path]] = {}
     with tqdm(total=len(cfgs) * len(seeds) * 2 + 2, desc="benchmark", unit="task") as bar:

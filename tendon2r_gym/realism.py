@@ -205,8 +205,7 @@ class Sensors:
 
     def __init__(self, capacity: int, n_arms: int, noisy: bool) -> None:
         self.ring = LagRing(capacity, n_arms, 4, "observation delay")
-        self.std = np.zeros((n_arms, 4))  # q_A, q_B, dq_A, dq_B
-        self._std = self.std.tolist()  # as floats, per arm
+        self._std = [[0.0] * 4 for _ in range(n_arms)]  # q_A, q_B, dq_A, dq_B, per arm
         self._blocks: list[list[list[float]]] = [[] for _ in range(n_arms)]
         self._noisy = noisy
 
@@ -214,8 +213,8 @@ class Sensors:
         """Arm ``arm``'s measurements are ``steps`` control steps late (at most the capacity),
         with noise std ``noise`` = (rad, rad/s)."""
         self.ring.set_steps(arm, steps)
-        self.std[arm] = np.repeat(noise, 2)
-        self._std[arm] = self.std[arm].tolist()
+        angle, speed = float(noise[0]), float(noise[1])
+        self._std[arm] = [angle, angle, speed, speed]
 
     def _measure(self, arm: int, state: list[float], rng: np.random.Generator) -> list[float]:
         """Returns the measurement of arm ``arm``'s true ``state`` (4 floats)."""
