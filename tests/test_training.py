@@ -11,6 +11,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import yaml
+from stable_baselines3 import PPO
 
 from tendon2r_gym.bundle import bundle_meta, bundle_runs, bundled_model
 from tendon2r_gym.cli import TrainArgs, experiment, parse, train_main
@@ -20,11 +21,11 @@ from tendon2r_gym.runs import RunFolder
 from tendon2r_gym.training import Hyperparams
 
 
-def _tiny(tmp_path, residual=0.5, steps=256, **extra):
+def _tiny(tmp_path, residual=0.5, steps=256, ppo=(), **extra):
     base = Hyperparams.from_entry("default")
     hp = base.replace(
         env_kwargs={"preset": "default", "episode_duration": 0.1},
-        ppo={**base.ppo, "n_steps": 64, "batch_size": 64, "n_epochs": 1},
+        ppo={**base.ppo, "n_steps": 64, "batch_size": 64, "n_epochs": 1, **dict(ppo)},
         residual_scale=residual,
         total_timesteps=steps,
         n_envs=2,
@@ -121,6 +122,17 @@ def test_train_on_an_experiment_file(tmp_path):
     assert recorded["mechanism"]["max_tendon_force"] > 0, "auto is resolved before recording"
 
 
+def test_a_linear_schedule_as_rl_zoo3_writes_it_decays_over_the_run(tmp_path):
+    config = _tiny(tmp_path, ppo={"learning_rate": "lin_3e-4", "clip_range": "lin_0.2"})
+    run = tmp_path / "run"
+    _train(config, run)
+    model = PPO.load(RunFolder(run / "seed_0").file("last_model.zip"), device="cpu")
+    assert model.lr_schedule(1.0) == pytest.approx(3e-4)
+    assert model.lr_schedule(0.25) == pytest.approx(0.75e-4)
+    assert model.clip_range(0.5) == pytest.approx(0.1)
+    assert model.policy.optimizer.param_groups[0]["lr"] < 1e-4, "the last update ran decayed"
+
+
 @pytest.mark.parametrize(
     ("override", "match"),
     [
@@ -138,7 +150,10 @@ def test_bad_train_arguments_are_rejected(override, match):
     ("field", "value", "match"),
     [("total_timesteps", 0, "total_timesteps = 0"), ("eval_seeds", [], "eval_seeds"),
      ("vec_env", "gpu", "vec_env = 'gpu'"), ("zero_obs", ["qq"], "did you mean 'q'"),
-     ("residual_scale", -1, "residual_scale = -1"), ("env_kwargs", {"ctrl_dt": -1}, "ctrl_dt")],
+     ("residual_scale", -1, "residual_scale = -1"), ("env_kwargs", {"ctrl_dt": -1}, "ctrl_dt"),
+     ("ppo", {"learning_rate": "lin_x"}, "ppo.learning_rate = 'lin_x'"),
+     ("ppo", {"clip_range": "cos_0.2"}, "ppo.clip_range = 'cos_0.2'"),
+     ("ppo", {"learning_rate": -3e-4}, "ppo.learning_rate = -0.0003")],
 )  # fmt: skip
 def test_hyperparams_are_validated_once_naming_the_field(field, value, match):
     with pytest.raises(ValueError, match=match):

@@ -20,6 +20,10 @@ from tendon2r_gym.presets import PPO_CONFIG, load_yaml
 from tendon2r_gym.validation import check_keys, integer, invalid, mapping, number
 
 VEC_ENVS = ("native", "subproc", "dummy")
+#: PPO settings that may be a schedule, as rl_zoo3 writes one: ``lin_<v>`` decays linearly from
+#: v at the start of training to 0 at its end (SB3's progress_remaining times v).
+SCHEDULES = ("learning_rate", "clip_range", "clip_range_vf")
+LINEAR = "lin_"
 
 
 @dataclass(frozen=True)
@@ -76,6 +80,9 @@ class Hyperparams:
             raise invalid("vec_env", self.vec_env, f"one of {VEC_ENVS}")
         for name in ("ppo", "policy_kwargs", "normalize"):
             set_(name, mapping(name, getattr(self, name)))
+        for key in SCHEDULES:
+            if key in self.ppo:
+                schedule(f"ppo.{key}", self.ppo[key])
         env_config = EnvConfig.make(**self.env_kwargs)  # before any worker starts
         names = [name for name, _ in env_config.observation_layout()]
         for key in ("hide_from_actor", "hide_from_critic"):
@@ -133,6 +140,14 @@ class Hyperparams:
         """Returns the env steps per PPO update: n_envs x n_steps."""
         return self.n_envs * int(self.ppo.get("n_steps", 2048))
 
+    def ppo_kwargs(self) -> dict[str, Any]:
+        """Returns SB3 PPO's keyword arguments: ``ppo`` with each ``lin_<v>`` a schedule."""
+        out = dict(self.ppo)
+        for key in SCHEDULES:
+            if key in out:
+                out[key] = schedule(f"ppo.{key}", out[key])
+        return out
+
     def policy(self, env_config: EnvConfig) -> tuple[Any, dict[str, Any]]:
         """Returns SB3's policy (MlpPolicy, or SplitViewPolicy when an entry is hidden from
         the actor or the critic) and its policy_kwargs, for an env of ``env_config``."""
@@ -146,6 +161,28 @@ class Hyperparams:
             for who, hidden in (("actor", self.hide_from_actor), ("critic", self.hide_from_critic))
         }
         return SplitViewPolicy, {**self.policy_kwargs, **keep}
+
+
+def schedule(field: str, value: Any) -> Any:
+    """Returns a positive number as a float, or ``lin_<v>`` (rl_zoo3's notation, v > 0) as
+    SB3's LinearSchedule from v to 0 over the run (None stays None: no value clipping);
+    raises naming ``field`` otherwise."""
+    if value is None:
+        return None
+    allowed = f"a positive number or '{LINEAR}<positive number>' (linear decay to 0)"
+    if isinstance(value, str) and value.startswith(LINEAR):
+        from stable_baselines3.common.utils import LinearSchedule
+
+        try:
+            start = float(value[len(LINEAR) :])
+        except ValueError:
+            raise invalid(field, value, allowed) from None
+        if not (start > 0 and start < float("inf")):
+            raise invalid(field, value, allowed)
+        return LinearSchedule(start, 0.0, 1.0)
+    if isinstance(value, str):
+        raise invalid(field, value, allowed)
+    return number(field, value, 0.0, lo_open=True)
 
 
 def keys() -> list[str]:

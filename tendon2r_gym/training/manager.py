@@ -190,7 +190,7 @@ def _load_initial(hp: Hyperparams, venv: Any, seed: int, run: RunFolder) -> tupl
     vecnorm.training = True
     vecnorm.norm_reward = bool(hp.normalize.get("norm_reward", True))
     model = PPO.load(
-        zip_path, env=vecnorm, device="cpu", custom_objects=dict(hp.ppo), seed=seed,
+        zip_path, env=vecnorm, device="cpu", custom_objects=hp.ppo_kwargs(), seed=seed,
         tensorboard_log=str(run.tensorboard),
     )  # fmt: skip
     model.num_timesteps = 0  # a fine-tune counts its own steps (the zip holds the source's)
@@ -245,7 +245,7 @@ def train_run(
             verbose=0,
             tensorboard_log=str(run.tensorboard),
             policy_kwargs=policy_kwargs,
-            **hp.ppo,
+            **hp.ppo_kwargs(),
         )
     callbacks = [
         TrackingLogCallback(),
