@@ -252,6 +252,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         if cfg.sensed:  # the observation is a measurement; reward and info are true
             self._sensing = Sensors(cfg.observation_delay_capacity, 1, cfg.noisy)
         self._last_truth: np.ndarray | None = None
+        self._parts: list[float] = []  # the last observation's entries (_get_obs)
         self._n = self.config.n_actions
         self._filtered = self.config.action_filter_alpha != 1.0
         self._err = obs_layout.ERROR
@@ -341,7 +342,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         obs = self._last_obs.copy() if diverged else self._get_obs()
         truth = obs
         if self._sensing is not None:  # reward and info on the true state
-            truth = self._last_truth.copy() if diverged else self._true_obs(obs)
+            truth = self._last_truth.copy() if diverged else self._true_obs()
             self._last_truth = truth
         reward, terms = self._get_rew(truth, a, last, diverged)
         info = self._get_info(truth, terms, diverged)
@@ -387,17 +388,18 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         parts = self.task.observation(
             SCALAR, q1, q2, w1, w2, self.data.time, self._ref, self._arm, self._last_action
         )
+        self._parts = parts
         return np.array(parts, dtype=np.float64)
 
-    def _true_obs(self, measured: np.ndarray) -> np.ndarray:
-        """Returns the observation of the true state: ``measured`` (the sensors' observation
-        of this step) with the entries the joint state sets rewritten (Task.state_entries)."""
-        truth = measured.copy()
-        qd1, qd2 = measured[obs_layout.Q_DES].tolist()
+    def _true_obs(self) -> np.ndarray:
+        """Returns the observation of the true state: the last :meth:`_get_obs` (the
+        sensors' observation of this step) with the entries the joint state sets rewritten
+        (Task.state_entries)."""
+        parts = self._parts
+        qd1, qd2 = parts[obs_layout.Q_DES]
         joints, rest = self.task.state_entries(SCALAR, *self._state(), qd1, qd2, self._arm)
         head, tail = obs_layout.STATE
-        truth[head], truth[tail] = joints, rest
-        return truth
+        return np.array(joints + parts[head.stop : tail.start] + rest + parts[tail.stop :])
 
     def _get_rew(
         self, obs: np.ndarray, action: list[float], last: list[float], diverged: bool

@@ -30,6 +30,7 @@ measured, a 2 ms delay moved the trajectory by neither 1 nor 2 steps).
 
 from __future__ import annotations
 
+from collections import deque
 from typing import Any
 
 import mujoco
@@ -57,7 +58,14 @@ class Drive:
         self.stretch = mech.rest_tension / mech.tendon_elasticity if mech.elastic else 0.0
         spring = model.tendon_lengthspring[:n]
         self.slack_length, self.rest_length = spring[:, 0].copy(), spring[:, 1].copy()
-        self._rest, self._slack = self.rest_length.tolist(), self.slack_length.tolist()
+        # (stiffness, damping, rest length, slack length) of each cable, as floats
+        k, c = mech.tendon_elasticity, mech.tendon_damping
+        self._cables = [
+            (k, c, rest, slack)
+            for rest, slack in zip(
+                self.rest_length.tolist(), self.slack_length.tolist(), strict=True
+            )
+        ]
 
     def settle(self, data: mujoco.MjData, q: np.ndarray, dq: np.ndarray) -> None:
         """Sets a freshly reset ``data`` (time 0) to the joint state (q, dq), every cable at its
@@ -89,12 +97,11 @@ class Drive:
     def cable_tensions(self, length: np.ndarray, velocity: np.ndarray) -> np.ndarray:
         """Returns :func:`cable_tensions` of this model's cables (scalar math per cable: a
         few cables are faster in Python floats than in numpy, and give the same bits)."""
-        k, c = self.mech.tendon_elasticity, self.mech.tendon_damping
         return np.array(
             [
-                cable_tensions(SCALAR, x, v, k, c, rest, slack)
-                for x, v, rest, slack in zip(
-                    length.tolist(), velocity.tolist(), self._rest, self._slack, strict=True
+                cable_tensions(SCALAR, x, v, *cable)
+                for x, v, cable in zip(
+                    length.tolist(), velocity.tolist(), self._cables, strict=True
                 )
             ]
         )
@@ -148,6 +155,26 @@ class LagRing:
         return self.rows[(self._i - 1 - self.steps) % n, self._cols]
 
 
+class DelayLine:
+    """One arm's rows (lists of floats) read back ``steps`` control steps late: the single
+    env's LagRing, in Python (a deque costs a fraction of a numpy ring's row writes)."""
+
+    def __init__(self) -> None:
+        self._rows: deque[list[float]] = deque()
+
+    def fill(self, row: list[float], steps: int) -> None:
+        """The line holds ``steps`` copies of ``row`` (the arm was at rest)."""
+        self._rows = deque([row] * steps)
+
+    def push(self, row: list[float]) -> list[float]:
+        """Stores ``row`` and returns the row of ``steps`` steps ago (``row`` itself for 0)."""
+        rows = self._rows
+        if not rows:
+            return row
+        rows.append(row)
+        return rows.popleft()
+
+
 class CommandDelay:
     """Holds each motor command back by its arm's number of control steps (0 to
     ``capacity``), for N arms that step together (a LagRing), each arm's ring filled with its
@@ -158,6 +185,7 @@ class CommandDelay:
         self.ring = LagRing(capacity, n_arms, n_motors, "motor delay")
         #: The rest command of each arm's motors (n_arms, n_motors).
         self.rest = np.zeros((n_arms, n_motors))
+        self._line = DelayLine()  # one arm: the single env's fast path (:meth:`one`)
 
     def set_arm(self, arm: int, steps: int, rest: Any) -> None:
         """Arm ``arm`` holds its commands ``steps`` steps (at most the capacity); ``rest`` is
@@ -168,6 +196,8 @@ class CommandDelay:
     def reset(self, arms: np.ndarray | slice) -> None:
         """Fills the ring of ``arms`` with their rest command (the motors were at rest)."""
         self.ring.rows[:, arms] = self.rest[arms]
+        if len(self.rest) == 1:
+            self._line.fill(self.rest[0].tolist(), int(self.ring.steps[0]))
 
     def __call__(self, ctrl: np.ndarray, arms: np.ndarray | slice = slice(None)) -> np.ndarray:
         """Stores ``ctrl`` (n_arms, n_motors) of the arms that step now (the others keep their
@@ -176,14 +206,10 @@ class CommandDelay:
         self.ring.advance()
         return self.ring.lagged().copy()
 
-    def one(self, ctrl: list[float]) -> np.ndarray:
-        """The single env's call (one arm, ``ctrl`` its n_motors floats): returns the
-        command of its ``steps`` steps ago (a view of the ring: use it before the next
-        call)."""
-        ring = self.ring
-        ring.slot[0] = ctrl
-        ring.advance()
-        return ring.lagged()[0]
+    def one(self, ctrl: list[float]) -> list[float]:
+        """The single env's call (one arm, ``ctrl`` its n_motors floats, after :meth:`reset`):
+        returns the command of its ``steps`` steps ago, the same as :meth:`__call__`'s."""
+        return self._line.push(ctrl)
 
 
 #: Noise rows (q_A, q_B, dq_A, dq_B) that Sensors draws from an arm's generator at once: one
@@ -208,6 +234,7 @@ class Sensors:
         self._std = [[0.0] * 4 for _ in range(n_arms)]  # q_A, q_B, dq_A, dq_B, per arm
         self._blocks: list[list[list[float]]] = [[] for _ in range(n_arms)]
         self._noisy = noisy
+        self._line = DelayLine()  # one arm: the single env's fast path (:meth:`one`)
 
     def set_arm(self, arm: int, steps: int, noise: tuple[float, float]) -> None:
         """Arm ``arm``'s measurements are ``steps`` control steps late (at most the capacity),
@@ -221,24 +248,26 @@ class Sensors:
         if not self._noisy:
             return state
         block = self._blocks[arm]
-        if not block:  # rows are popped from the end: reversed, they come in drawing order
-            block.extend(reversed(rng.standard_normal((NOISE_BLOCK, 4)).tolist()))
-        noise = block.pop()
-        return [x + n * s for x, n, s in zip(state, noise, self._std[arm], strict=True)]
+        if not block:  # noise * std (the same bits as in floats), popped in drawing order
+            rows = rng.standard_normal((NOISE_BLOCK, 4)) * np.array(self._std[arm])
+            block.extend(reversed(rows.tolist()))
+        n1, n2, n3, n4 = block.pop()
+        x1, x2, x3, x4 = state
+        return [x1 + n1, x2 + n2, x3 + n3, x4 + n4]
 
     def one(self, state: list[float], rng: np.random.Generator) -> list[float]:
-        """The single env's step (arm 0, ``state`` its 4 floats): :meth:`store`, then
-        :meth:`read`'s row, as floats."""
-        ring = self.ring
-        ring.slot[0] = self._measure(0, state, rng)
-        ring.advance()
-        return ring.lagged()[0].tolist()
+        """The single env's step (arm 0, ``state`` its 4 floats, after :meth:`reset`):
+        :meth:`store`, then :meth:`read`'s row, as floats."""
+        return self._line.push(self._measure(0, state, rng))
 
     def reset(self, arm: int, state: list[float], rng: np.random.Generator) -> None:
         """Arm ``arm`` starts at ``state`` (4 floats): its noise block is discarded, and
         every slot of its ring holds one measurement."""
         self._blocks[arm].clear()
-        self.ring.rows[:, arm] = self._measure(arm, state, rng)
+        measured = self._measure(arm, state, rng)
+        self.ring.rows[:, arm] = measured
+        if len(self._std) == 1:
+            self._line.fill(measured, int(self.ring.steps[0]))
 
     def store(self, states: np.ndarray, rngs: list[np.random.Generator], arms) -> None:
         """Measures the arms ``arms`` (indices) in ``states`` (n_arms, 4), then advances."""
