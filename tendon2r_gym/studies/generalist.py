@@ -213,7 +213,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--out", default="results")
     args = p.parse_args(argv)
     command = command_line(argv, "python scripts/generalist.py")
-    shipped = [b for b in BUNDLES if b in bundle_names()]
+    shipped = [b for b in (*BUNDLES, *ABLATIONS) if b in bundle_names()]
     bundles = shipped if args.bundles is None else args.bundles
     seeds = list(range(args.episodes))
     arms: dict[str, dict[str, Any]] = {}
@@ -288,7 +288,7 @@ def write(result: dict[str, Any], out: Path) -> None:
             "",
             "Each residual's training evaluation (primary seed, best model: RMS on the entry's "
             "evaluation seeds, random course arms and references, the same episodes for all; "
-            "PD on them).",
+            "PD on them). The summary above gives each on the unseen arms, zero-shot.",
             "",
             "| residual | arm features seen by | RMS A / B (deg) | PD A / B (deg) | steps | "
             "wall time (s) |",
