@@ -287,12 +287,7 @@ class Sensors:
 #: each value drawn uniformly and independently, in this order; delays are rounded to whole
 #: control steps.  They span the catalog-typical values of the ``real_arm`` preset from about
 #: half to twice; friction and lag never vanish (a real cable rubs, a real driver lags, and a
-#: zero would change the model's layout).  The arm's own physics varies too: its links' and
-#: pulleys' density (printed plastic with infill to solid nylon, about half to twice the
-#: nominal 1000 kg/m^3) and the joints' viscous friction, which no catalog gives for a small
-#: pivot: up to 1e-5 N m s/rad, where joint B's damping torque matches its inertial torque at
-#: the reference's frequencies (inertia 1.8e-6 kg m^2 in the compiled real_arm model; joint A's
-#: is 2.7e-5).
+#: zero would change the model's layout).
 PERTURBATIONS: dict[str, tuple[float, float]] = {
     "tendon_elasticity": (2500.0, 8000.0),  # N/m
     "tendon_damping": (1.0, 4.0),  # N s/m
@@ -303,6 +298,4 @@ PERTURBATIONS: dict[str, tuple[float, float]] = {
     "observation_noise_angle": (0.0, 2e-4),  # rad
     "observation_noise_speed": (0.0, 0.1),  # rad/s
     "observation_delay": (0.0, 0.002),  # s
-    "density": (500.0, 2000.0),  # kg/m^3, links and pulleys
-    "joint_damping": (0.0, 1e-5),  # N m s/rad
 }
