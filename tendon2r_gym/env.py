@@ -252,7 +252,6 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         if cfg.sensed:  # the observation is a measurement; reward and info are true
             self._sensing = Sensors(cfg.observation_delay_capacity, 1, cfg.noisy)
         self._last_truth: np.ndarray | None = None
-        self._parts: list[float] = []  # the last observation's entries (_get_obs)
         self._n = self.config.n_actions
         self._filtered = self.config.action_filter_alpha != 1.0
         self._err = obs_layout.ERROR
@@ -339,10 +338,11 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         if self._sensing is not None:  # what the controller gets this step
             self._measured = self._sensing.one(self._state(), self.np_random)
         # A diverged step reports the last good state: nothing enormous reaches a learner.
-        obs = self._last_obs.copy() if diverged else self._get_obs()
+        entries = None if diverged else self._obs_entries()
+        obs = self._last_obs.copy() if entries is None else np.array(entries, dtype=np.float64)
         truth = obs
         if self._sensing is not None:  # reward and info on the true state
-            truth = self._last_truth.copy() if diverged else self._true_obs()
+            truth = self._last_truth.copy() if entries is None else self._true_obs(entries)
             self._last_truth = truth
         reward, terms = self._get_rew(truth, a, last, diverged)
         info = self._get_info(truth, terms, diverged)
@@ -378,24 +378,25 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         """Returns the true (q_A, q_B, dq_A, dq_B)."""
         return self._qpos.tolist() + self._qvel.tolist()
 
-    def _get_obs(self, measured: bool = True) -> np.ndarray:
-        """Returns the observation (tendon2r_gym.task.Task.observation on this arm): of what
-        the sensors measure, or with ``measured=False`` of the true state."""
+    def _obs_entries(self, measured: bool = True) -> list[float]:
+        """Returns the observation's entries (tendon2r_gym.task.Task.observation on this arm):
+        of what the sensors measure, or with ``measured=False`` of the true state."""
         if measured and self._sensing is not None:
             q1, q2, w1, w2 = self._measured
         else:
             (q1, q2), (w1, w2) = self._qpos.tolist(), self._qvel.tolist()
-        parts = self.task.observation(
+        return self.task.observation(
             SCALAR, q1, q2, w1, w2, self.data.time, self._ref, self._arm, self._last_action
         )
-        self._parts = parts
-        return np.array(parts, dtype=np.float64)
 
-    def _true_obs(self) -> np.ndarray:
-        """Returns the observation of the true state: the last :meth:`_get_obs` (the
-        sensors' observation of this step) with the entries the joint state sets rewritten
+    def _get_obs(self, measured: bool = True) -> np.ndarray:
+        """Returns the observation (:meth:`_obs_entries` as an array)."""
+        return np.array(self._obs_entries(measured), dtype=np.float64)
+
+    def _true_obs(self, parts: list[float]) -> np.ndarray:
+        """Returns the observation of the true state: ``parts`` (the entries of the sensors'
+        observation of this step) with the entries the joint state sets rewritten
         (Task.state_entries)."""
-        parts = self._parts
         qd1, qd2 = parts[obs_layout.Q_DES]
         joints, rest = self.task.state_entries(SCALAR, *self._state(), qd1, qd2, self._arm)
         head, tail = obs_layout.STATE

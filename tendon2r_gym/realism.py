@@ -60,7 +60,7 @@ class Drive:
         self.slack_length, self.rest_length = spring[:, 0].copy(), spring[:, 1].copy()
         # (stiffness, damping, rest length, slack length) of each cable, as floats
         k, c = mech.tendon_elasticity, mech.tendon_damping
-        self._cables = [
+        self._cable_constants = [
             (k, c, rest, slack)
             for rest, slack in zip(
                 self.rest_length.tolist(), self.slack_length.tolist(), strict=True
@@ -101,7 +101,7 @@ class Drive:
             [
                 cable_tensions(SCALAR, x, v, *cable)
                 for x, v, cable in zip(
-                    length.tolist(), velocity.tolist(), self._cables, strict=True
+                    length.tolist(), velocity.tolist(), self._cable_constants, strict=True
                 )
             ]
         )
@@ -121,13 +121,16 @@ def cable_tensions(
 
 class LagRing:
     """The last capacity + 1 rows of N arms that step together, each arm read back its own
-    number of steps late (0 to ``capacity``): what CommandDelay and Sensors hold."""
+    number of steps late (0 to ``capacity``): what CommandDelay and Sensors hold.  One arm
+    (the single env) steps through :meth:`push_one` instead: a deque of Python rows with the
+    same lag, a fraction of the cost of a numpy row write."""
 
     def __init__(self, capacity: int, n_arms: int, width: int, what: str) -> None:
         self.steps = np.full(n_arms, capacity, dtype=np.int64)
         self.rows = np.zeros((capacity + 1, n_arms, width))
         self._what, self._cols, self._i = what, np.arange(n_arms), 0
         self._lag: int | None = capacity  # every arm's steps, when they are all equal
+        self._line: deque[list[float]] = deque()  # one arm: its last ``steps`` rows
 
     def set_steps(self, arm: int, steps: int) -> None:
         """Arm ``arm`` is read ``steps`` steps late (at most the capacity)."""
@@ -136,6 +139,21 @@ class LagRing:
         self.steps[arm] = steps
         first = int(self.steps[0])
         self._lag = first if bool(np.all(self.steps == first)) else None
+
+    def fill(self, arms: Any, row: Any) -> None:
+        """Every slot of ``arms`` (indices or a slice) holds ``row``: their state at a reset."""
+        self.rows[:, arms] = row
+        if self.rows.shape[1] == 1:
+            self._line = deque([self.rows[0, 0].tolist()] * int(self.steps[0]))
+
+    def push_one(self, row: list[float]) -> list[float]:
+        """One arm, after :meth:`fill`: stores ``row`` and returns the row of ``steps`` steps
+        ago (``row`` itself for 0), as :meth:`lagged` would."""
+        line = self._line
+        if not line:
+            return row
+        line.append(row)
+        return line.popleft()
 
     @property
     def slot(self) -> np.ndarray:
@@ -155,26 +173,6 @@ class LagRing:
         return self.rows[(self._i - 1 - self.steps) % n, self._cols]
 
 
-class DelayLine:
-    """One arm's rows (lists of floats) read back ``steps`` control steps late: the single
-    env's LagRing, in Python (a deque costs a fraction of a numpy ring's row writes)."""
-
-    def __init__(self) -> None:
-        self._rows: deque[list[float]] = deque()
-
-    def fill(self, row: list[float], steps: int) -> None:
-        """The line holds ``steps`` copies of ``row`` (the arm was at rest)."""
-        self._rows = deque([row] * steps)
-
-    def push(self, row: list[float]) -> list[float]:
-        """Stores ``row`` and returns the row of ``steps`` steps ago (``row`` itself for 0)."""
-        rows = self._rows
-        if not rows:
-            return row
-        rows.append(row)
-        return rows.popleft()
-
-
 class CommandDelay:
     """Holds each motor command back by its arm's number of control steps (0 to
     ``capacity``), for N arms that step together (a LagRing), each arm's ring filled with its
@@ -185,7 +183,6 @@ class CommandDelay:
         self.ring = LagRing(capacity, n_arms, n_motors, "motor delay")
         #: The rest command of each arm's motors (n_arms, n_motors).
         self.rest = np.zeros((n_arms, n_motors))
-        self._line = DelayLine()  # one arm: the single env's fast path (:meth:`one`)
 
     def set_arm(self, arm: int, steps: int, rest: Any) -> None:
         """Arm ``arm`` holds its commands ``steps`` steps (at most the capacity); ``rest`` is
@@ -195,9 +192,7 @@ class CommandDelay:
 
     def reset(self, arms: np.ndarray | slice) -> None:
         """Fills the ring of ``arms`` with their rest command (the motors were at rest)."""
-        self.ring.rows[:, arms] = self.rest[arms]
-        if len(self.rest) == 1:
-            self._line.fill(self.rest[0].tolist(), int(self.ring.steps[0]))
+        self.ring.fill(arms, self.rest[arms])
 
     def __call__(self, ctrl: np.ndarray, arms: np.ndarray | slice = slice(None)) -> np.ndarray:
         """Stores ``ctrl`` (n_arms, n_motors) of the arms that step now (the others keep their
@@ -209,7 +204,7 @@ class CommandDelay:
     def one(self, ctrl: list[float]) -> list[float]:
         """The single env's call (one arm, ``ctrl`` its n_motors floats, after :meth:`reset`):
         returns the command of its ``steps`` steps ago, the same as :meth:`__call__`'s."""
-        return self._line.push(ctrl)
+        return self.ring.push_one(ctrl)
 
 
 #: Noise rows (q_A, q_B, dq_A, dq_B) that Sensors draws from an arm's generator at once: one
@@ -234,7 +229,6 @@ class Sensors:
         self._std = [[0.0] * 4 for _ in range(n_arms)]  # q_A, q_B, dq_A, dq_B, per arm
         self._blocks: list[list[list[float]]] = [[] for _ in range(n_arms)]
         self._noisy = noisy
-        self._line = DelayLine()  # one arm: the single env's fast path (:meth:`one`)
 
     def set_arm(self, arm: int, steps: int, noise: tuple[float, float]) -> None:
         """Arm ``arm``'s measurements are ``steps`` control steps late (at most the capacity),
@@ -258,16 +252,13 @@ class Sensors:
     def one(self, state: list[float], rng: np.random.Generator) -> list[float]:
         """The single env's step (arm 0, ``state`` its 4 floats, after :meth:`reset`):
         :meth:`store`, then :meth:`read`'s row, as floats."""
-        return self._line.push(self._measure(0, state, rng))
+        return self.ring.push_one(self._measure(0, state, rng))
 
     def reset(self, arm: int, state: list[float], rng: np.random.Generator) -> None:
         """Arm ``arm`` starts at ``state`` (4 floats): its noise block is discarded, and
         every slot of its ring holds one measurement."""
         self._blocks[arm].clear()
-        measured = self._measure(arm, state, rng)
-        self.ring.rows[:, arm] = measured
-        if len(self._std) == 1:
-            self._line.fill(measured, int(self.ring.steps[0]))
+        self.ring.fill(arm, self._measure(arm, state, rng))
 
     def store(self, states: np.ndarray, rngs: list[np.random.Generator], arms) -> None:
         """Measures the arms ``arms`` (indices) in ``states`` (n_arms, 4), then advances."""

@@ -141,11 +141,15 @@ class Hyperparams:
         return self.n_envs * int(self.ppo.get("n_steps", 2048))
 
     def ppo_kwargs(self) -> dict[str, Any]:
-        """Returns SB3 PPO's keyword arguments: ``ppo`` with each ``lin_<v>`` a schedule."""
+        """Returns SB3 PPO's keyword arguments: ``ppo`` with each ``lin_<v>`` SB3's
+        LinearSchedule from v to 0 over the run (validated at construction)."""
+        from stable_baselines3.common.utils import LinearSchedule
+
         out = dict(self.ppo)
         for key in SCHEDULES:
-            if key in out:
-                out[key] = schedule(f"ppo.{key}", out[key])
+            value = out.get(key)
+            if isinstance(value, str):
+                out[key] = LinearSchedule(float(value[len(LINEAR) :]), 0.0, 1.0)
         return out
 
     def policy(self, env_config: EnvConfig) -> tuple[Any, dict[str, Any]]:
@@ -163,25 +167,20 @@ class Hyperparams:
         return SplitViewPolicy, {**self.policy_kwargs, **keep}
 
 
-def schedule(field: str, value: Any) -> Any:
-    """Returns a positive number as a float, or ``lin_<v>`` (rl_zoo3's notation, v > 0) as
-    SB3's LinearSchedule from v to 0 over the run (None stays None: no value clipping);
-    raises naming ``field`` otherwise."""
+def schedule(field: str, value: Any) -> float | str | None:
+    """Returns a positive number as a float, ``lin_<v>`` (rl_zoo3's notation, v > 0) as it is,
+    or None (no value clipping); raises naming ``field`` otherwise."""
     if value is None:
         return None
     allowed = f"a positive number or '{LINEAR}<positive number>' (linear decay to 0)"
-    if isinstance(value, str) and value.startswith(LINEAR):
-        from stable_baselines3.common.utils import LinearSchedule
-
+    if isinstance(value, str):
+        if not value.startswith(LINEAR):
+            raise invalid(field, value, allowed)
         try:
-            start = float(value[len(LINEAR) :])
+            number(field, float(value[len(LINEAR) :]), 0.0, lo_open=True)
         except ValueError:
             raise invalid(field, value, allowed) from None
-        if not (start > 0 and start < float("inf")):
-            raise invalid(field, value, allowed)
-        return LinearSchedule(start, 0.0, 1.0)
-    if isinstance(value, str):
-        raise invalid(field, value, allowed)
+        return value
     return number(field, value, 0.0, lo_open=True)
 
 
