@@ -187,7 +187,8 @@ class TorqueToTension:
         ):
             return
         kept = dict(zip(map(id, old), self._models, strict=True))
-        # The nominal model: a controller's model of the arm knows no stretch, lag or friction.
+        # The nominal model: a controller's model of the arm knows no stretch, lag, friction or
+        # model error (density_scale, extra_joint_damping).
         self._models = [kept.get(id(m)) or build_model(m.ideal()) for m in mechanisms]
         self.mechanisms = mechanisms
         self.mechanism = mechanisms[0]

@@ -30,7 +30,13 @@ from typing import Any
 
 import numpy as np
 
-from tendon2r_gym.mechanism import LIMITS, REALISM_LIMITS, Mechanism
+from tendon2r_gym.mechanism import (
+    LIMITS,
+    MODEL_ERROR_LIMITS,
+    MODEL_ERRORS,
+    REALISM_LIMITS,
+    Mechanism,
+)
 from tendon2r_gym.reference import Reference, ReferenceRanges
 from tendon2r_gym.validation import invalid, mapping, pair
 
@@ -119,6 +125,7 @@ RANDOMIZABLE = (
     "tendon_friction",
     "motor_tau",
     "motor_delay",
+    *MODEL_ERRORS,
 )
 #: What the sensors measure, drawn per episode too: EnvConfig's ``observation_delay`` (s) and
 #: the two entries of its ``observation_noise`` (angle std, rad; speed std, rad/s).
@@ -165,7 +172,8 @@ class MechanismRanges:
             field = f"mechanism_ranges.{name}"
             if name not in DRAWABLE:
                 raise invalid("mechanism_ranges", name, f"fields among {DRAWABLE}")
-            hi_limit = {**LIMITS, **REALISM_LIMITS, "observation_delay": 1.0}.get(name, 1e6)
+            limits = {**LIMITS, **REALISM_LIMITS, **MODEL_ERROR_LIMITS, "observation_delay": 1.0}
+            hi_limit = limits.get(name, 1e6)
             lo, hi = pair(field, value, 0.0, hi_limit)
             if lo > hi:
                 raise invalid(field, value, f"[lo, hi] with 0 <= lo <= hi <= {hi_limit:g}")

@@ -48,6 +48,11 @@ REALISM_LIMITS = {
     "motor_tau": 1.0,  # s
     "motor_delay": 1.0,  # s
 }
+#: The nominal model's errors (tendon2r_gym.realism), each at its exact value: what the real arm
+#: has and the controllers' nominal model (:meth:`Mechanism.ideal`) does not.
+MODEL_ERRORS = {"density_scale": 1.0, "extra_joint_damping": 0.0}
+#: Upper bounds of the model errors: a 100x heavier arm, damping far above any bearing's.
+MODEL_ERROR_LIMITS = {"density_scale": 100.0, "extra_joint_damping": 1.0}
 #: ``max_tendon_force: auto`` sizes the force limit from the reference (Tendon2REnv does it).
 AUTO = "auto"
 
@@ -94,6 +99,11 @@ class Mechanism:
     tendon_friction: float = 0.0  # dry friction of each cable sliding on its pulleys (N)
     motor_tau: float = 0.0  # time constant of the motor force's first-order lag (s)
     motor_delay: float = 0.0  # dead time between a command and the motor (s), whole ctrl_dt
+    # The nominal model's errors: the real links' and pulleys' density over ``density``, and
+    # joint damping (N m s / rad, both joints) over ``joint_damping``; the controllers' model
+    # keeps the nominal values (ideal()).
+    density_scale: float = 1.0
+    extra_joint_damping: float = 0.0
     # Simulation.
     # RK4 at 1 ms stays within 4e-4 deg of RK4 at 2e-5 s on both presets under PD, at 1/8 the
     # cost of the reports' RK4 at 1e-4 s (results/timestep_study.md).
@@ -115,6 +125,9 @@ class Mechanism:
         for name, hi in REALISM_LIMITS.items():
             set_(name, number(f"Mechanism.{name}", getattr(self, name), 0.0, hi))
         set_("motor_mass", number("Mechanism.motor_mass", self.motor_mass, 0.0, 1e3, lo_open=True))
+        for name, hi in MODEL_ERROR_LIMITS.items():
+            lo_open = MODEL_ERRORS[name] > 0  # a scale, not an offset
+            set_(name, number(f"Mechanism.{name}", getattr(self, name), 0.0, hi, lo_open=lo_open))
         if self.tendon_elasticity > 0 and self.tendon_stiffness > 0:
             raise _fail(
                 "tendon_stiffness",
@@ -208,21 +221,37 @@ class Mechanism:
 
     @property
     def realistic(self) -> bool:
-        """Returns whether any realism field is on (tendon2r_gym.realism)."""
-        return any(getattr(self, k) > 0 for k in REALISM_LIMITS)
+        """Returns whether any realism field is on, or the nominal model has an error
+        (tendon2r_gym.realism)."""
+        return any(getattr(self, k) > 0 for k in REALISM_LIMITS) or any(
+            getattr(self, k) != exact for k, exact in MODEL_ERRORS.items()
+        )
 
     def ideal(self) -> Mechanism:
-        """Returns the nominal mechanism: every realism field off, ``motor_mass`` (which only
-        elastic cables use) at its default, and no ``tendon_damping`` if the cables were
-        elastic (it was theirs); the model that PD's and CT's distribution and
-        inverse dynamics use, and what a trained policy's arm is checked against."""
+        """Returns the nominal mechanism: every realism field off, the model errors at their
+        exact values (MODEL_ERRORS), ``motor_mass`` (which only elastic cables use) at its
+        default, and no ``tendon_damping`` if the cables were elastic (it was theirs); the
+        model that PD's and CT's distribution and inverse dynamics use, and what a trained
+        policy's arm is checked against."""
         default_mass = Mechanism.__dataclass_fields__["motor_mass"].default
         if not self.realistic and self.motor_mass == default_mass:
             return self
         off = dict.fromkeys(REALISM_LIMITS, 0.0)
         if self.elastic:  # then tendon_damping is the cable's own damping
             off["tendon_damping"] = 0.0
-        return self.replace(**off, motor_mass=default_mass)
+        return self.replace(**off, **MODEL_ERRORS, motor_mass=default_mass)
+
+    @property
+    def true_density(self) -> float:
+        """Returns the density (kg/m^3) of the simulated links and pulleys: ``density`` times
+        ``density_scale``."""
+        return self.density * self.density_scale
+
+    @property
+    def true_joint_damping(self) -> float:
+        """Returns the simulated damping (N m s / rad) of each joint: ``joint_damping`` plus
+        ``extra_joint_damping``."""
+        return self.joint_damping + self.extra_joint_damping
 
     @property
     def rest_tension(self) -> float:

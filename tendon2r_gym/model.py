@@ -118,7 +118,7 @@ def build_spec(mech: Mechanism) -> mujoco.MjSpec:
     def geom(body, name, gtype, size, rgba, **kw):
         g = body.add_geom(name=name, type=gtype, size=size, rgba=rgba, **kw)
         g.contype = g.conaffinity = 0
-        g.density = mech.density
+        g.density = mech.true_density
         return g
 
     def site(body, name, pos, size=0.0012, rgba=_RGBA["site"]):
@@ -134,7 +134,7 @@ def build_spec(mech: Mechanism) -> mujoco.MjSpec:
             axis=_HINGE_AXIS,
             range=[lo, hi],
             limited=mujoco.mjtLimited.mjLIMITED_TRUE,
-            damping=mech.joint_damping,
+            damping=mech.true_joint_damping,
         )
         capsule = mujoco.mjtGeom.mjGEOM_CAPSULE
         geom(body, name, capsule, [rl, 0, 0], _RGBA[name], fromto=[0, 0, 0, length, 0, 0])

@@ -15,6 +15,12 @@ model is the ideal one, bit for bit) and what each one means physically:
 - ``motor_delay``: dead time between a command and the motor (s), whole control steps: bus and
   driver.  Typical: 1 to 5 ms.
 
+The nominal model's errors, which the controllers' model (:meth:`Mechanism.ideal`) leaves out
+while the simulation has them: ``density_scale`` (the real links' and pulleys' density over
+``density``: every mass and inertia scales with it; printed parts' infill, screws and glue
+put a CAD mass off by tens of percent) and ``extra_joint_damping`` (N m s/rad, both joints:
+bearings and cable bending; typical 1e-6 to 1e-5 for miniature ball bearings).
+
 What the controller measures is set in the env config: ``observation_noise`` (Gaussian std on
 each joint's angle, rad, and speed, rad/s; typical encoders 1e-4 rad, speeds from differences
 1e-2 rad/s) and ``observation_delay`` (s, whole control steps; typical 1 to 5 ms):
@@ -277,8 +283,10 @@ class Sensors:
 #: randomized training (``mechanism_ranges: real_arm``, tendon2r_gym.arms.MechanismRanges):
 #: each value drawn uniformly and independently, in this order; delays are rounded to whole
 #: control steps.  They span the catalog-typical values of the ``real_arm`` preset from about
-#: half to twice; friction and lag never vanish (a real cable rubs, a real driver lags, and a
-#: zero would change the model's layout).
+#: half to twice (the model errors: a mass from half to twice the nominal one, and unmodeled
+#: joint damping up to 1e-5 N m s/rad, a time constant of 0.2 s on the real_arm's joint B,
+#: whose compiled inertia is 1.8e-6 kg m^2); friction and lag never vanish (a real cable rubs,
+#: a real driver lags, and a zero would change the model's layout).
 PERTURBATIONS: dict[str, tuple[float, float]] = {
     "tendon_elasticity": (2500.0, 8000.0),  # N/m
     "tendon_damping": (1.0, 4.0),  # N s/m
@@ -289,4 +297,6 @@ PERTURBATIONS: dict[str, tuple[float, float]] = {
     "observation_noise_angle": (0.0, 2e-4),  # rad
     "observation_noise_speed": (0.0, 0.1),  # rad/s
     "observation_delay": (0.0, 0.002),  # s
+    "density_scale": (0.5, 2.0),  # the nominal model's mass error
+    "extra_joint_damping": (0.0, 1e-5),  # N m s/rad
 }

@@ -3,7 +3,8 @@
 The criterion linearizes the unactuated arm about configurations over the joint range: with
 M(q) the joint inertia and J(q) the tendon moment arms,
 
-- damping rate   lambda = max eig(M^-1 D), D = joint_damping I + tendon_damping J^T J,
+- damping rate   lambda = max eig(M^-1 D), D = (joint_damping + extra_joint_damping) I
+  + tendon_damping J^T J,
   counting only the terms the integrator treats explicitly (MuJoCo's Euler integrates joint
   damping implicitly; implicit and implicitfast integrate all damping implicitly);
 - stiffness rate omega  = sqrt(max eig(M^-1 tendon_stiffness J^T J));
@@ -11,7 +12,9 @@ M(q) the joint inertia and J(q) the tendon moment arms,
   highest frequency of a series-elastic cable between its spool and the arm (an upper bound:
   the spool's and the arm's mobilities add), held to the stiffness limit.
 
-``model`` is the nominal (ideal) model of the mechanism: its two joints and its tendons.
+``model`` is the nominal (ideal) model of the mechanism: its two joints and its tendons; the
+true inertia is the nominal one times ``density_scale`` (every mass is a geom's density times
+its volume).
 
 A run is accepted if lambda * sim_dt and omega * sim_dt stay below the integrator's limits in
 :data:`LIMITS`.  ``python scripts/stability_limits.py`` measures them on the compiled default
@@ -59,11 +62,11 @@ def rates(model: mujoco.MjModel, mech: Mechanism, grid: int = 7) -> dict[str, fl
             data.qpos[:] = (q1, q2)
             mujoco.mj_fwdPosition(model, data)
             mujoco.mj_fullM(model, data, M)
-            Minv = np.linalg.inv(M)
+            Minv = np.linalg.inv(M) / mech.density_scale
             J = arms.dense()
             tendon = float(np.max(np.abs(np.linalg.eigvals(Minv @ J.T @ J))))
             joint = float(np.max(np.abs(np.linalg.eigvals(Minv))))
-            out["joint_damping"] = max(out["joint_damping"], mech.joint_damping * joint)
+            out["joint_damping"] = max(out["joint_damping"], mech.true_joint_damping * joint)
             out["tendon_damping"] = max(out["tendon_damping"], mech.tendon_damping * tendon)
             out["tendon_stiffness"] = max(
                 out["tendon_stiffness"], math.sqrt(mech.tendon_stiffness * tendon)
@@ -84,6 +87,8 @@ def check_stability(model: mujoco.MjModel, mech: Mechanism) -> None:
     if damping * dt > damp_max:
         field = max(explicit, key=lambda k: r[k])
         value = getattr(mech, field)
+        if field == "joint_damping" and mech.extra_joint_damping > 0:
+            field, value = "joint_damping + extra_joint_damping", mech.true_joint_damping
         limit = value * damp_max / (damping * dt)
         raise invalid(
             f"Mechanism.{field}",

@@ -161,7 +161,9 @@ def test_stiff_cables_on_a_light_spool_are_refused():
      ("motor_tau", 2.0, r"motor_tau = 2\.0 .*\[0, 1\]"),
      ("motor_delay", -0.001, r"motor_delay = -0\.001"),
      ("motor_mass", 0.0, r"motor_mass = 0\.0"),
-     ("tendon_stiffness", 10.0, r"tendon_stiffness = 10\.0 .*tendon_elasticity")],
+     ("tendon_stiffness", 10.0, r"tendon_stiffness = 10\.0 .*tendon_elasticity"),
+     ("density_scale", 0.0, r"density_scale = 0\.0 .*\(0, 100\]"),
+     ("extra_joint_damping", -1e-6, r"extra_joint_damping = -1e-06")],
 )  # fmt: skip
 def test_bad_realism_fields_raise_naming_the_field(field, value, match):
     extra = {"tendon_elasticity": 1000.0} if field == "tendon_stiffness" else {}
@@ -256,6 +258,31 @@ def test_real_arm_preset_and_perturbed_arms():
     assert max(metrics["rms_deg"]) < 1.0  # stable (the ideal arm: 0.09 deg)
 
 
+def test_model_errors_change_the_simulated_arm_and_not_the_controllers_model():
+    """density_scale scales every moving mass and inertia of the compiled model, and
+    extra_joint_damping adds to each joint's damping; PD's and CT's model stays the nominal
+    one, and the stability criterion sees the true inertia and damping."""
+    from tendon2r_gym.policies import ComputedTorquePolicy, PDPolicy
+
+    nominal = PUSH_PULL.replace(joint_damping=1e-6)
+    wrong = nominal.replace(density_scale=1.7, extra_joint_damping=3e-6)
+    assert wrong.realistic and wrong.ideal() == nominal
+    m0, m1 = build_model(nominal), build_model(wrong)
+    np.testing.assert_allclose(m1.body_mass, 1.7 * m0.body_mass, rtol=1e-12)
+    np.testing.assert_allclose(m1.body_inertia, 1.7 * m0.body_inertia, rtol=1e-12)
+    np.testing.assert_allclose(m1.dof_damping, [4e-6, 4e-6], rtol=1e-12)
+    for cls in (PDPolicy, ComputedTorquePolicy):
+        env = gym.make("Tendon2R-v0", mechanism=wrong.to_dict())
+        policy = cls.from_env(env)
+        np.testing.assert_array_equal(policy.model.body_mass, m0.body_mass)
+        np.testing.assert_array_equal(policy.model.dof_damping, m0.dof_damping)
+    r0, r1 = rates(m0, nominal), rates(m0, wrong)
+    assert r1["joint_damping"] == pytest.approx(r0["joint_damping"] * 4 / 1.7, rel=1e-12)
+    assert r1["tendon_stiffness"] == r0["tendon_stiffness"] == 0.0
+    with pytest.raises(ValueError, match=r"joint_damping \+ extra_joint_damping = 0\.1 .*<= "):
+        gym.make("Tendon2R-v0", mechanism={"extra_joint_damping": 0.1})
+
+
 def test_a_model_of_the_ideal_arm_loads_on_the_real_one_only():
     """check_model_env compares the nominal arms: real cables and sensors are deployment
     conditions, another geometry is another arm."""
@@ -266,6 +293,8 @@ def test_a_model_of_the_ideal_arm_loads_on_the_real_one_only():
 
     recorded["observation"] = observation.layout(3, 3)
     check_model_env(recorded, gym.make("Tendon2R-v0", preset="real_arm"), "model")
+    errors = {"density_scale": 1.5, "extra_joint_damping": 1e-6}  # unknown to the controller
+    check_model_env(recorded, gym.make("Tendon2R-v0", preset="real_arm", mechanism=errors), "m")
     with pytest.raises(ValueError, match="trained for another env: mechanism"):
         other = gym.make("Tendon2R-v0", preset="real_arm", mechanism={"R1": 0.012})
         check_model_env(recorded, other, "model")
