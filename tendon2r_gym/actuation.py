@@ -113,21 +113,29 @@ class MomentArms:
         self._shape = (model.ntendon, model.nv)
         self._full = bool(np.all(model.ten_J_rownnz == model.nv))
         self._view = data.ten_J.reshape(self._shape) if self._full else None
-        self._pattern = (model.ten_J_rownnz, model.ten_J_rowadr, model.ten_J_colind)
-        self._buf = np.zeros(self._shape)
-        # A realistic model (tendon2r_gym.realism) has spool joints after the arm's two and
-        # passive friction tendons after the motors' ones: J keeps the motors' rows (one
-        # motor per tendon) and the arm's columns.
-        self._arm = (slice(0, model.nu), slice(0, 2))
         self._ideal = self._shape == (model.nu, 2)
+        # Otherwise, a realistic model (tendon2r_gym.realism) has spool joints after the arm's
+        # two and passive friction tendons after the motors' ones, and a tendon may end before
+        # joint B: J keeps the motors' rows (one motor per tendon) and the arm's columns,
+        # gathered from where they sit in the sparse ten_J (the pattern is the model's), or
+        # from the zero appended after it where a tendon does not span the joint.
+        nnz = data.ten_J.size
+        at = {
+            (i, int(model.ten_J_colind[adr])): adr
+            for i in range(model.nu)
+            for adr in range(model.ten_J_rowadr[i], model.ten_J_rowadr[i] + model.ten_J_rownnz[i])
+        }
+        self._gather = np.array([[at.get((i, j), nnz) for j in (0, 1)] for i in range(model.nu)])
+        self._padded = np.zeros(nnz + 1)
 
     def dense(self) -> np.ndarray:
-        """Returns J (n_tendons, 2): a view into MjData when every row is full, else a view of
-        a reused buffer."""
+        """Returns J (n_tendons, 2): a view into MjData when every row is full and the model
+        has only the arm's joints and the motors' tendons, else a new array of the motor
+        tendons' rows over the arm's joints."""
         if self._full and self._ideal:
             return self._view
-        mujoco.mju_sparse2dense(self._buf, self._data.ten_J, *self._pattern)
-        return self._buf if self._ideal else self._buf[self._arm]
+        self._padded[:-1] = self._data.ten_J
+        return self._padded[self._gather]
 
 
 class ActuationAnalysis:

@@ -45,7 +45,7 @@ import numpy as np
 from tendon2r_gym.actuation import MomentArms
 from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.model import spool_name
-from tendon2r_gym.ops import SCALAR, Ops
+from tendon2r_gym.ops import Ops
 from tendon2r_gym.validation import invalid
 
 
@@ -101,12 +101,13 @@ class Drive:
         return mech.tendon_elasticity, mech.tendon_damping, self.rest_length, self.slack_length
 
     def cable_tensions(self, length: np.ndarray, velocity: np.ndarray) -> np.ndarray:
-        """Returns :func:`cable_tensions` of this model's cables (scalar math per cable: a
-        few cables are faster in Python floats than in numpy, and give the same bits)."""
+        """Returns :func:`cable_tensions` of this model's cables, in scalar math per cable
+        (a few cables are faster in Python floats than in numpy; the same bits:
+        tests/test_realism.py), written out: the env's info reads it at every step."""
         return np.array(
             [
-                cable_tensions(SCALAR, x, v, *cable)
-                for x, v, cable in zip(
+                k * (max(x - rest, 0.0) + min(x - slack, 0.0)) + c * v
+                for x, v, (k, c, rest, slack) in zip(
                     length.tolist(), velocity.tolist(), self._cable_constants, strict=True
                 )
             ]

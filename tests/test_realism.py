@@ -80,6 +80,26 @@ def test_slack_cable_transmits_no_force():
     np.testing.assert_allclose(data.qfrc_passive, -J[0] * 5000.0 * 0.003, rtol=1e-6)
 
 
+@pytest.mark.parametrize("mech", [PUSH_PULL, PULL_ONLY], ids=["push_pull", "pull_only"])
+def test_the_single_envs_cable_tensions_are_the_shared_formulas_bits(mech):
+    """Drive.cable_tensions (Python floats, the single env) gives realism.cable_tensions with
+    numpy (the vector env) bit for bit, slack, stretched and compressed."""
+    from tendon2r_gym.ops import BATCH
+    from tendon2r_gym.realism import cable_tensions
+
+    elastic = mech.replace(tendon_elasticity=3000.0, tendon_damping=2.0, motor_mass=0.01)
+    drive = Drive(build_model(elastic), elastic)
+    rng = np.random.default_rng(0)
+    k, c, rest, slack = drive.cable
+    for _ in range(50):
+        length = rest + rng.uniform(-0.01, 0.01, rest.shape)
+        speed = rng.normal(size=rest.shape)
+        np.testing.assert_array_equal(
+            drive.cable_tensions(length, speed),
+            cable_tensions(BATCH, length, speed, k, c, rest, slack),
+        )
+
+
 @pytest.mark.parametrize("elastic", [False, True])
 def test_friction_opposes_sliding_with_its_magnitude(elastic):
     """A cable sliding over its pulleys feels its set dry friction f against the motion: once
