@@ -135,8 +135,9 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     | `camera_name` | `"side"` | camera that frames the whole arm |
 
     Real tendons and motors (``mechanism``: ``tendon_elasticity``, ``motor_mass``,
-    ``tendon_friction``, ``motor_tau``, ``motor_delay``; all off by default) are described in
-    tendon2r_gym.realism; PD and CT keep the nominal model.
+    ``tendon_friction``, ``motor_tau``, ``motor_delay``; all off by default) and the nominal
+    model's errors (``density_scale``, ``extra_joint_damping``; exact by default) are
+    described in tendon2r_gym.realism; PD and CT keep the nominal model.
 
     Random arms (``mechanism_ranges``, tendon2r_gym.arms.MechanismRanges): at every reset the
     env draws the listed fields uniformly (the geometry, damping, density, the cables and
