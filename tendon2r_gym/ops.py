@@ -29,7 +29,6 @@ class Ops:
     sqrt: Callable[[Any], Any]
     copysign: Callable[[Any, Any], Any]
     maximum: Callable[[Any, Any], Any]
-    minimum: Callable[[Any, Any], Any]
     isfinite: Callable[[Any], Any]
     not_: Callable[[Any], Any]
     where: Callable[[Any, Any, Any], Any]  # where(cond, if_true, if_false)
@@ -48,7 +47,6 @@ SCALAR = Ops(
     sqrt=math.sqrt,
     copysign=math.copysign,
     maximum=max,
-    minimum=min,
     isfinite=math.isfinite,
     not_=operator.not_,
     where=lambda cond, a, b: a if cond else b,
@@ -60,7 +58,6 @@ BATCH = Ops(
     sqrt=np.sqrt,
     copysign=np.copysign,
     maximum=np.maximum,
-    minimum=np.minimum,
     isfinite=np.isfinite,
     not_=np.logical_not,
     where=np.where,

@@ -45,7 +45,6 @@ import numpy as np
 from tendon2r_gym.actuation import MomentArms
 from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.model import spool_name
-from tendon2r_gym.ops import Ops
 from tendon2r_gym.validation import invalid
 
 
@@ -101,9 +100,9 @@ class Drive:
         return mech.tendon_elasticity, mech.tendon_damping, self.rest_length, self.slack_length
 
     def cable_tensions(self, length: np.ndarray, velocity: np.ndarray) -> np.ndarray:
-        """Returns :func:`cable_tensions` of this model's cables, in scalar math per cable
-        (a few cables are faster in Python floats than in numpy; the same bits:
-        tests/test_realism.py), written out: the env's info reads it at every step."""
+        """Returns :func:`cable_tensions` of this model's cables, the same formula in Python
+        floats per cable (a few cables are faster so than in numpy, and the env's info reads
+        them at every step; the same bits: tests/test_realism.py)."""
         return np.array(
             [
                 k * (max(x - rest, 0.0) + min(x - slack, 0.0)) + c * v
@@ -115,14 +114,14 @@ class Drive:
 
 
 def cable_tensions(
-    ops: Ops, length: Any, velocity: Any, k: Any, c: Any, rest: Any, slack: Any
-) -> Any:
+    length: np.ndarray, velocity: np.ndarray, k: Any, c: Any, rest: np.ndarray, slack: np.ndarray
+) -> np.ndarray:
     """Returns each elastic cable's tension (N, positive pulling) from the tendon lengths and
-    speeds (the first n_tendons entries of ``ten_length`` and ``ten_velocity``: one cable's
-    floats with SCALAR, or one row or N rows with BATCH): stiffness k times the stretch past
-    the rest length (below the slack length for push-pull cables, which push), plus the
-    cable's damping c times its speed."""
-    stretch = ops.maximum(length - rest, 0.0) + ops.minimum(length - slack, 0.0)
+    speeds (the first n_tendons entries of ``ten_length`` and ``ten_velocity``, one row or N
+    rows): stiffness k times the stretch past the rest length (below the slack length for
+    push-pull cables, which push), plus the cable's damping c times its speed.  The vector
+    env's; the single env's Drive.cable_tensions is its float form."""
+    stretch = np.maximum(length - rest, 0.0) + np.minimum(length - slack, 0.0)
     return k * stretch + c * velocity
 
 

@@ -420,7 +420,7 @@ class Tendon2RVectorEnv(VectorEnv):
         if self.mechanism.elastic:
             n = self.mechanism.n_tendons
             lengths, speeds = self._ten_length[:, :n], self._ten_velocity[:, :n]
-            tension = cable_tensions(BATCH, lengths, speeds, *self._cable)
+            tension = cable_tensions(lengths, speeds, *self._cable)
         else:
             tension = -self._sensors[:, self._force]
         values = self.task.step_info(

@@ -84,7 +84,6 @@ def test_slack_cable_transmits_no_force():
 def test_the_single_envs_cable_tensions_are_the_shared_formulas_bits(mech):
     """Drive.cable_tensions (Python floats, the single env) gives realism.cable_tensions with
     numpy (the vector env) bit for bit, slack, stretched and compressed."""
-    from tendon2r_gym.ops import BATCH
     from tendon2r_gym.realism import cable_tensions
 
     elastic = mech.replace(tendon_elasticity=3000.0, tendon_damping=2.0, motor_mass=0.01)
@@ -96,7 +95,7 @@ def test_the_single_envs_cable_tensions_are_the_shared_formulas_bits(mech):
         speed = rng.normal(size=rest.shape)
         np.testing.assert_array_equal(
             drive.cable_tensions(length, speed),
-            cable_tensions(BATCH, length, speed, k, c, rest, slack),
+            cable_tensions(length, speed, k, c, rest, slack),
         )
 
 

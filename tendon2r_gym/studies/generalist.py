@@ -165,9 +165,9 @@ def finetune_curves(
     """Trains FINETUNE_ENTRY on each named arm twice, one seed each: from the generalist's
     weights and normalization statistics (fine-tuned) and from fresh ones (scratch), with the
     same hyperparameters and budget (``steps``, default the entry's; finished runs in
-    ``run_root`` are reused).  Returns each
-    run's curve: its training evaluations (steps, RMS on the entry's evaluation seeds), with
-    the generalist zero-shot and PD on the same episodes at step 0."""
+    ``run_root`` are reused).  Returns each run's curve: its training evaluations (steps, RMS
+    on the entry's evaluation seeds), with the generalist zero-shot and PD on the same
+    episodes at step 0."""
     from tendon2r_gym.presets import PPO_CONFIG
     from tendon2r_gym.runs import EVALUATIONS, SUMMARY
     from tendon2r_gym.training import Experiment, Hyperparams
@@ -329,7 +329,7 @@ def write(result: dict[str, Any], out: Path) -> None:
 
 
 def finetune_lines(curves: dict[str, Any]) -> list[str]:
-    """Returns the fine-tuning section of generalist.md: per arm, the worst-joint RMS against
+    """Returns the fine-tuning section of generalist.md: per arm, the RMS of each joint against
     training steps, fine-tuned from the generalist and from scratch."""
     if not curves:
         return []
