@@ -293,8 +293,10 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         first = self.model.sensor(f"force_{tendon_name(0)}").adr[0]
         n = self.mechanism.n_tendons
         self._motor_force = d.sensordata[first : first + n]
-        #: Elastic cables: views of their lengths and speeds (their tension's inputs).
-        self._cables = (d.ten_length[:n], d.ten_velocity[:n]) if self.mechanism.elastic else None
+        #: Elastic cables: a view of their tensions, the force of each on its spool.
+        self._cable_force = (
+            self.drive.tension_view(d.qfrc_passive) if self.mechanism.elastic else None
+        )
         self._warnings = [d.warning[w] for w in DIVERGENCE_WARNINGS]
         self._warning_count = 0
         self._arms = MomentArms(self.model, d)
@@ -309,9 +311,9 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     def tendon_tensions(self) -> np.ndarray:
         """Returns each tendon's tension (N, positive when it pulls) in the last step: minus the
         motor force along the tendon that the model's force sensors read, or for elastic cables
-        the force of their stretch (tendon2r_gym.realism.Drive.cable_tensions)."""
-        if self._cables is not None:
-            return self.drive.cable_tensions(*self._cables)
+        the force of their stretch on their spools (tendon2r_gym.realism.Drive.tension_view)."""
+        if self._cable_force is not None:
+            return self._cable_force.copy()
         return -self._motor_force
 
     def force_need(self) -> float:

@@ -63,14 +63,10 @@ class Drive:
         self.stretch = mech.rest_tension / mech.tendon_elasticity if mech.elastic else 0.0
         spring = model.tendon_lengthspring[:n]
         self.slack_length, self.rest_length = spring[:, 0].copy(), spring[:, 1].copy()
-        # (stiffness, damping, rest length, slack length) of each cable, as floats
-        k, c = mech.tendon_elasticity, mech.tendon_damping
-        self._cable_constants = [
-            (k, c, rest, slack)
-            for rest, slack in zip(
-                self.rest_length.tolist(), self.slack_length.tolist(), strict=True
-            )
-        ]
+        #: The spools' degrees of freedom, contiguous (the model adds them after the arm's).
+        self.spools = slice(2, 2 + n) if mech.elastic else slice(0, 0)
+        if mech.elastic and self.spool_dof.tolist() != list(range(2, 2 + n)):
+            raise RuntimeError(f"spool dofs {self.spool_dof.tolist()} are not 2..{n + 1}")
 
     def settle(self, data: mujoco.MjData, q: np.ndarray, dq: np.ndarray) -> None:
         """Sets a freshly reset ``data`` (time 0) to the joint state (q, dq), every cable at its
@@ -94,23 +90,17 @@ class Drive:
 
     @property
     def cable(self) -> tuple[Any, ...]:
-        """Returns (stiffness, damping, rest length, slack length) of the cables: what
-        :func:`cable_tensions` needs (the vector env stacks one row per arm)."""
+        """Returns (stiffness, damping, rest length, slack length) of the cables: the
+        arguments of :func:`cable_tensions` after length and speed."""
         mech = self.mech
         return mech.tendon_elasticity, mech.tendon_damping, self.rest_length, self.slack_length
 
-    def cable_tensions(self, length: np.ndarray, velocity: np.ndarray) -> np.ndarray:
-        """Returns :func:`cable_tensions` of this model's cables, the same formula in Python
-        floats per cable (a few cables are faster so than in numpy, and the env's info reads
-        them at every step; the same bits: tests/test_realism.py)."""
-        return np.array(
-            [
-                k * (max(x - rest, 0.0) + min(x - slack, 0.0)) + c * v
-                for x, v, (k, c, rest, slack) in zip(
-                    length.tolist(), velocity.tolist(), self._cable_constants, strict=True
-                )
-            ]
-        )
+    def tension_view(self, qfrc_passive: np.ndarray) -> np.ndarray:
+        """Returns a view of the cables' tensions (N, positive pulling) in ``qfrc_passive``
+        (one MjData's, or the batch's N rows): the passive force of each cable on its spool's
+        slide, which is its stretch's spring and damping force (:func:`cable_tensions`: the
+        same to within rounding, tests/test_realism.py).  Only for elastic cables."""
+        return qfrc_passive[..., self.spools]
 
 
 def cable_tensions(
@@ -119,8 +109,9 @@ def cable_tensions(
     """Returns each elastic cable's tension (N, positive pulling) from the tendon lengths and
     speeds (the first n_tendons entries of ``ten_length`` and ``ten_velocity``, one row or N
     rows): stiffness k times the stretch past the rest length (below the slack length for
-    push-pull cables, which push), plus the cable's damping c times its speed.  The vector
-    env's; the single env's Drive.cable_tensions is its float form."""
+    push-pull cables, which push), plus the cable's damping c times its speed: the model of
+    the cable that the compiled tendon spring implements.  The envs read MuJoCo's force
+    (Drive.tension_view); the tests check the two against each other."""
     stretch = np.maximum(length - rest, 0.0) + np.minimum(length - slack, 0.0)
     return k * stretch + c * velocity
 

@@ -32,7 +32,7 @@ from tendon2r_gym.env import DIVERGENCE_WARNINGS
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.model import build_model, tendon_name
 from tendon2r_gym.ops import BATCH
-from tendon2r_gym.realism import CommandDelay, Drive, Sensors, cable_tensions
+from tendon2r_gym.realism import CommandDelay, Drive, Sensors
 from tendon2r_gym.reference import Reference
 from tendon2r_gym.task import Task, arm_params, reference_params
 from tendon2r_gym.validation import boolean, integer, invalid, real_array
@@ -114,7 +114,7 @@ class Tendon2RVectorEnv(VectorEnv):
         for i in range(self.num_envs):
             self._bind_delays(i, cfg, self.drive)
         if cfg.mechanism.elastic:
-            self._ten_length, self._ten_velocity = b.bind("ten_length"), b.bind("ten_velocity")
+            self._qfrc_passive = b.bind("qfrc_passive")  # the cables' force on their spools
         self._warn_ids = [int(w) for w in DIVERGENCE_WARNINGS]
         self.task = Task(cfg)
 
@@ -126,7 +126,6 @@ class Tendon2RVectorEnv(VectorEnv):
         self._drives: list[Drive] = [self.drive] * n
         self._arm = np.tile(np.array(arm_params(cfg, cfg))[:, None], (1, n))
         self._rest = np.tile(np.array(self.task.rest_command(cfg)), (n, 1))
-        self._cable = self._stack_cables()
         self._rngs = [seeding.np_random()[0] for _ in range(n)]
         self._refs: list[Reference] = [cfg.reference] * n
         self._ref = np.zeros((8, n))  # reference_params of each arm, one row per number
@@ -224,7 +223,6 @@ class Tendon2RVectorEnv(VectorEnv):
             self._rest[i] = self.task.rest_command(arm)
             self._bind_delays(i, arm, self._drives[i])
         self.batch.set_models(self._models)
-        self._cable = self._stack_cables()
         if self._torque_map is not None:
             self._torque_map.follow([a.mechanism for a in self._arm_cfgs])
 
@@ -234,13 +232,6 @@ class Tendon2RVectorEnv(VectorEnv):
             self._delay.set_arm(i, arm.delay_steps, drive.ctrl)
         if self._sensing is not None:
             self._sensing.set_arm(i, arm.observation_delay_steps, arm.observation_noise)
-
-    def _stack_cables(self) -> tuple[np.ndarray, ...] | None:
-        """Returns every arm's cable parameters (realism.Drive.cable), one row per arm."""
-        if not self.config.mechanism.elastic:
-            return None
-        k, c, rest, slack = zip(*(d.cable for d in self._drives), strict=True)
-        return np.array(k)[:, None], np.array(c)[:, None], np.array(rest), np.array(slack)
 
     def _settle(self, i: int, q: np.ndarray, dq: np.ndarray) -> None:
         """Puts arm i at rest with its motors and cables (realism.Drive.settle, as the single
@@ -418,9 +409,7 @@ class Tendon2RVectorEnv(VectorEnv):
         self, obs: np.ndarray, terms: dict[str, np.ndarray], diverged: np.ndarray, mask: np.ndarray
     ) -> dict[str, Any]:
         if self.mechanism.elastic:
-            n = self.mechanism.n_tendons
-            lengths, speeds = self._ten_length[:, :n], self._ten_velocity[:, :n]
-            tension = cable_tensions(lengths, speeds, *self._cable)
+            tension = self.drive.tension_view(self._qfrc_passive).copy()
         else:
             tension = -self._sensors[:, self._force]
         values = self.task.step_info(

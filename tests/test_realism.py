@@ -11,7 +11,7 @@ from tendon2r_gym import Mechanism, build_model
 from tendon2r_gym.arms import MechanismRanges
 from tendon2r_gym.mechanism import REALISM_LIMITS
 from tendon2r_gym.model import motor_name, to_xml
-from tendon2r_gym.realism import Drive
+from tendon2r_gym.realism import Drive, cable_tensions
 from tendon2r_gym.stability import rates
 
 PUSH_PULL = Mechanism(max_tendon_force=1.0)
@@ -47,7 +47,7 @@ def test_steady_stretch_is_tension_over_stiffness(mech):
     drive = Drive(model, elastic)
     drive.settle(data, np.array([0.2, -0.3]), np.zeros(2))
     n = elastic.n_tendons
-    rest = drive.cable_tensions(data.ten_length[:n], data.ten_velocity[:n])
+    rest = drive.tension_view(data.qfrc_passive)
     np.testing.assert_allclose(rest, elastic.rest_tension, atol=1e-9)  # settle's rest state
     ctrl = np.array([0.3, -0.2, 0.5])[:n]
     data.ctrl[:] = ctrl
@@ -56,7 +56,7 @@ def test_steady_stretch_is_tension_over_stiffness(mech):
     stretch = data.ten_length[:n] - drive.rest_length
     np.testing.assert_allclose(stretch, commanded / k, rtol=1e-4, atol=1e-9)
     np.testing.assert_allclose(
-        drive.cable_tensions(data.ten_length[:n], np.zeros(n)), commanded, 1e-4
+        cable_tensions(data.ten_length[:n], np.zeros(n), *drive.cable), commanded, 1e-4
     )
 
 
@@ -80,23 +80,26 @@ def test_slack_cable_transmits_no_force():
     np.testing.assert_allclose(data.qfrc_passive, -J[0] * 5000.0 * 0.003, rtol=1e-6)
 
 
-@pytest.mark.parametrize("mech", [PUSH_PULL, PULL_ONLY], ids=["push_pull", "pull_only"])
-def test_the_single_envs_cable_tensions_are_the_shared_formulas_bits(mech):
-    """Drive.cable_tensions (Python floats, the single env) gives realism.cable_tensions with
-    numpy (the vector env) bit for bit, slack, stretched and compressed."""
-    from tendon2r_gym.realism import cable_tensions
-
-    elastic = mech.replace(tendon_elasticity=3000.0, tendon_damping=2.0, motor_mass=0.01)
-    drive = Drive(build_model(elastic), elastic)
-    rng = np.random.default_rng(0)
-    k, c, rest, slack = drive.cable
-    for _ in range(50):
-        length = rest + rng.uniform(-0.01, 0.01, rest.shape)
-        speed = rng.normal(size=rest.shape)
-        np.testing.assert_array_equal(
-            drive.cable_tensions(length, speed),
-            cable_tensions(length, speed, k, c, rest, slack),
-        )
+@pytest.mark.parametrize("preset", ["default", "pull_only"])
+def test_the_reported_tension_is_the_cable_models(preset):
+    """The envs report each elastic cable's force on its spool (MuJoCo's passive force, the
+    tendon spring's): it is realism.cable_tensions of the cable's length and speed (stretch
+    times stiffness, nothing when slack, plus damping) to within rounding, over an episode
+    of random commands that slackens, stretches and (push-pull) compresses the cables."""
+    mech = {"tendon_elasticity": 3000.0, "tendon_damping": 2.0, "motor_mass": 0.01}
+    env = gym.make("Tendon2R-v0", preset=preset, mechanism=mech)
+    env.reset(seed=0)
+    u, rng = env.unwrapped, np.random.default_rng(0)
+    n = u.mechanism.n_tendons
+    slack = stretched = 0
+    for _ in range(300):
+        tension = env.step(rng.uniform(-1, 1, env.action_space.shape))[4]["tendon_tension"]
+        length, speed = u.data.ten_length[:n], u.data.ten_velocity[:n]
+        model = cable_tensions(length, speed, *u.drive.cable)
+        np.testing.assert_allclose(tension, model, rtol=1e-12, atol=1e-12)
+        slack += int(np.sum(length < u.drive.rest_length))
+        stretched += int(np.sum(length > u.drive.rest_length))
+    assert slack and stretched  # both regimes were visited
 
 
 @pytest.mark.parametrize("elastic", [False, True])
@@ -203,7 +206,7 @@ def test_env_starts_at_rest_and_reports_cable_tension(preset):
     np.testing.assert_array_equal(obs, ideal.reset(seed=3)[0])  # same q, dq, reference
     u = env.unwrapped
     n = u.mechanism.n_tendons
-    rest = u.drive.cable_tensions(u.data.ten_length[:n], u.data.ten_velocity[:n])
+    rest = u.tendon_tensions()
     np.testing.assert_allclose(rest, u.mechanism.rest_tension, atol=1e-9)
     actions = np.random.default_rng(0).uniform(-1, 1, (50, *env.action_space.shape))
     runs = []
