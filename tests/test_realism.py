@@ -205,7 +205,6 @@ def test_env_starts_at_rest_and_reports_cable_tension(preset):
     obs, _ = env.reset(seed=3)
     np.testing.assert_array_equal(obs, ideal.reset(seed=3)[0])  # same q, dq, reference
     u = env.unwrapped
-    n = u.mechanism.n_tendons
     rest = u.tendon_tensions()
     np.testing.assert_allclose(rest, u.mechanism.rest_tension, atol=1e-9)
     actions = np.random.default_rng(0).uniform(-1, 1, (50, *env.action_space.shape))

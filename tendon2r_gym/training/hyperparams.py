@@ -20,6 +20,7 @@ from tendon2r_gym.presets import PPO_CONFIG, load_yaml
 from tendon2r_gym.validation import check_keys, integer, invalid, mapping, number
 
 VEC_ENVS = ("native", "subproc", "dummy")
+MAX_FRAME_STACK = 64
 #: PPO settings that may be a schedule, as rl_zoo3 writes one: ``lin_<v>`` decays linearly from
 #: v at the start of training to 0 at its end (SB3's progress_remaining times v).
 SCHEDULES = ("learning_rate", "clip_range", "clip_range_vf")
@@ -52,6 +53,10 @@ class Hyperparams:
     # Start from a trained model's weights and VecNormalize statistics (fine-tuning): a bundle
     # name (e.g. generalist) or a model zip; it must cover the env (learned.check_model_env).
     init_from: str | None = None
+    # The policy sees its last frame_stack observations, oldest first (rl_zoo3's frame_stack:
+    # SB3's VecFrameStack after VecNormalize; zeros before an episode's first): a short history
+    # from which to tell the arm's response, e.g. under per-episode randomization.
+    frame_stack: int = 1
 
     def __post_init__(self) -> None:
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
@@ -59,6 +64,7 @@ class Hyperparams:
         integer("total_timesteps", self.total_timesteps, 1, 10**10)
         integer("n_envs", self.n_envs, 1, 1024)
         integer("torch_threads", self.torch_threads, 1, 256)
+        integer("frame_stack", self.frame_stack, 1, MAX_FRAME_STACK)
         set_("residual_scale", number("residual_scale", self.residual_scale, 0.0, 2.0))
         integer("eval_freq", self.eval_freq, 1, 10**10)
         integer("checkpoint_freq", self.checkpoint_freq, 1, 10**10)
@@ -160,8 +166,8 @@ class Hyperparams:
         from tendon2r_gym.training.split_view import SplitViewPolicy
 
         layout = env_config.observation_layout()
-        keep = {
-            f"{who}_keep": observation.layout_mask(layout, hidden).tolist()
+        keep = {  # one mask per stacked frame
+            f"{who}_keep": observation.layout_mask(layout, hidden).tolist() * self.frame_stack
             for who, hidden in (("actor", self.hide_from_actor), ("critic", self.hide_from_critic))
         }
         return SplitViewPolicy, {**self.policy_kwargs, **keep}

@@ -137,7 +137,15 @@ def make_vec_env(hp: Hyperparams, seed: int) -> Any:
     )
 
 
-def _load_newest(run: RunFolder, venv: Any) -> tuple[Any, Any]:
+def stacked(vecnorm: Any, frame_stack: int) -> Any:
+    """Returns what the policy trains on: ``vecnorm``, or with frame_stack > 1 SB3's
+    VecFrameStack of it (rl_zoo3's order: normalize, then stack)."""
+    from stable_baselines3.common.vec_env import VecFrameStack
+
+    return vecnorm if frame_stack == 1 else VecFrameStack(vecnorm, frame_stack)
+
+
+def _load_newest(run: RunFolder, venv: Any, frame_stack: int) -> tuple[Any, Any]:
     """Returns (PPO, VecNormalize) from the newest readable saved state of the run; a corrupt
     one is skipped with a warning."""
     from stable_baselines3 import PPO
@@ -149,7 +157,7 @@ def _load_newest(run: RunFolder, venv: Any) -> tuple[Any, Any]:
     for zip_path, stats in candidates:
         try:
             vecnorm = VecNormalize.load(str(stats), venv)
-            model = PPO.load(zip_path, env=vecnorm, device="cpu")
+            model = PPO.load(zip_path, env=stacked(vecnorm, frame_stack), device="cpu")
         except Exception as e:  # noqa: BLE001 (any unreadable file: try the one before)
             warnings.warn(f"resume: skipping unreadable {zip_path.name} ({e!r})", stacklevel=2)
             continue
@@ -190,8 +198,8 @@ def _load_initial(hp: Hyperparams, venv: Any, seed: int, run: RunFolder) -> tupl
     vecnorm.training = True
     vecnorm.norm_reward = bool(hp.normalize.get("norm_reward", True))
     model = PPO.load(
-        zip_path, env=vecnorm, device="cpu", custom_objects=hp.ppo_kwargs(), seed=seed,
-        tensorboard_log=str(run.tensorboard),
+        zip_path, env=stacked(vecnorm, hp.frame_stack), device="cpu",
+        custom_objects=hp.ppo_kwargs(), seed=seed, tensorboard_log=str(run.tensorboard),
     )  # fmt: skip
     model.num_timesteps = 0  # a fine-tune counts its own steps (the zip holds the source's)
     print(f"initialized from {zip_path}", flush=True)
@@ -220,6 +228,7 @@ def train_run(
         RUN_META,
         {
             "residual_scale": hp.residual_scale,
+            "frame_stack": hp.frame_stack,
             "seed": seed,
             "env_kwargs": hp.env_kwargs,
             "env_config": {
@@ -231,7 +240,7 @@ def train_run(
     torch.set_num_threads(hp.torch_threads)
     venv = make_vec_env(hp, seed)
     if resume:
-        model, vecnorm = _load_newest(run, venv)
+        model, vecnorm = _load_newest(run, venv, hp.frame_stack)
     elif hp.init_from is not None:
         model, vecnorm = _load_initial(hp, venv, seed, run)
     else:
@@ -239,7 +248,7 @@ def train_run(
         policy, policy_kwargs = hp.policy(env_config)
         model = PPO(
             policy,
-            vecnorm,
+            stacked(vecnorm, hp.frame_stack),
             seed=seed,
             device="cpu",
             verbose=0,
@@ -255,6 +264,7 @@ def train_run(
             hp.eval_freq,
             run,
             hp.residual_scale,
+            hp.frame_stack,
             wall_offset_s=previous["wall_time_s"] if previous else 0.0,
         ),
         TimedCheckpointCallback(

@@ -44,6 +44,8 @@ def zoo_entry(hp: Hyperparams) -> dict[str, Any]:
         "normalize": {**hp.normalize, "gamma": hp.gamma},
         "policy_kwargs": hp.policy_kwargs,
     }
+    if hp.frame_stack > 1:
+        entry["frame_stack"] = hp.frame_stack
     if hp.residual_scale > 0:
         entry["env_wrapper"] = [{WRAPPER: {"residual_scale": hp.residual_scale}}]
     return entry
