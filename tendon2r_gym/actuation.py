@@ -125,7 +125,8 @@ class MomentArms:
             for i in range(model.nu)
             for adr in range(model.ten_J_rowadr[i], model.ten_J_rowadr[i] + model.ten_J_rownnz[i])
         }
-        self._gather = np.array([[at.get((i, j), nnz) for j in (0, 1)] for i in range(model.nu)])
+        self._pairs = [tuple(at.get((i, j), nnz) for j in (0, 1)) for i in range(model.nu)]
+        self._gather = np.array(self._pairs)
         self._padded = np.zeros(nnz + 1)
 
     def dense(self) -> np.ndarray:
@@ -136,6 +137,14 @@ class MomentArms:
             return self._view
         self._padded[:-1] = self._data.ten_J
         return self._padded[self._gather]
+
+    def rows(self) -> list[Sequence[float]]:
+        """Returns :meth:`dense`'s rows as Python floats, the same bits (what cond_of_rows
+        takes; the env's info reads them at every step, so no array is built)."""
+        if self._full and self._ideal:
+            return self._view.tolist()
+        flat = [*self._data.ten_J.tolist(), 0.0]
+        return [(flat[i], flat[j]) for i, j in self._pairs]
 
 
 class ActuationAnalysis:

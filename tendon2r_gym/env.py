@@ -14,7 +14,7 @@ from gymnasium.envs.mujoco.mujoco_env import DEFAULT_SIZE, MujocoEnv
 from gymnasium.utils import EzPickle
 
 from tendon2r_gym import observation as obs_layout
-from tendon2r_gym.actuation import MomentArms, TorqueToTension, cond
+from tendon2r_gym.actuation import MomentArms, TorqueToTension, cond_of_rows
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.model import CAMERA, build_model, tendon_name
 from tendon2r_gym.ops import SCALAR
@@ -339,13 +339,14 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
         diverged = self._check_divergence()
         if self._sensing is not None:  # what the controller gets this step
-            self._measured = self._sensing.one(self._state(), self.np_random)
+            state = self._state()
+            self._measured = self._sensing.one(state, self.np_random)
         # A diverged step reports the last good state: nothing enormous reaches a learner.
         entries = None if diverged else self._obs_entries()
         obs = self._last_obs.copy() if entries is None else np.array(entries, dtype=np.float64)
         truth = obs
         if self._sensing is not None:  # reward and info on the true state
-            truth = self._last_truth.copy() if entries is None else self._true_obs(entries)
+            truth = self._last_truth.copy() if entries is None else self._true_obs(entries, state)
             self._last_truth = truth
         reward, terms = self._get_rew(truth, a, last, diverged)
         info = self._get_info(truth, terms, diverged)
@@ -396,12 +397,12 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         """Returns the observation (:meth:`_obs_entries` as an array)."""
         return np.array(self._obs_entries(measured), dtype=np.float64)
 
-    def _true_obs(self, parts: list[float]) -> np.ndarray:
-        """Returns the observation of the true state: ``parts`` (the entries of the sensors'
-        observation of this step) with the entries the joint state sets rewritten
-        (Task.state_entries)."""
+    def _true_obs(self, parts: list[float], state: list[float]) -> np.ndarray:
+        """Returns the observation of the true ``state`` (:meth:`_state`): ``parts`` (the
+        entries of the sensors' observation of this step) with the entries the joint state
+        sets rewritten (Task.state_entries)."""
         qd1, qd2 = parts[obs_layout.Q_DES]
-        joints, rest = self.task.state_entries(SCALAR, *self._state(), qd1, qd2, self._arm)
+        joints, rest = self.task.state_entries(SCALAR, *state, qd1, qd2, self._arm)
         head, tail = obs_layout.STATE
         return np.array(joints + parts[head.stop : tail.start] + rest + parts[tail.stop :])
 
@@ -417,7 +418,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
             obs,
             terms,
             self.tendon_tensions(),
-            cond(self._arms.dense()),
+            cond_of_rows(SCALAR, self._arms.rows()),
             self.data.time,
             diverged,
         )

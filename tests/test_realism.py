@@ -319,3 +319,19 @@ def test_a_model_of_the_ideal_arm_loads_on_the_real_one_only():
     with pytest.raises(ValueError, match="trained for another env: mechanism"):
         other = gym.make("Tendon2R-v0", preset="real_arm", mechanism={"R1": 0.012})
         check_model_env(recorded, other, "model")
+
+
+@pytest.mark.parametrize("preset", ["default", "real_arm"])
+def test_moment_arm_rows_are_the_dense_matrix(preset):
+    """MomentArms.rows (floats, the env's info) is MomentArms.dense (the array PD reads) bit for
+    bit, on the ideal model and on a realistic one (spools, friction tendons, sparse ten_J),
+    and the info's condition number is actuation.cond of it."""
+    from tendon2r_gym.actuation import cond
+
+    env = gym.make("Tendon2R-v0", preset=preset)
+    env.reset(seed=0)
+    u = env.unwrapped
+    for a in np.random.default_rng(0).uniform(-1, 1, (20, *env.action_space.shape)):
+        info = env.step(a)[4]
+        assert [list(r) for r in u._arms.rows()] == u._arms.dense().tolist()
+        assert info["moment_arm_cond"] == cond(u._arms.dense())
