@@ -118,7 +118,7 @@ class MomentArms:
         # two and passive friction tendons after the motors' ones, and a tendon may end before
         # joint B: J keeps the motors' rows (one motor per tendon) and the arm's columns,
         # gathered from where they sit in the sparse ten_J (the pattern is the model's), or
-        # from the zero appended after it where a tendon does not span the joint.
+        # from a zero appended after it where a tendon does not span the joint (index nnz).
         nnz = data.ten_J.size
         at = {
             (i, int(model.ten_J_colind[adr])): adr
@@ -126,8 +126,6 @@ class MomentArms:
             for adr in range(model.ten_J_rowadr[i], model.ten_J_rowadr[i] + model.ten_J_rownnz[i])
         }
         self._pairs = [tuple(at.get((i, j), nnz) for j in (0, 1)) for i in range(model.nu)]
-        self._gather = np.array(self._pairs)
-        self._padded = np.zeros(nnz + 1)
 
     def dense(self) -> np.ndarray:
         """Returns J (n_tendons, 2): a view into MjData when every row is full and the model
@@ -135,8 +133,7 @@ class MomentArms:
         tendons' rows over the arm's joints."""
         if self._full and self._ideal:
             return self._view
-        self._padded[:-1] = self._data.ten_J
-        return self._padded[self._gather]
+        return np.array(self.rows())
 
     def rows(self) -> list[Sequence[float]]:
         """Returns :meth:`dense`'s rows as Python floats, the same bits (what cond_of_rows
