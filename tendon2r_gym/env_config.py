@@ -291,7 +291,7 @@ class EnvConfig:
     @property
     def n_arm_features(self) -> int:
         """Returns the length of the observation's ``arm`` slice (0 unless observe_arm)."""
-        return len(self.mechanism_ranges.names) if self.observe_arm else 0
+        return len(self.arm_fields)
 
     @property
     def observation_size(self) -> int:
@@ -301,6 +301,21 @@ class EnvConfig:
     def observation_layout(self) -> list[list]:
         """Returns the observation's named layout (tendon2r_gym.observation.layout)."""
         return observation.layout(self.preview_steps, self.n_actions, self.n_arm_features)
+
+    @property
+    def arm_fields(self) -> tuple[str, ...]:
+        """Returns the fields of the observation's ``arm`` slice, in order (none unless
+        observe_arm)."""
+        return self.mechanism_ranges.names if self.observe_arm else ()
+
+    def observation_mask(self, hidden: Any) -> np.ndarray:
+        """Returns the 0/1 multiplier that blanks the observation entries named in ``hidden``
+        (layout names, or ``arm.<field>``: tendon2r_gym.observation.layout_mask)."""
+        return observation.layout_mask(self.observation_layout(), hidden, self.arm_fields)
+
+    def observation_entries(self) -> list[str]:
+        """Returns the names :meth:`observation_mask` accepts."""
+        return observation.entry_names(self.observation_layout(), self.arm_fields)
 
     @property
     def n_substeps(self) -> int:

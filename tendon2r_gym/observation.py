@@ -116,12 +116,32 @@ def table(preview_steps_name: str = "P") -> str:
     return "\n".join(rows)
 
 
-def layout_mask(layout_: list[list], hidden: Iterable[str]) -> np.ndarray:
+def arm_entry(field: str) -> str:
+    """Returns the name of one drawn field's entry of the ``arm`` slice, ``arm.<field>``:
+    hide_from_actor and hide_from_critic take it as well as a layout name (e.g. the model's
+    errors for the critic only, the fields a user knows for both)."""
+    return f"arm.{field}"
+
+
+def entry_names(layout_: list[list], arm_fields: Iterable[str] = ()) -> list[str]:
+    """Returns the names that :func:`layout_mask` can blank: the layout's names, then one
+    :func:`arm_entry` per drawn field (``arm_fields``, in order) if the layout has an arm."""
+    names = [name for name, _ in layout_]
+    return names + [arm_entry(f) for f in arm_fields] if "arm" in names else names
+
+
+def layout_mask(
+    layout_: list[list], hidden: Iterable[str], arm_fields: Iterable[str] = ()
+) -> np.ndarray:
     """Returns a multiplier over an observation of ``layout_`` ([[name, size], ...], from
-    EnvConfig.observation_layout) that blanks the entries named in ``hidden``."""
-    out, start = [], 0
-    hidden = set(hidden)
+    EnvConfig.observation_layout) that blanks the entries named in ``hidden``
+    (:func:`entry_names`; ``arm_fields`` names the arm slice's entries, in order)."""
+    hidden, out = set(hidden), []
     for name, n in layout_:
-        out += [0.0 if name in hidden else 1.0] * n
-        start += n
+        if name == "arm" and name not in hidden:
+            out += [0.0 if arm_entry(f) in hidden else 1.0 for f in arm_fields]
+        else:
+            out += [0.0 if name in hidden else 1.0] * n
+    if len(out) != sum(n for _, n in layout_):
+        raise ValueError(f"arm_fields {list(arm_fields)} do not match the layout {layout_}")
     return np.array(out)

@@ -328,6 +328,40 @@ def test_arm_features_for_one_network_only(tmp_path, hidden, who):
         Hyperparams.from_dict({**cfg["tiny"], "hide_from_actor": ["armm"]})
 
 
+def test_one_drawn_field_hidden_from_the_actor():
+    """hide_from_actor: [arm.<field>] blanks that one entry of the arm slice for the actor
+    (e.g. the model's errors, which a user cannot know), which still reads the other drawn
+    fields; the critic reads them all.  An unknown field is refused by name."""
+    import torch
+
+    from tendon2r_gym.env_config import EnvConfig
+    from tendon2r_gym.observation import arm_slice
+
+    env_kwargs = {"preset": "generalist", "observe_arm": True, "episode_duration": 0.1}
+    hp = Hyperparams.from_entry("default").replace(
+        env_kwargs=env_kwargs, hide_from_actor=["arm.R2"], n_envs=1
+    )
+    config = EnvConfig.make(**env_kwargs)
+    assert config.arm_fields == ("R1", "R2", "a", "b", "c")
+    arm = arm_slice(3, 2, 5)
+    mask = config.observation_mask(hp.hide_from_actor)
+    assert mask[arm].tolist() == [1, 0, 1, 1, 1] and mask[: arm.start].all()
+    policy_class, kwargs = hp.policy(config)
+    model = PPO(policy_class, gym.make("Tendon2R-v0", **env_kwargs), policy_kwargs=kwargs)
+    obs = torch.as_tensor(np.random.default_rng(0).normal(size=(4, config.observation_size)),
+                          dtype=torch.float32)  # fmt: skip
+    actor = lambda o: model.policy.get_distribution(o).distribution.mean  # noqa: E731
+    for index, read_by_actor in zip(range(arm.start, arm.stop), mask[arm], strict=True):
+        other = obs.clone()
+        other[:, index] += 1.0
+        with torch.no_grad():
+            assert torch.equal(actor(obs), actor(other)) != bool(read_by_actor)
+            assert not torch.equal(model.policy.predict_values(obs),
+                                   model.policy.predict_values(other))  # fmt: skip
+    with pytest.raises(ValueError, match="hide_from_actor: unknown key 'arm.motor_tau'"):
+        hp.replace(hide_from_actor=["arm.motor_tau"])
+
+
 def test_a_model_that_observed_its_arm_runs_on_one_fixed_arm(tmp_path):
     """observe_arm on random arms, deployed on an env of one arm inside the ranges (no arm
     slice of its own): PPOPolicy appends the arm's fields normalized over the training ranges,

@@ -45,9 +45,9 @@ class Hyperparams:
     normalize: dict[str, Any] = field(default_factory=dict)  # VecNormalize keyword arguments
     checkpoint_minutes: float = 2.0  # and a checkpoint at least this often (wall time)
     zero_obs: tuple[str, ...] = ()  # observation entries to blank out (ablations)
-    # Observation entries (names of EnvConfig.observation_layout, e.g. arm) that only the critic
-    # sees (privileged: hide_from_actor) or only the actor (hide_from_critic):
-    # tendon2r_gym.training.split_view.
+    # Observation entries (EnvConfig.observation_entries: e.g. arm, or one drawn field such as
+    # arm.density_scale) that only the critic sees (privileged: hide_from_actor) or only the
+    # actor (hide_from_critic): tendon2r_gym.training.split_view.
     hide_from_actor: tuple[str, ...] = ()
     hide_from_critic: tuple[str, ...] = ()
     # Start from a trained model's weights and VecNormalize statistics (fine-tuning): a bundle
@@ -90,7 +90,7 @@ class Hyperparams:
             if key in self.ppo:
                 schedule(f"ppo.{key}", self.ppo[key])
         env_config = EnvConfig.make(**self.env_kwargs)  # before any worker starts
-        names = [name for name, _ in env_config.observation_layout()]
+        names = env_config.observation_entries()
         for key in ("hide_from_actor", "hide_from_critic"):
             hidden = tuple(getattr(self, key) or ())
             check_keys(key, hidden, names)
@@ -165,9 +165,8 @@ class Hyperparams:
             return "MlpPolicy", self.policy_kwargs
         from tendon2r_gym.training.split_view import SplitViewPolicy
 
-        layout = env_config.observation_layout()
         keep = {  # one mask per stacked frame
-            f"{who}_keep": observation.layout_mask(layout, hidden).tolist() * self.frame_stack
+            f"{who}_keep": env_config.observation_mask(hidden).tolist() * self.frame_stack
             for who, hidden in (("actor", self.hide_from_actor), ("critic", self.hide_from_critic))
         }
         return SplitViewPolicy, {**self.policy_kwargs, **keep}
