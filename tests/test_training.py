@@ -56,6 +56,12 @@ def test_smoke_train_then_resume(tmp_path):
     meta = folder.read_json("run.json")
     assert meta["env_config"]["mechanism"]["R1"] == 0.014 and meta["residual_scale"] == 0.5
     best_before = np.mean(folder.read_json("best_metrics.json")["rms_deg"])
+    # The same command again, without --resume, would start over on top of the run: refused,
+    # the run untouched.
+    saved = {p: p.read_bytes() for p in (run / "seed_0").iterdir() if p.is_file()}
+    with pytest.raises(ValueError, match=r"run_dir = .*--resume continues them"):
+        _train(config, run)
+    assert {p: p.read_bytes() for p in (run / "seed_0").iterdir() if p.is_file()} == saved
     resumed = _train(config, run, "--total-timesteps", "512", "--resume")["runs"][0]
     assert resumed["timesteps"] >= 512
     assert folder.read_json("summary.json")["wall_time_s"] >= first["wall_time_s"]

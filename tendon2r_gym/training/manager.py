@@ -9,6 +9,8 @@ tendon2r_gym.runs) and survives interruption:
 - :meth:`Experiment.resume` continues the run that was started: the hyperparameters recorded
   in its folder (budget and overrides included), never the entry's current defaults, from the
   newest readable saved state (a corrupt one is skipped with a warning);
+- a new run never overwrites one that was started: without ``resume``, a folder that holds a
+  run is refused (rl_zoo3 numbers its folders instead; here ``--run-dir`` names the run);
 - ``summary.json`` adds up steps and wall time over every segment, and command.txt keeps the
   original command with one line per resume.
 """
@@ -87,6 +89,18 @@ class Experiment:
         """Trains one run per seed (continuing those with a saved state if ``resume``) and
         writes SEEDS_SUMMARY.  A Ctrl-C stops them all: the summary of the finished seeds is
         written, then it re-raises."""
+        started = [
+            str(run.path)
+            for run in map(self.run_folder, self.seeds)
+            if run.read_config() is not None
+        ]
+        if not resume and started:
+            raise invalid(
+                "run_dir",
+                str(self.base),
+                f"a folder without runs (it holds {started}: --resume continues them; a new "
+                "run needs another --run-dir)",
+            )
         results: list[dict[str, Any]] = []
         try:
             for seed in self.seeds:
