@@ -21,7 +21,7 @@ import numpy as np
 
 from tendon2r_gym.bundle import bundle_meta, bundle_names, bundled_model, training_summary
 from tendon2r_gym.evaluation import BASELINE, evaluate, names
-from tendon2r_gym.metrics import beats, rms_ratio
+from tendon2r_gym.metrics import beats, rms_ratio, worst_ratio
 from tendon2r_gym.plots import plot_trace
 from tendon2r_gym.presets import DATA_DIR
 from tendon2r_gym.runs import RUN_META, RunFolder, model_files
@@ -420,15 +420,20 @@ def perturbed_arms(preset: str, n: int, seed: int) -> list[dict[str, Any]]:
     return arms
 
 
+def realism_arms() -> list[tuple[str, dict[str, Any]]]:
+    """Returns the realism section's arms as (name, env kwargs): the real arm, then its
+    seeded perturbations."""
+    perturbed = perturbed_arms(REALISM_BASE, REALISM_ARMS, REALISM_SEED)
+    return [("real_arm", {"preset": REALISM_BASE})] + [
+        (f"perturbed {i}", kw) for i, kw in enumerate(perturbed)
+    ]
+
+
 def realism(episodes: int) -> list[dict[str, Any]]:
     """PD, CT (nominal model), the ideal-trained residual and the randomized residual on the
     real arm and its seeded perturbations: one row per arm, RMS per joint and tension rate
     per policy (a policy without its bundle is left out)."""
-    arms = [("real_arm", {"preset": REALISM_BASE})]
-    arms += [
-        (f"perturbed {i}", kw)
-        for i, kw in enumerate(perturbed_arms(REALISM_BASE, REALISM_ARMS, REALISM_SEED))
-    ]
+    arms = realism_arms()
     policies = [p for p in REALISM_POLICIES if p[3] is None or bundle_meta(p[3])]
     seeds = list(range(episodes))
     rows = []
@@ -470,7 +475,9 @@ def realism_lines(rows: list[dict[str, Any]]) -> list[str]:
         f"the `{REALISM_BUNDLE}` bundle's primary model, trained on the ideal arm; residual "
         f"(randomized): the `{RANDOMIZED_BUNDLE}` bundle's, trained on `{REALISM_BASE}` with "
         "every one of these drawn anew every episode from the same ranges "
-        "(`mechanism_ranges: real_arm`), on a PD "
+        "(`mechanism_ranges: real_arm`); its actor sees each arm's drawn cables, motors and "
+        "sensors, which a user knows of their arm (`observe_arm`), and only its critic the "
+        "model's errors (`hide_from_actor`); on a PD "
         "whose gains `tendon2r-tune-pd --hyperparams real_arm` tuned over the same ranges "
         "(its `pd_gains`). PD (tuned): PD with the gains `tendon2r-tune-pd` finds on that arm "
         f"({TUNE_EPISODES} held-out episodes; its bandwidth in Hz). RMS error A / B (deg); for "
@@ -479,7 +486,7 @@ def realism_lines(rows: list[dict[str, Any]]) -> list[str]:
         "| arm | PD | PD (tuned) | CT | " + " | ".join(p[1] for p in learned) + " |",
         "|---|---|---|---|" + "---|" * len(learned),
     ]
-    worst = lambda r, key, base: float(max(np.divide(r[key]["rms_deg"], r[base]["rms_deg"])))  # noqa: E731
+    worst = lambda r, key, base: worst_ratio(r[key]["rms_deg"], r[base]["rms_deg"])  # noqa: E731
     for r in rows:
         cells = [f"{_fmt(r[k]['rms_deg'])} ({worst(r, k, 'pd'):.2f}x)" for k, *_ in learned]
         tuned = r["pd_tuned"]

@@ -17,6 +17,12 @@ def beats(rms_deg: Sequence[float], baseline_rms_deg: Sequence[float]) -> bool:
     return all(p <= d for p, d in zip(rms_deg, baseline_rms_deg, strict=True))
 
 
+def worst_ratio(rms_deg: Sequence[float], baseline_rms_deg: Sequence[float]) -> float:
+    """Returns the larger of the joints' RMS errors as a multiple of the baseline's (<= 1:
+    :func:`beats` the baseline)."""
+    return float(max(r / b for r, b in zip(rms_deg, baseline_rms_deg, strict=True)))
+
+
 def rms_ratio(values: Sequence[float], baseline: Sequence[float]) -> float:
     """Returns the RMS over entries (tendons) of ``values`` divided by the baseline's."""
     return float(np.sqrt(np.mean(np.square(values))) / np.sqrt(np.mean(np.square(baseline))))

@@ -97,6 +97,7 @@ def test_sensitivity_variants_change_one_knob():
 
 def test_generalist_study_end_to_end(tmp_path):
     """Unseen arms, PD and CT rows, the summary and the markdown (no bundle: baselines only)."""
+    from tendon2r_gym.metrics import worst_ratio
     from tendon2r_gym.studies import generalist
 
     out = generalist.main(
@@ -107,7 +108,7 @@ def test_generalist_study_end_to_end(tmp_path):
     for arm in out["arms"].values():
         assert arm["rows"]["ct"]["rms_deg"][0] < arm["rows"]["pd"]["rms_deg"][0]
     assert "| unseen_1 |" in (tmp_path / "generalist.md").read_text()
-    assert generalist.worst_ratio([1.0, 3.0], [2.0, 1.0]) == 3.0
+    assert worst_ratio([1.0, 3.0], [2.0, 1.0]) == 3.0
 
 
 def test_generalist_fine_tuning_curve(tmp_path):
@@ -132,3 +133,28 @@ def test_generalist_fine_tuning_curve(tmp_path):
     assert (
         "## Fine-tuning against training from scratch" in (tmp_path / "generalist.md").read_text()
     )
+
+
+def test_realism_ablation_scores_runs_on_the_realism_arms(tmp_path):
+    """The realism ablation reads a run folder (here the bundled real_arm run) and scores its
+    best model on the realism section's arms against PD: its counts follow its own per-arm
+    figures, and a folder that is not a run is refused by name."""
+    import pytest
+
+    from tendon2r_gym.benchmark import realism_arms
+    from tendon2r_gym.bundle import bundled_model
+    from tendon2r_gym.metrics import beats, worst_ratio
+    from tendon2r_gym.studies import realism_ablation
+
+    run = bundled_model("real_arm").parent
+    out = realism_ablation.main(["--runs", str(run), "--episodes", "1", "--out", str(tmp_path)])
+    arms, (record,) = out["arms"], out["runs"]
+    assert [a["arm"] for a in arms] == [name for name, _ in realism_arms()]
+    assert record["arms_le_pd"] == sum(beats(a["runs"][0], a["pd"]) for a in arms)
+    lost = [a["arm"] for a in arms if worst_ratio(a["runs"][0], a["pd"]) > 1]
+    assert record["lost_to_pd"] == lost
+    assert record["command"].startswith("tendon2r-train --hyperparams real_arm")
+    text = (tmp_path / "realism_ablation.md").read_text()
+    assert text.count("| perturbed ") == len(arms) - 1 and "actor not arm.density_scale" in text
+    with pytest.raises(ValueError, match="--runs: .* is not a run folder"):
+        realism_ablation.main(["--runs", str(tmp_path), "--out", str(tmp_path)])

@@ -32,7 +32,7 @@ import yaml
 from tendon2r_gym.arms import GEOMETRY, draw_arms
 from tendon2r_gym.bundle import bundle_names, bundled_model, training_summary
 from tendon2r_gym.evaluation import evaluate
-from tendon2r_gym.metrics import beats, rms_ratio
+from tendon2r_gym.metrics import beats, rms_ratio, worst_ratio
 from tendon2r_gym.presets import load_yaml, preset_path
 from tendon2r_gym.runs import command_line
 from tendon2r_gym.studies import joints, save_json
@@ -55,11 +55,6 @@ def with_pull_only_cables(content: dict[str, Any]) -> dict[str, Any]:
     cables = load_yaml(preset_path(PULL_ONLY_PRESET))["mechanism"]
     cables = {k: v for k, v in cables.items() if k not in GEOMETRY}
     return {**content, "mechanism": {**content["mechanism"], **cables}}
-
-
-def worst_ratio(rms: list[float], baseline: list[float]) -> float:
-    """Returns the larger of the two joints' RMS errors as a multiple of the baseline's."""
-    return float(max(r / b for r, b in zip(rms, baseline, strict=True)))
 
 
 def evaluate_arm(

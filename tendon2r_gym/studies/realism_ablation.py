@@ -1,0 +1,133 @@
+"""What the randomized residual sees: finished real-arm runs on the realism section's arms.
+
+    python scripts/realism_ablation.py --runs runs/real_arm/seed_0 runs/real_arm_blind/seed_0
+    # results/realism_ablation.md and .json
+
+Each run (a folder written by ``tendon2r-train``, e.g. of the configs/ppo.yaml entries
+``real_arm``, ``real_arm_blind`` and ``real_arm_frame_stack``) gives its training record
+(best evaluation, its effort, steps and wall time) and its best model's RMS error on the
+arms of ``make benchmark``'s realism section (tendon2r_gym.benchmark.realism_arms), against
+PD on the same episodes, as that section scores the shipped bundle.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tendon2r_gym.benchmark import realism_arms
+from tendon2r_gym.evaluation import evaluate
+from tendon2r_gym.metrics import beats, worst_ratio
+from tendon2r_gym.runs import BEST_METRICS, CONFIG, SUMMARY, RunFolder, command_line
+from tendon2r_gym.studies import joints, save_json
+
+
+def _record(run: RunFolder) -> dict[str, Any]:
+    best, summary = run.read_json(BEST_METRICS), run.read_json(SUMMARY)
+    config = run.read_config() or {}
+    return {
+        "run": str(run.path),
+        "command": run.train_command,
+        "env_kwargs": config.get("env_kwargs", {}),
+        "hide_from_actor": config.get("hide_from_actor", []),
+        "frame_stack": config.get("frame_stack", 1),
+        "timesteps": summary["timesteps"],
+        "wall_time_s": summary["wall_time_s"],
+        "best_timesteps": best["timesteps"],
+        "best_rms_deg": best["rms_deg"],
+        "best_rms_tension_N": best["rms_tension_N"],
+        "best_rms_tension_rate_N_per_s": best["rms_tension_rate_N_per_s"],
+    }
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    p.add_argument("--runs", nargs="+", required=True, help="run folders (seed_<n>)")
+    p.add_argument("--episodes", type=int, default=3, help="per arm, as make benchmark")
+    p.add_argument("--out", default="results")
+    args = p.parse_args(argv)
+    command = command_line(argv, "python scripts/realism_ablation.py")
+    runs = [RunFolder(Path(r)) for r in args.runs]
+    for run in runs:
+        if run.read_config() is None:
+            raise ValueError(f"--runs: {str(run.path)!r} is not a run folder (no {CONFIG})")
+    seeds = list(range(args.episodes))
+    records = [_record(run) for run in runs]
+    arms = []
+    for name, kwargs in realism_arms():
+        pd, _ = evaluate("pd", kwargs, seeds)
+        row = {"arm": name, "pd": pd["rms_deg"], "runs": []}
+        for run in runs:
+            metrics, _ = evaluate("ppo", kwargs, seeds, run.best.with_suffix(".zip"))
+            row["runs"].append(metrics["rms_deg"])
+        arms.append(row)
+        print(name, joints(pd["rms_deg"]), *(joints(r) for r in row["runs"]), flush=True)
+    for i, record in enumerate(records):
+        ratios = [worst_ratio(a["runs"][i], a["pd"]) for a in arms]
+        record.update(
+            arms_le_pd=sum(beats(a["runs"][i], a["pd"]) for a in arms),
+            median_worst_ratio=float(np.median(ratios)),
+            max_worst_ratio=float(np.max(ratios)),
+            lost_to_pd=[a["arm"] for a, r in zip(arms, ratios, strict=True) if r > 1.0],
+        )
+    result = {"command": command, "episodes": args.episodes, "runs": records, "arms": arms}
+    write(result, Path(args.out))
+    return result
+
+
+def _sees(record: dict[str, Any]) -> str:
+    kwargs = record["env_kwargs"]
+    if not kwargs.get("observe_arm"):
+        seen = "no arm features"
+    elif record["hide_from_actor"]:
+        seen = f"the drawn arm; the actor not {', '.join(record['hide_from_actor'])}"
+    else:
+        seen = "the drawn arm"
+    stack = record["frame_stack"]
+    return seen + (f"; its last {stack} observations" if stack > 1 else "")
+
+
+def write(result: dict[str, Any], out: Path) -> None:
+    """Writes realism_ablation.json and realism_ablation.md."""
+    save_json(out, "realism_ablation", result)
+    n = len(result["arms"])
+    lines = [
+        "# Realism ablation: what the randomized residual sees",
+        "",
+        f"Produced by `{result['command']}`. Training: each run's best evaluation (its "
+        "`best_metrics.json`, on the entry's evaluation seeds: random arms from its ranges). "
+        f"Realism arms: the {n} arms of `make benchmark`'s realism section, "
+        f"{result['episodes']} episodes each, the run's best model against PD on the same "
+        "episodes; ratio: the worse joint's RMS as a multiple of PD's. Tensions per tendon.",
+        "",
+        "| # | run | sees | steps (best at) | wall (s) | training RMS A / B (deg) "
+        "| RMS tension (N) | RMS tension rate (N/s) | <= PD on both joints | median ratio "
+        "| worst ratio | loses to PD on |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for i, r in enumerate(result["runs"], 1):
+        tension = " / ".join(f"{x:.2f}" for x in r["best_rms_tension_N"])
+        rate = " / ".join(f"{x:.1f}" for x in r["best_rms_tension_rate_N_per_s"])
+        lines.append(
+            f"| {i} | `{r['command']}` | {_sees(r)} | "
+            f"{r['timesteps']:,} ({r['best_timesteps']:,}) | {r['wall_time_s']:.0f} | "
+            f"{joints(r['best_rms_deg'])} | {tension} | {rate} | "
+            f"{r['arms_le_pd']} of {n} | {r['median_worst_ratio']:.2f} | "
+            f"{r['max_worst_ratio']:.2f} | {', '.join(r['lost_to_pd']) or 'none'} |"
+        )
+    lines += ["", "Per arm, RMS A / B (deg):", ""]
+    numbers = range(1, len(result["runs"]) + 1)
+    lines.append("| arm | PD | " + " | ".join(f"run {i}" for i in numbers) + " |")
+    lines.append("|---|---|" + "---|" * len(result["runs"]))
+    for a in result["arms"]:
+        cells = [f"{joints(x)} ({worst_ratio(x, a['pd']):.2f}x)" for x in a["runs"]]
+        lines.append(f"| {a['arm']} | {joints(a['pd'])} | " + " | ".join(cells) + " |")
+    (out / "realism_ablation.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines), flush=True)
+
+
+if __name__ == "__main__":
+    main()
