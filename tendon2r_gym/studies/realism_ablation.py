@@ -30,7 +30,7 @@ def _record(run: RunFolder) -> dict[str, Any]:
     config = run.read_config() or {}
     return {
         "run": str(run.path),
-        "command": run.train_command,
+        "command": run.train_command(),
         "env_kwargs": config.get("env_kwargs", {}),
         "hide_from_actor": config.get("hide_from_actor", []),
         "frame_stack": config.get("frame_stack", 1),
