@@ -157,5 +157,5 @@ def test_realism_ablation_scores_runs_on_the_realism_arms(tmp_path):
     text = (tmp_path / "realism_ablation.md").read_text()
     per_arm = [line for line in text.splitlines() if line.startswith("| perturbed ")]
     assert len(per_arm) == len(arms) - 1 and "actor not arm.density_scale" in text
-    with pytest.raises(ValueError, match="--runs: .* is not a run folder"):
+    with pytest.raises(ValueError, match=r"--runs = .* is invalid; allowed: run folders"):
         realism_ablation.main(["--runs", str(tmp_path), "--out", str(tmp_path)])

@@ -23,11 +23,15 @@ from tendon2r_gym.evaluation import evaluate
 from tendon2r_gym.metrics import beats, worst_ratio
 from tendon2r_gym.runs import BEST_METRICS, CONFIG, SUMMARY, RunFolder, command_line
 from tendon2r_gym.studies import joints, save_json
+from tendon2r_gym.validation import invalid
 
 
 def _record(run: RunFolder) -> dict[str, Any]:
+    """Returns the run's training record; raises if ``run`` is not a run folder."""
+    config = run.read_config()
+    if config is None:
+        raise invalid("--runs", str(run.path), f"run folders (seed_<n>, with a {CONFIG})")
     best, summary = run.read_json(BEST_METRICS), run.read_json(SUMMARY)
-    config = run.read_config() or {}
     return {
         "run": str(run.path),
         "command": run.train_command(),
@@ -51,11 +55,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     args = p.parse_args(argv)
     command = command_line(argv, "python scripts/realism_ablation.py")
     runs = [RunFolder(Path(r)) for r in args.runs]
-    for run in runs:
-        if run.read_config() is None:
-            raise ValueError(f"--runs: {str(run.path)!r} is not a run folder (no {CONFIG})")
+    records = [_record(run) for run in runs]  # every folder checked before any evaluation
     seeds = list(range(args.episodes))
-    records = [_record(run) for run in runs]
     arms = []
     for name, kwargs in realism_arms():
         pd, _ = evaluate("pd", kwargs, seeds)
