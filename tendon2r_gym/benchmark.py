@@ -451,7 +451,7 @@ def realism(episodes: int) -> list[dict[str, Any]]:
         row["pd_tuned"] = {
             "rms_deg": metrics["rms_deg"],
             "rms_tension_rate_N_per_s": metrics["rms_tension_rate_N_per_s"],
-            "bandwidth_hz": scan.chosen_hz,
+            "bandwidth_hz": scan.chosen,
         }
         rows.append(row)
         shown = "  ".join(f"{k} {_fmt(row[k]['rms_deg'])}" for k in [p[0] for p in policies])

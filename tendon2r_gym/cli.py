@@ -28,6 +28,7 @@ from typing import Any, TypeVar
 from tendon2r_gym.evaluation import names as policy_names
 from tendon2r_gym.runs import seed_dirs
 from tendon2r_gym.training.hyperparams import VEC_ENVS
+from tendon2r_gym.tuning import SCANS
 
 if typing.TYPE_CHECKING:
     from tendon2r_gym.training import Experiment
@@ -257,13 +258,15 @@ class TunePDArgs:
 
     tendon2r-tune-pd --env-config my_arm.yaml --out my_arm_tuned.yaml
     tendon2r-evaluate --policy pd --env-config my_arm_tuned.yaml
-    tendon2r-tune-pd --hyperparams real_arm --episodes 16   # the env an entry trains on
+    tendon2r-tune-pd --hyperparams real_arm --episodes 16 --scan max_delay_phase
     """
 
     env_config: str = arg("default", "preset name or experiment file")
     hyperparams: str | None = arg(None, "tune on this ppo.yaml entry's env instead")
     episodes: int = arg(3, "tuning episodes (seeds 1000 ..; more for an env that draws arms)")
     out: str | None = arg(None, "write the experiment file with the tuned pd_gains here")
+    scan: str = arg("bandwidth_hz", "the gain to scan (max_delay_phase: gains scheduled on each "
+                    "arm's loop delay)", choices=SCANS)  # fmt: skip
 
 
 def tune_pd_main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -280,9 +283,9 @@ def tune_pd_main(argv: list[str] | None = None) -> dict[str, Any]:
     env_kwargs: dict[str, Any] = {"preset": args.env_config}
     if args.hyperparams is not None:
         env_kwargs = Hyperparams.from_entry(args.hyperparams, PPO_CONFIG).env_kwargs
-    scan = tune_pd(env_kwargs, args.episodes)
+    scan = tune_pd(env_kwargs, args.episodes, args.scan)
     print("\n".join(scan.lines()))
-    result = {"pd_gains": scan.gains.to_dict(), "bandwidths_hz": list(scan.bandwidths_hz),
+    result = {"pd_gains": scan.gains.to_dict(), "scan": scan.field, "values": list(scan.values),
               "worst_deg": [list(w) for w in scan.worst_deg]}  # fmt: skip
     if args.out:
         data = {**load_yaml(preset_path(args.env_config)), "pd_gains": scan.gains.to_dict()}

@@ -3,6 +3,12 @@
 The package's defaults are ``data/pd.yaml``; an experiment file may set its own with a
 ``pd_gains`` section (EnvConfig.pd_gains), for example the one ``tendon2r-tune-pd`` finds for
 a lagging arm (tendon2r_gym.tuning).
+
+A real arm's motor lag and delays (tendon2r_gym.realism) take phase out of the loop: about
+w tau at the closed loop's frequency w, for a loop delay tau (:func:`loop_delay`).  With
+``max_delay_phase`` the bandwidth is held to that phase on each arm, w <= max_delay_phase /
+tau: a stiff PD where the delays are short, a soft one where they are long, on the arm's known
+delays (gain scheduling; ``tendon2r-tune-pd --scan max_delay_phase`` tunes the phase).
 """
 
 from __future__ import annotations
@@ -14,7 +20,10 @@ from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
 
+import numpy as np
+
 from tendon2r_gym.actuation import FORCE_DAMPING
+from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.presets import PD_CONFIG, load_yaml
 from tendon2r_gym.validation import check_keys, mapping, number
 
@@ -25,15 +34,19 @@ class Gains:
 
     The joint error obeys e'' + 2 zeta w e' + w^2 e = 0 with w = 2 pi bandwidth_hz, because the
     feedback torque is scaled by the joint inertia M(q).  The bandwidth is capped at
-    ``max_bandwidth_fraction`` of the control rate so that the sampled loop stays stable."""
+    ``max_bandwidth_fraction`` of the control rate so that the sampled loop stays stable, and
+    with ``max_delay_phase`` at that phase over the arm's loop delay (module docstring)."""
 
     bandwidth_hz: float = 30.0  # closed-loop natural frequency (Hz)
     damping_ratio: float = 1.0
     max_bandwidth_fraction: float = 0.05  # of the control rate 1 / ctrl_dt
     force_damping: float = FORCE_DAMPING  # damped-inverse regularization, relative to |J|
+    max_delay_phase: float | None = None  # rad the loop delay may take at w; None: no cap
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
+            if f.name == "max_delay_phase" and self.max_delay_phase is None:
+                continue
             value = number(f"pd_gains.{f.name}", getattr(self, f.name), 0.0, lo_open=True)
             object.__setattr__(self, f.name, value)
 
@@ -49,9 +62,20 @@ class Gains:
         """Returns the gains as plain YAML-friendly numbers."""
         return dataclasses.asdict(self)
 
-    def natural_frequency(self, ctrl_dt: float) -> float:
-        """Returns w (rad/s): the bandwidth, capped at the fraction of the control rate."""
-        return 2 * math.pi * min(self.bandwidth_hz, self.max_bandwidth_fraction / ctrl_dt)
+    def natural_frequency(self, ctrl_dt: float, delay: float | np.ndarray = 0.0) -> Any:
+        """Returns w (rad/s): the bandwidth, capped at the fraction of the control rate and,
+        with max_delay_phase, at max_delay_phase / ``delay`` (the loop delay in s, one per arm:
+        :func:`loop_delay`; then one w per arm)."""
+        w = 2 * math.pi * min(self.bandwidth_hz, self.max_bandwidth_fraction / ctrl_dt)
+        if self.max_delay_phase is None:
+            return w
+        return np.minimum(w, self.max_delay_phase / np.asarray(delay, dtype=float))
+
+
+def loop_delay(mechanism: Mechanism, observation_delay: float, ctrl_dt: float) -> float:
+    """Returns the loop delay of an arm (s): the age of its measurements, the dead time and lag
+    of its motors, and half a control period for the command's zero-order hold.  Always > 0."""
+    return observation_delay + mechanism.motor_delay + mechanism.motor_tau + 0.5 * ctrl_dt
 
 
 @lru_cache(maxsize=1)

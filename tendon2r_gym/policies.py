@@ -25,7 +25,7 @@ import numpy as np
 from tendon2r_gym import observation
 from tendon2r_gym.actuation import TorqueToTension
 from tendon2r_gym.env_config import ACTION_MODES
-from tendon2r_gym.gains import Gains, gains_of
+from tendon2r_gym.gains import Gains, gains_of, loop_delay
 from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.observation import DQ, DQ_DES, Q_DES, Q
 from tendon2r_gym.reference import Reference
@@ -34,13 +34,14 @@ from tendon2r_gym.validation import invalid
 
 def _env_options(config: Any) -> dict[str, Any]:
     """Returns what a baseline takes from an env config besides the mechanism: its gains
-    (``pd_gains``), the action mode, and the env's action filter (alpha, where the last
-    command is observed)."""
+    (``pd_gains``), the action mode, the env's action filter (alpha, where the last command is
+    observed) and the age of its measurements (for gains scheduled on the loop delay)."""
     where = observation.last_action_slice(config.preview_steps, config.n_actions)
     return {
         "gains": config.pd_gains,
         "action_mode": config.action_mode,
         "action_filter": (config.action_filter_alpha, where),
+        "observation_delay": config.observation_delay,
     }
 
 
@@ -56,14 +57,15 @@ class _TendonController:
         gains: Gains | None = None,
         action_mode: str = "tension",
         action_filter: tuple[float, slice] | None = None,
+        observation_delay: float = 0.0,
     ) -> None:
         if action_mode not in ACTION_MODES:
             raise invalid("action_mode", action_mode, f"one of {ACTION_MODES}")
         self.mechanism = mechanism
         self.action_mode = action_mode
+        self.ctrl_dt, self.observation_delay = ctrl_dt, observation_delay
         self.gains = gains_of(gains)
-        w = self.gains.natural_frequency(ctrl_dt)
-        self.kp, self.kd = w * w, 2.0 * self.gains.damping_ratio * w
+        self._set_gains([mechanism], [observation_delay])
         self.actuation = TorqueToTension(mechanism, self.gains.force_damping)
         self.kinematics = self.actuation.kinematics
         self.tendon_command = self.actuation.command
@@ -86,17 +88,39 @@ class _TendonController:
         """Returns the private MjData of :attr:`model`."""
         return self.actuation.data
 
-    def follow(self, mechanisms: list[Mechanism]) -> None:
+    def _set_gains(self, mechanisms: list[Mechanism], observation_delays: list[float]) -> None:
+        """Sets kp, kd: numbers, or with ``max_delay_phase`` one row per arm, each held to the
+        phase over its loop delay (tendon2r_gym.gains)."""
+        if self.gains.max_delay_phase is None:
+            w = self.gains.natural_frequency(self.ctrl_dt)
+        else:
+            delays = [
+                loop_delay(m, d, self.ctrl_dt)
+                for m, d in zip(mechanisms, observation_delays, strict=True)
+            ]
+            w = self.gains.natural_frequency(self.ctrl_dt, np.array(delays))[:, None]
+        self.kp, self.kd = w * w, 2.0 * self.gains.damping_ratio * w
+
+    def follow(
+        self, mechanisms: list[Mechanism], observation_delays: list[float] | None = None
+    ) -> None:
         """Controls the arms ``mechanisms`` (one, or one per row of the observations; random
-        arms): each one's nominal model and force limit."""
+        arms): each one's nominal model and force limit, and with gains scheduled on the loop
+        delay each one's gains (``observation_delays``: each arm's age of its measurements;
+        None: the env's)."""
         self.actuation.follow(mechanisms)
         self.mechanism = mechanisms[0]
+        if self.gains.max_delay_phase is not None:
+            delays = observation_delays or [self.observation_delay] * len(mechanisms)
+            self._set_gains(mechanisms, delays)
 
     def reset(self, info: dict[str, Any]) -> None:
-        """Follows the episode's arm, if the env draws arms (``mechanism`` in the reset info
-        of Tendon2R-v0, or of its vector env: one arm per row)."""
+        """Follows the episode's arm, if the env draws arms (``mechanism`` and
+        ``observation_delay`` in the reset info of Tendon2R-v0, or of its vector env: one arm
+        per row)."""
         if "mechanism" in info:
-            self.follow(_per_arm(info, "mechanism", Mechanism.from_dict))
+            delays = np.atleast_1d(info["observation_delay"]).astype(float).tolist()
+            self.follow(_per_arm(info, "mechanism", Mechanism.from_dict), delays)
 
     def _torque(self, obs: np.ndarray, M: np.ndarray) -> np.ndarray:
         raise NotImplementedError
@@ -151,8 +175,9 @@ class ComputedTorquePolicy(_TendonController):
         gains: Gains | None = None,
         action_mode: str = "tension",
         action_filter: tuple[float, slice] | None = None,
+        observation_delay: float = 0.0,
     ) -> None:
-        super().__init__(mechanism, ctrl_dt, gains, action_mode, action_filter)
+        super().__init__(mechanism, ctrl_dt, gains, action_mode, action_filter, observation_delay)
         self._set_references([reference])
 
     @classmethod

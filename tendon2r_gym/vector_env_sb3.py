@@ -48,7 +48,8 @@ class SB3VecEnv(VecEnv):
         actions = self._actions
         if self.pd is not None:
             if self._random_arms:  # PD follows each slot's arm
-                self.pd.follow([arm.mechanism for arm in self.venv.arms])
+                arms = self.venv.arms
+                self.pd.follow([a.mechanism for a in arms], [a.observation_delay for a in arms])
             base, _ = self.pd.predict(self._raw)
             actions = residual_command(base, actions, self.residual_scale)
         obs, rewards, terminated, truncated, info = self.venv.step(actions)

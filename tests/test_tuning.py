@@ -9,10 +9,17 @@ import yaml
 
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.evaluation import evaluate
-from tendon2r_gym.gains import Gains, default_gains
+from tendon2r_gym.gains import Gains, default_gains, loop_delay
 from tendon2r_gym.learned import PPOPolicy, ResidualPDWrapper
 from tendon2r_gym.policies import ComputedTorquePolicy, PDPolicy
-from tendon2r_gym.tuning import GRID_RATIO, MIN_BANDWIDTH_HZ, bandwidth_grid, tune_pd
+from tendon2r_gym.mechanism import Mechanism
+from tendon2r_gym.tuning import (
+    GRID_RATIO,
+    MIN_BANDWIDTH_HZ,
+    bandwidth_grid,
+    delay_phase_grid,
+    tune_pd,
+)
 
 #: An arm whose motor lag and delays make the default 30 Hz PD diverge.
 LAGGING = {"preset": "real_arm", "mechanism": {"motor_delay": 0.002, "motor_tau": 0.004},
@@ -74,11 +81,11 @@ def test_tuning_finds_stable_gains_where_the_default_diverges():
     scan = tune_pd(LAGGING, episodes=1)
     default, _ = evaluate("pd", LAGGING, [0])
     tuned, _ = evaluate("pd", {**LAGGING, "pd_gains": scan.gains.to_dict()}, [0])
-    assert scan.chosen_hz < default_gains().bandwidth_hz
+    assert scan.chosen < default_gains().bandwidth_hz
     assert max(default["rms_deg"]) > 10.0 > 10 * max(tuned["rms_deg"])
-    i = scan.bandwidths_hz.index(scan.chosen_hz)
+    i = scan.values.index(scan.chosen)
     assert max(scan.worst_deg[i + 1]) < 10.0  # the gain margin: one grid step above holds
-    assert scan.gains == Gains.from_dict({"bandwidth_hz": scan.chosen_hz})
+    assert scan.gains == Gains.from_dict({"bandwidth_hz": scan.chosen})
 
 
 def test_tune_pd_command_writes_a_file_that_tunes_to_itself(tmp_path):
@@ -100,3 +107,63 @@ def _preset(name):
     from tendon2r_gym.presets import preset_path
 
     return preset_path(name)
+
+
+# -- gains scheduled on each arm's loop delay (pd_gains.max_delay_phase) -------------------------
+def test_delay_phase_caps_the_bandwidth_at_the_phase_over_the_loop_delay():
+    mech = EnvConfig.make("real_arm").mechanism
+    delay = loop_delay(mech, 0.001, 0.001)
+    assert math.isclose(delay, 0.001 + mech.motor_delay + mech.motor_tau + 0.0005)
+    free = Gains.from_dict({"bandwidth_hz": 40.0})
+    assert free.natural_frequency(0.001, delay) == 2 * math.pi * 40.0  # no phase: no cap
+    held = Gains.from_dict({"bandwidth_hz": 40.0, "max_delay_phase": 0.5})
+    w = held.natural_frequency(0.001, np.array([delay, 1e-4]))
+    np.testing.assert_allclose(w, [0.5 / delay, 2 * math.pi * 40.0])  # a short delay: the cap
+    with pytest.raises(ValueError, match=r"pd_gains.max_delay_phase = 0 .*\(0, inf\)"):
+        Gains.from_dict({"max_delay_phase": 0})
+
+
+def test_scheduled_pd_is_the_fixed_pd_of_each_drawn_arms_bandwidth():
+    """Under mechanism_ranges each episode draws delays; PD with max_delay_phase then acts as
+    the PD with that arm's bandwidth, phase / (2 pi loop delay), in the single env (its reset
+    info) and in every row of the vector env."""
+    phase = 0.5
+    kwargs = {"preset": "real_arm", "mechanism_ranges": "real_arm", "episode_duration": 0.05,
+              "pd_gains": {"bandwidth_hz": 46.0, "max_delay_phase": phase}}  # fmt: skip
+
+    def fixed_pd(cfg):
+        bw = phase / (2 * math.pi * loop_delay(cfg.mechanism, cfg.observation_delay, 0.001))
+        assert 5.0 < bw < 46.0  # the phase sets it, on every drawn arm
+        return PDPolicy(cfg.mechanism, 0.001, {"bandwidth_hz": bw})
+
+    env = gym.make("Tendon2R-v0", **kwargs)
+    pd = PDPolicy.from_env(env)
+    for seed in (0, 1):
+        obs, info = env.reset(seed=seed)
+        pd.reset(info)
+        arm = env.unwrapped.config.for_arm(
+            Mechanism.from_dict(info["mechanism"]), observation_delay=info["observation_delay"]
+        )
+        np.testing.assert_array_equal(pd.predict(obs)[0], fixed_pd(arm).predict(obs)[0])
+    venv = gym.make_vec("Tendon2R-v0", 3, vectorization_mode="vector_entry_point", **kwargs)
+    obs, info = venv.reset(seed=0)
+    pd = PDPolicy.from_env(venv)
+    pd.reset(info)
+    actions, _ = pd.predict(obs)
+    arms = venv.unwrapped.arms
+    assert len({a.observation_delay + a.mechanism.motor_tau for a in arms}) > 1  # different arms
+    for i, arm in enumerate(arms):
+        np.testing.assert_array_equal(actions[i], fixed_pd(arm).predict(obs[i])[0])
+
+
+def test_tune_pd_scans_the_delay_phase():
+    """The scan holds the bandwidth at the control rate's cap and chooses a phase; the tuned
+    PD tracks the lagging arm where the default diverges."""
+    scan = tune_pd(LAGGING, episodes=1, scan="max_delay_phase")
+    assert scan.field == "max_delay_phase" and scan.values == tuple(delay_phase_grid())
+    assert scan.gains.max_delay_phase == scan.chosen
+    assert scan.gains.bandwidth_hz == max(bandwidth_grid(EnvConfig.make(**LAGGING)))
+    tuned, _ = evaluate("pd", {**LAGGING, "pd_gains": scan.gains.to_dict()}, [0])
+    assert max(tuned["rms_deg"]) < 1.0
+    with pytest.raises(ValueError, match="scan = 'kp'"):
+        tune_pd(LAGGING, scan="kp")
