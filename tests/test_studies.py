@@ -157,5 +157,9 @@ def test_realism_ablation_scores_runs_on_the_realism_arms(tmp_path):
     text = (tmp_path / "realism_ablation.md").read_text()
     per_arm = [line for line in text.splitlines() if line.startswith("| perturbed ")]
     assert len(per_arm) == len(arms) - 1 and "actor not arm.density_scale" in text
+    net = " x ".join(map(str, record["net_arch"]))
+    assert f"| {net}; PD {record['env_kwargs']['pd_gains']['bandwidth_hz']:g} Hz |" in text
+    scheduled = {**record, "env_kwargs": {"pd_gains": {"max_delay_phase": 0.5}}}
+    assert "PD 0.5 rad / loop delay, <= 30 Hz" in realism_ablation._network_and_pd(scheduled)
     with pytest.raises(ValueError, match=r"--runs = .* is invalid; allowed: run folders"):
         realism_ablation.main(["--runs", str(tmp_path), "--out", str(tmp_path)])

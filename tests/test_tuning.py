@@ -11,8 +11,8 @@ from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.evaluation import evaluate
 from tendon2r_gym.gains import Gains, default_gains, loop_delay
 from tendon2r_gym.learned import PPOPolicy, ResidualPDWrapper
-from tendon2r_gym.policies import ComputedTorquePolicy, PDPolicy
 from tendon2r_gym.mechanism import Mechanism
+from tendon2r_gym.policies import ComputedTorquePolicy, PDPolicy
 from tendon2r_gym.tuning import (
     GRID_RATIO,
     MIN_BANDWIDTH_HZ,

@@ -1,13 +1,15 @@
-"""What the randomized residual sees: finished real-arm runs on the realism section's arms.
+"""What the randomized residual sees, its network and its PD: finished real-arm runs on the
+realism section's arms.
 
     python scripts/realism_ablation.py --runs runs/real_arm/seed_0 runs/real_arm_blind/seed_0
     # results/realism_ablation.md and .json
 
 Each run (a folder written by ``tendon2r-train``, e.g. of the configs/ppo.yaml entries
-``real_arm``, ``real_arm_blind`` and ``real_arm_frame_stack``) gives its training record
-(best evaluation, its effort, steps and wall time) and its best model's RMS error on the
-arms of ``make benchmark``'s realism section (tendon2r_gym.benchmark.realism_arms), against
-PD on the same episodes, as that section scores the shipped bundle.
+``real_arm``, ``real_arm_scheduled``, ``real_arm_blind`` and ``real_arm_frame_stack``) gives
+its training record (best evaluation, its effort, steps and wall time) and its best model's
+RMS error on the arms of ``make benchmark``'s realism section
+(tendon2r_gym.benchmark.realism_arms), against PD on the same episodes, as that section scores
+the shipped bundle.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import numpy as np
 
 from tendon2r_gym.benchmark import realism_arms
 from tendon2r_gym.evaluation import evaluate
+from tendon2r_gym.gains import gains_of
 from tendon2r_gym.metrics import beats, worst_ratio
 from tendon2r_gym.runs import BEST_METRICS, CONFIG, SUMMARY, RunFolder, command_line
 from tendon2r_gym.studies import joints, save_json
@@ -38,6 +41,7 @@ def _record(run: RunFolder) -> dict[str, Any]:
         "env_kwargs": config.get("env_kwargs", {}),
         "hide_from_actor": config.get("hide_from_actor", []),
         "frame_stack": config.get("frame_stack", 1),
+        "net_arch": config.get("policy_kwargs", {}).get("net_arch"),
         "timesteps": summary["timesteps"],
         "wall_time_s": summary["wall_time_s"],
         "best_timesteps": best["timesteps"],
@@ -91,6 +95,19 @@ def _sees(record: dict[str, Any]) -> str:
     return seen + (f"; its last {stack} observations" if stack > 1 else "")
 
 
+def _network_and_pd(record: dict[str, Any]) -> str:
+    """Returns the run's hidden layers and its PD's gains (a bandwidth, or scheduled on each
+    arm's loop delay: tendon2r_gym.gains)."""
+    net = record["net_arch"]
+    layers = " x ".join(map(str, net)) if isinstance(net, list) else "SB3's default"
+    gains = gains_of(record["env_kwargs"].get("pd_gains"))
+    if gains.max_delay_phase is None:
+        pd = f"{gains.bandwidth_hz:g} Hz"
+    else:
+        pd = f"{gains.max_delay_phase:.3g} rad / loop delay, <= {gains.bandwidth_hz:g} Hz"
+    return f"{layers}; PD {pd}"
+
+
 def write(result: dict[str, Any], out: Path) -> None:
     """Writes realism_ablation.json and realism_ablation.md."""
     save_json(out, "realism_ablation", result)
@@ -104,16 +121,16 @@ def write(result: dict[str, Any], out: Path) -> None:
         f"{result['episodes']} episodes each, the run's best model against PD on the same "
         "episodes; ratio: the worse joint's RMS as a multiple of PD's. Tensions per tendon.",
         "",
-        "| # | run | sees | steps (best at) | wall (s) | training RMS A / B (deg) "
+        "| # | run | sees | network; PD | steps (best at) | wall (s) | training RMS A / B (deg) "
         "| RMS tension (N) | RMS tension rate (N/s) | <= PD on both joints | median ratio "
         "| worst ratio | loses to PD on |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for i, r in enumerate(result["runs"], 1):
         tension = " / ".join(f"{x:.2f}" for x in r["best_rms_tension_N"])
         rate = " / ".join(f"{x:.1f}" for x in r["best_rms_tension_rate_N_per_s"])
         lines.append(
-            f"| {i} | `{r['command']}` | {_sees(r)} | "
+            f"| {i} | `{r['command']}` | {_sees(r)} | {_network_and_pd(r)} | "
             f"{r['timesteps']:,} ({r['best_timesteps']:,}) | {r['wall_time_s']:.0f} | "
             f"{joints(r['best_rms_deg'])} | {tension} | {rate} | "
             f"{r['arms_le_pd']} of {n} | {r['median_worst_ratio']:.2f} | "
