@@ -119,7 +119,8 @@ class _TendonController:
         ``observation_delay`` in the reset info of Tendon2R-v0, or of its vector env: one arm
         per row)."""
         if "mechanism" in info:
-            delays = np.atleast_1d(info["observation_delay"]).astype(float).tolist()
+            delay = info.get("observation_delay", self.observation_delay)
+            delays = np.atleast_1d(delay).astype(float).tolist()
             self.follow(_per_arm(info, "mechanism", Mechanism.from_dict), delays)
 
     def _torque(self, obs: np.ndarray, M: np.ndarray) -> np.ndarray:

@@ -155,16 +155,23 @@ def test_batched_pd_equals_single_pd():
     np.testing.assert_allclose(batch, single, rtol=1e-12, atol=1e-12)
 
 
-def test_sb3_adapter_steps_like_dummy_vec_env():
+@pytest.mark.parametrize(
+    "kwargs",
+    [{"preset": "default", "episode_duration": 0.01},
+     # random real arms, PD's gains scheduled on each one's loop delay (pd_gains)
+     {"preset": "real_arm", "mechanism_ranges": "real_arm", "episode_duration": 0.01,
+      "pd_gains": {"bandwidth_hz": 46.0, "max_delay_phase": 0.5}}],
+)  # fmt: skip
+def test_sb3_adapter_steps_like_dummy_vec_env(kwargs):
     """SB3's VecEnv API over the native env (SAME_STEP autoreset, terminal_observation,
     TimeLimit.truncated) gives what SB3's DummyVecEnv of single envs gives, residual PD
-    included; training adds only the staggered first episodes."""
+    included (on random arms: each arm's PD); training adds only the staggered first
+    episodes."""
     from stable_baselines3.common.env_util import make_vec_env
 
     from tendon2r_gym.learned import make_training_env
     from tendon2r_gym.vector_env_sb3 import SB3VecEnv
 
-    kwargs = {"preset": "default", "episode_duration": 0.01}
     native = SB3VecEnv(Tendon2RVectorEnv(3, autoreset_mode="SameStep", **kwargs), 0.5)
     dummy = make_vec_env(make_training_env, n_envs=3,
                          env_kwargs={"env_kwargs": kwargs, "residual_scale": 0.5})  # fmt: skip
@@ -173,7 +180,7 @@ def test_sb3_adapter_steps_like_dummy_vec_env():
     np.testing.assert_array_equal(native.reset(), dummy.reset())
     rng = np.random.default_rng(0)
     for _ in range(25):
-        action = rng.uniform(-1, 1, (3, 2)).astype(np.float32)
+        action = rng.uniform(-1, 1, (3, *native.action_space.shape)).astype(np.float32)
         (o1, r1, d1, i1), (o2, r2, d2, i2) = native.step(action), dummy.step(action)
         np.testing.assert_array_equal(o1, o2)
         np.testing.assert_array_equal(r1, r2)
