@@ -65,7 +65,9 @@ class _TendonController:
         self.action_mode = action_mode
         self.ctrl_dt, self.observation_delay = ctrl_dt, observation_delay
         self.gains = gains_of(gains)
-        self._set_gains([mechanism], [observation_delay])
+        #: The arms and measurement ages that kp, kd were set for.
+        self._gains_for: tuple[list[Mechanism], list[float]] = ([mechanism], [observation_delay])
+        self._set_gains(*self._gains_for)
         self.actuation = TorqueToTension(mechanism, self.gains.force_damping)
         self.kinematics = self.actuation.kinematics
         self.tendon_command = self.actuation.command
@@ -112,7 +114,10 @@ class _TendonController:
         self.mechanism = mechanisms[0]
         if self.gains.max_delay_phase is not None:
             delays = observation_delays or [self.observation_delay] * len(mechanisms)
-            self._set_gains(mechanisms, delays)
+            arms = (list(mechanisms), list(delays))
+            if arms != self._gains_for:  # the SB3 vector env calls follow at every step
+                self._gains_for = arms
+                self._set_gains(*arms)
 
     def reset(self, info: dict[str, Any]) -> None:
         """Follows the episode's arm, if the env draws arms (``mechanism`` and
