@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import yaml
 from stable_baselines3 import PPO
+from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 from tendon2r_gym.bundle import bundle_meta, bundle_runs, bundled_model
 from tendon2r_gym.cli import TrainArgs, experiment, parse, train_main
@@ -214,12 +215,17 @@ def test_ctrl_c_stops_every_seed_and_saves_and_resume_keeps_the_overrides(tmp_pa
 
 
 def test_sigkill_loses_little_thanks_to_timed_checkpoints(tmp_path):
-    """Checkpoints are also taken by time: after SIGKILL, --resume has a state to continue."""
+    """Checkpoints are also taken by time, and written whole: after a SIGKILL at any moment,
+    --resume has a complete state to continue (the newest zip and its statistics load)."""
     proc = _start_training(tmp_path, [0], steps=10**7)
     _wait_for(tmp_path / "run" / "seed_0" / "checkpoints" / "rl_model_*_steps.zip", proc)
     proc.kill()
     proc.wait()
-    assert RunFolder(tmp_path / "run" / "seed_0").checkpoint_candidates()
+    candidates = RunFolder(tmp_path / "run" / "seed_0").checkpoint_candidates()
+    assert candidates
+    zip_path, stats = candidates[0]
+    PPO.load(zip_path)
+    VecNormalize.load(str(stats), DummyVecEnv([lambda: gym.make("Tendon2R-v0")]))
 
 
 def test_a_run_on_reference_ranges_records_them_and_loads(tmp_path):

@@ -3,6 +3,7 @@ model), timed checkpoints, and a clean stop on Ctrl-C or SIGTERM."""
 
 from __future__ import annotations
 
+import os
 import signal
 import time
 from pathlib import Path
@@ -31,8 +32,9 @@ class TrackingLogCallback(BaseCallback):
 
 
 class TimedCheckpointCallback(CheckpointCallback):
-    """SB3's CheckpointCallback (model + VecNormalize every ``save_freq`` calls), also every
-    ``minutes`` of wall time, so that a SIGKILL loses little."""
+    """SB3's CheckpointCallback (its file names; model + VecNormalize every ``save_freq``
+    calls), also every ``minutes`` of wall time, each written by :func:`save_pair`, so that a
+    SIGKILL loses little and never leaves a torn checkpoint."""
 
     def __init__(self, save_freq: int, save_path: str, minutes: float) -> None:
         super().__init__(
@@ -45,9 +47,8 @@ class TimedCheckpointCallback(CheckpointCallback):
         due = time.monotonic() - self._last_save >= self.period_s
         if due or self.n_calls % self.save_freq == 0:
             self._last_save = time.monotonic()
-            self.n_calls, saved = self.save_freq, self.n_calls  # makes the parent save now
-            super()._on_step()
-            self.n_calls = saved
+            zip_path = Path(self._checkpoint_path(extension="zip"))
+            save_pair(self.model, zip_path, Path(self._checkpoint_path("vecnormalize_", "pkl")))
         return True
 
 
@@ -175,11 +176,21 @@ class StopOnSignal(BaseCallback):
         return not self.stopped
 
 
-def save_model(model: Any, stem: Path) -> None:
-    """Saves ``stem.zip`` and ``stem_vecnormalize.pkl``."""
-    zip_path, stats = model_files(stem)
-    stem.parent.mkdir(parents=True, exist_ok=True)
-    model.save(zip_path)
+def save_pair(model: Any, zip_path: Path, stats_path: Path) -> None:
+    """Saves the model and its VecNormalize statistics so that a kill at any moment leaves no
+    torn file: each is written under a hidden temporary name and renamed into place, the
+    statistics first, so a model zip never appears before its statistics."""
+    zip_path.parent.mkdir(parents=True, exist_ok=True)
     venv = model.get_vec_normalize_env()
     if venv is not None:
-        venv.save(str(stats))
+        part = stats_path.with_name(f".{stats_path.name}.part")
+        venv.save(str(part))
+        os.replace(part, stats_path)
+    part = zip_path.with_name(f".{zip_path.stem}.part.zip")
+    model.save(part)
+    os.replace(part, zip_path)
+
+
+def save_model(model: Any, stem: Path) -> None:
+    """Saves ``stem.zip`` and ``stem_vecnormalize.pkl`` (see :func:`save_pair`)."""
+    save_pair(model, *model_files(stem))
