@@ -202,16 +202,21 @@ class PPOPolicy:
         pd_gains: Gains | dict[str, float] | None = None,
         arm: np.ndarray | None = None,
         frame_stack: int = 1,
+        frame_stride: int = 1,
     ) -> None:
         self.model = model
         self.vecnormalize = vecnormalize
         self.residual_scale = residual_scale
         #: The ``arm`` slice appended to each observation (:func:`arm_features`), or None.
         self.arm = arm
-        #: The model sees its last frame_stack normalized observations, oldest first
-        #: (SB3's VecFrameStack as in training; zeros before the episode's first).
-        self.frame_stack = frame_stack
-        self._frames: np.ndarray | None = None
+        #: The model sees its last frame_stack normalized observations, frame_stride control
+        #: steps apart, oldest first, as in training (tendon2r_gym.history).
+        self.frame_stack, self.frame_stride = frame_stack, frame_stride
+        self._history = None
+        if frame_stack > 1:
+            from tendon2r_gym.history import FrameHistory
+
+            self._history = FrameHistory(frame_stack, frame_stride)
         self.pd = None
         if residual_scale > 0 and env is not None:  # the PD it was trained on: its gains
             self.pd = PDPolicy.from_env(env, gains=gains_of(pd_gains))
@@ -230,13 +235,14 @@ class PPOPolicy:
         vecnorm = VecNormalize.load(str(stats), DummyVecEnv([lambda: seen]))
         vecnorm.training, vecnorm.norm_reward = False, False
         gains = meta["env_config"].get("pd_gains")
-        stack = int(meta.get("frame_stack", 1))
-        return cls(model, vecnorm, float(meta["residual_scale"]), env, gains, arm, stack)
+        history = int(meta.get("frame_stack", 1)), int(meta.get("frame_stride", 1))
+        return cls(model, vecnorm, float(meta["residual_scale"]), env, gains, arm, *history)
 
     def reset(self, info: dict[str, Any]) -> None:
         """Follows the episode's arm with the PD inside a residual policy (the rollouts call
         it with each reset's info), and starts the stack of observations anew."""
-        self._frames = None
+        if self._history is not None:
+            self._history.clear()
         if self.pd is not None:
             self.pd.reset(info)
 
@@ -253,35 +259,13 @@ class PPOPolicy:
             arm = np.broadcast_to(self.arm, (*obs.shape[:-1], self.arm.size))
             seen = np.concatenate([obs, arm], axis=-1)
         norm = self.vecnormalize.normalize_obs(seen) if self.vecnormalize is not None else seen
-        if self.frame_stack > 1:
-            norm = self._stack(norm, episode_start)
+        if self._history is not None:  # emptied first where an episode starts
+            norm = self._history.push(norm, episode_start)
         action, state = self.model.predict(norm, state, episode_start, deterministic)
         if self.pd is None:
             return np.clip(action, -1.0, 1.0).astype(np.float32), state
         base, _ = self.pd.predict(obs)
         return residual_command(base, action, self.residual_scale).astype(np.float32), state
-
-    def _stack(self, frame: np.ndarray, episode_start: Any = None) -> np.ndarray:
-        """Adds ``frame`` to the episode's stack (emptied first where ``episode_start``, as
-        SB3's predict takes it); returns the stack."""
-        if self._frames is not None and episode_start is not None:
-            start = np.broadcast_to(np.asarray(episode_start, dtype=bool), frame.shape[:-1])
-            self._frames = np.where(start[..., None], 0.0, self._frames)
-        self._frames = _stack_frames(self._frames, frame, self.frame_stack)
-        return self._frames
-
-
-def _stack_frames(frames: np.ndarray | None, frame: np.ndarray, n: int) -> np.ndarray:
-    """Returns the last ``n`` frames, oldest first, with ``frame`` (one observation or a batch)
-    the newest: SB3's StackedObservations for vectors (``frames`` None: a new episode, zeros
-    before ``frame``)."""
-    d = frame.shape[-1]
-    if frames is None or frames.shape[:-1] != frame.shape[:-1]:
-        frames = np.zeros((*frame.shape[:-1], n * d), dtype=frame.dtype)
-    else:
-        frames = np.roll(frames, -d, axis=-1)
-    frames[..., -d:] = frame
-    return frames
 
 
 def _with_arm(env: gym.Env, arm: np.ndarray) -> gym.Env:

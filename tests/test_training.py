@@ -409,16 +409,20 @@ def test_a_model_that_observed_its_arm_runs_on_one_fixed_arm(tmp_path):
         PPOPolicy.load(best, gym.make("Tendon2R-v0", **far))
 
 
-def test_frame_stack_trains_resumes_and_deploys_as_sb3_stacks(tmp_path):
+@pytest.mark.parametrize("stride", [1, 2])
+def test_frame_stack_trains_resumes_and_deploys_as_sb3_stacks(tmp_path, stride):
     """frame_stack (rl_zoo3's key): the model sees its last k normalized observations, oldest
-    first; PPOPolicy.load stacks them itself, so its actions equal the model's on SB3's
-    VecFrameStack over the saved VecNormalize, a reset starts the stack anew, and the eval
-    callback's score is the loaded policy's.  A run resumes with its stack."""
-    from stable_baselines3.common.vec_env import DummyVecEnv, VecFrameStack, VecNormalize
+    first, frame_stride steps apart; PPOPolicy.load stacks them itself, so its actions equal
+    the model's on the training wrapper (SB3's VecFrameStack at stride 1) over the saved
+    VecNormalize, a reset starts the stack anew, and the eval callback's score is the loaded
+    policy's.  A run resumes with its stack."""
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
     from tendon2r_gym.evaluation import evaluate
+    from tendon2r_gym.history import stacked
 
-    config, run_dir = _tiny(tmp_path, frame_stack=3), tmp_path / "run"
+    config = _tiny(tmp_path, frame_stack=3, frame_stride=stride)
+    run_dir = tmp_path / "run"
     _train(config, run_dir)
     assert (
         _train(config, run_dir, "--total-timesteps", "512", "--resume")["runs"][0]["timesteps"]
@@ -426,6 +430,7 @@ def test_frame_stack_trains_resumes_and_deploys_as_sb3_stacks(tmp_path):
     )
     run = RunFolder(run_dir / "seed_0")
     assert run.read_json("run.json")["frame_stack"] == 3
+    assert run.read_json("run.json")["frame_stride"] == stride
     kwargs = {"preset": "default", "episode_duration": 0.1}
     model_path = run.best.with_suffix(".zip")
     policy = PPOPolicy.load(model_path, gym.make("Tendon2R-v0", **kwargs))
@@ -436,20 +441,20 @@ def test_frame_stack_trains_resumes_and_deploys_as_sb3_stacks(tmp_path):
     venv = VecNormalize.load(str(run.file("best_model_vecnormalize.pkl")),
                              DummyVecEnv([lambda: gym.make("Tendon2R-v0", **kwargs)]))  # fmt: skip
     venv.training = venv.norm_reward = False
-    sb3 = VecFrameStack(venv, 3)
+    sb3 = stacked(venv, 3, stride)
     env = gym.make("Tendon2R-v0", **kwargs)
     for seed in (1, 2):  # the second episode must not see the first's frames
         sb3.seed(seed)
-        stacked = sb3.reset()
+        frames = sb3.reset()
         obs, info = env.reset(seed=seed)
         policy.reset(info)
         for _ in range(20):
-            expected, _ = model.predict(stacked, deterministic=True)
+            expected, _ = model.predict(frames, deterministic=True)
             action, _ = policy.predict(obs)
             base = policy.pd.predict(obs)[0]
             np.testing.assert_allclose(action, residual_command(base, expected[0], 0.5), atol=1e-6)
             obs = env.step(action)[0]
-            stacked = sb3.step(action[None])[0]
+            frames = sb3.step(action[None])[0]
     metrics, _ = evaluate("ppo", kwargs, [0], model_path)
     assert metrics["rms_deg"] == run.read_json("best_metrics.json")["rms_deg"]
     with pytest.raises(ValueError, match="frame_stack = 0"):

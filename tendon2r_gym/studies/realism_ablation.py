@@ -41,6 +41,7 @@ def _record(run: RunFolder) -> dict[str, Any]:
         "env_kwargs": config.get("env_kwargs", {}),
         "hide_from_actor": config.get("hide_from_actor", []),
         "frame_stack": config.get("frame_stack", 1),
+        "frame_stride": config.get("frame_stride", 1),
         "net_arch": config.get("policy_kwargs", {}).get("net_arch"),
         "timesteps": summary["timesteps"],
         "wall_time_s": summary["wall_time_s"],
@@ -91,8 +92,14 @@ def _sees(record: dict[str, Any]) -> str:
         seen = f"the drawn arm; the actor not {', '.join(record['hide_from_actor'])}"
     else:
         seen = "the drawn arm"
-    stack = record["frame_stack"]
-    return seen + (f"; its last {stack} observations" if stack > 1 else "")
+    stack, stride = record["frame_stack"], record["frame_stride"]
+    if stack == 1:
+        return seen
+    return (
+        seen
+        + f"; its last {stack} observations"
+        + (f", {stride} steps apart" if stride > 1 else "")
+    )
 
 
 def _network_and_pd(record: dict[str, Any]) -> str:

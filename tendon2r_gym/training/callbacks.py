@@ -69,13 +69,14 @@ class TrackingEvalCallback(BaseCallback):
         eval_freq: int,
         run: RunFolder,
         residual_scale: float,
-        frame_stack: int = 1,
+        history: tuple[int, int] = (1, 1),
         wall_offset_s: float = 0.0,
         verbose: int = 1,
     ) -> None:
         super().__init__(verbose)
         self.env_kwargs, self.seeds, self.eval_freq = env_kwargs, seeds, eval_freq
-        self.run, self.residual_scale, self.frame_stack = run, residual_scale, frame_stack
+        self.run, self.residual_scale = run, residual_scale
+        self.frame_stack, self.frame_stride = history  # what the policy sees (history.py)
         best = run.read_json(BEST_METRICS)
         self.best_rms = float(np.mean(best["rms_deg"])) if best else float("inf")
         self._last_eval = 0
@@ -113,6 +114,7 @@ class TrackingEvalCallback(BaseCallback):
             self._env,
             config.pd_gains,  # the PD the residual trains on
             frame_stack=self.frame_stack,
+            frame_stride=self.frame_stride,
         )
         metrics = tracking_metrics(rollouts(policy, self.env_kwargs, self.seeds))
         rms = float(np.mean(metrics["rms_deg"]))

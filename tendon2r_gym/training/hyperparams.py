@@ -21,6 +21,7 @@ from tendon2r_gym.validation import check_keys, integer, invalid, mapping, numbe
 
 VEC_ENVS = ("native", "subproc", "dummy")
 MAX_FRAME_STACK = 64
+MAX_FRAME_STRIDE = 1000
 #: PPO settings that may be a schedule, as rl_zoo3 writes one: ``lin_<v>`` decays linearly from
 #: v at the start of training to 0 at its end (SB3's progress_remaining times v).
 SCHEDULES = ("learning_rate", "clip_range", "clip_range_vf")
@@ -57,6 +58,9 @@ class Hyperparams:
     # SB3's VecFrameStack after VecNormalize; zeros before an episode's first): a short history
     # from which to tell the arm's response, e.g. under per-episode randomization.
     frame_stack: int = 1
+    # The stacked frames are frame_stride control steps apart (tendon2r_gym.history): the same
+    # frame_stack inputs span (frame_stack - 1) * frame_stride + 1 steps.  1: VecFrameStack.
+    frame_stride: int = 1
 
     def __post_init__(self) -> None:
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
@@ -65,6 +69,7 @@ class Hyperparams:
         integer("n_envs", self.n_envs, 1, 1024)
         integer("torch_threads", self.torch_threads, 1, 256)
         integer("frame_stack", self.frame_stack, 1, MAX_FRAME_STACK)
+        integer("frame_stride", self.frame_stride, 1, MAX_FRAME_STRIDE)
         set_("residual_scale", number("residual_scale", self.residual_scale, 0.0, 2.0))
         integer("eval_freq", self.eval_freq, 1, 10**10)
         integer("checkpoint_freq", self.checkpoint_freq, 1, 10**10)

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from tendon2r_gym.env_config import EnvConfig
+from tendon2r_gym.history import stacked
 from tendon2r_gym.learned import make_training_env
 from tendon2r_gym.runs import (
     BEST_METRICS,
@@ -151,15 +152,7 @@ def make_vec_env(hp: Hyperparams, seed: int) -> Any:
     )
 
 
-def stacked(vecnorm: Any, frame_stack: int) -> Any:
-    """Returns what the policy trains on: ``vecnorm``, or with frame_stack > 1 SB3's
-    VecFrameStack of it (rl_zoo3's order: normalize, then stack)."""
-    from stable_baselines3.common.vec_env import VecFrameStack
-
-    return vecnorm if frame_stack == 1 else VecFrameStack(vecnorm, frame_stack)
-
-
-def _load_newest(run: RunFolder, venv: Any, frame_stack: int) -> tuple[Any, Any]:
+def _load_newest(run: RunFolder, venv: Any, hp: Hyperparams) -> tuple[Any, Any]:
     """Returns (PPO, VecNormalize) from the newest readable saved state of the run; a corrupt
     one is skipped with a warning."""
     from stable_baselines3 import PPO
@@ -171,7 +164,8 @@ def _load_newest(run: RunFolder, venv: Any, frame_stack: int) -> tuple[Any, Any]
     for zip_path, stats in candidates:
         try:
             vecnorm = VecNormalize.load(str(stats), venv)
-            model = PPO.load(zip_path, env=stacked(vecnorm, frame_stack), device="cpu")
+            env = stacked(vecnorm, hp.frame_stack, hp.frame_stride)
+            model = PPO.load(zip_path, env=env, device="cpu")
         except Exception as e:  # noqa: BLE001 (any unreadable file: try the one before)
             warnings.warn(f"resume: skipping unreadable {zip_path.name} ({e!r})", stacklevel=2)
             continue
@@ -212,7 +206,7 @@ def _load_initial(hp: Hyperparams, venv: Any, seed: int, run: RunFolder) -> tupl
     vecnorm.training = True
     vecnorm.norm_reward = bool(hp.normalize.get("norm_reward", True))
     model = PPO.load(
-        zip_path, env=stacked(vecnorm, hp.frame_stack), device="cpu",
+        zip_path, env=stacked(vecnorm, hp.frame_stack, hp.frame_stride), device="cpu",
         custom_objects=hp.ppo_kwargs(), seed=seed, tensorboard_log=str(run.tensorboard),
     )  # fmt: skip
     model.num_timesteps = 0  # a fine-tune counts its own steps (the zip holds the source's)
@@ -243,6 +237,7 @@ def train_run(
         {
             "residual_scale": hp.residual_scale,
             "frame_stack": hp.frame_stack,
+            "frame_stride": hp.frame_stride,
             "seed": seed,
             "env_kwargs": hp.env_kwargs,
             "env_config": {
@@ -254,7 +249,7 @@ def train_run(
     torch.set_num_threads(hp.torch_threads)
     venv = make_vec_env(hp, seed)
     if resume:
-        model, vecnorm = _load_newest(run, venv, hp.frame_stack)
+        model, vecnorm = _load_newest(run, venv, hp)
     elif hp.init_from is not None:
         model, vecnorm = _load_initial(hp, venv, seed, run)
     else:
@@ -262,7 +257,7 @@ def train_run(
         policy, policy_kwargs = hp.policy(env_config)
         model = PPO(
             policy,
-            stacked(vecnorm, hp.frame_stack),
+            stacked(vecnorm, hp.frame_stack, hp.frame_stride),
             seed=seed,
             device="cpu",
             verbose=0,
@@ -278,7 +273,7 @@ def train_run(
             hp.eval_freq,
             run,
             hp.residual_scale,
-            hp.frame_stack,
+            (hp.frame_stack, hp.frame_stride),
             wall_offset_s=previous["wall_time_s"] if previous else 0.0,
         ),
         TimedCheckpointCallback(

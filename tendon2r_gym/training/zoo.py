@@ -16,6 +16,7 @@ import yaml
 
 from tendon2r_gym.presets import PPO_CONFIG
 from tendon2r_gym.training.hyperparams import Hyperparams
+from tendon2r_gym.validation import invalid
 
 #: Zoo env id -> our entry.
 ENTRIES = {"Tendon2R-v0": "default_scratch", "Tendon2RResidual-v0": "default"}
@@ -44,6 +45,8 @@ def zoo_entry(hp: Hyperparams) -> dict[str, Any]:
         "normalize": {**hp.normalize, "gamma": hp.gamma},
         "policy_kwargs": hp.policy_kwargs,
     }
+    if hp.frame_stride > 1:
+        raise invalid("frame_stride", hp.frame_stride, "1 in an rl_zoo3 entry (no stride there)")
     if hp.frame_stack > 1:
         entry["frame_stack"] = hp.frame_stack
     if hp.residual_scale > 0:
