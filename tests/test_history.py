@@ -82,5 +82,7 @@ def test_a_stride_is_validated_and_refused_by_the_zoo_export():
 
     with pytest.raises(ValueError, match="frame_stride = 0"):
         Hyperparams.from_entry("default").replace(frame_stride=0)
+    with pytest.raises(ValueError, match="frame_stride = 3 .* 1 when frame_stack is 1"):
+        Hyperparams.from_entry("default").replace(frame_stride=3)
     with pytest.raises(ValueError, match="frame_stride = 2"):
         zoo_entry(Hyperparams.from_entry("default").replace(frame_stack=4, frame_stride=2))

@@ -5,12 +5,11 @@ realism section's arms.
     # results/realism_ablation.md and .json
 
 Each run (a folder written by ``tendon2r-train``, e.g. of the configs/ppo.yaml entries
-``real_arm``, ``real_arm_scheduled``, ``real_arm_oracle``, ``real_arm_history``, ``real_arm_blind``
-and ``real_arm_frame_stack``) gives
-its training record (best evaluation, its effort, steps and wall time) and its best model's
-RMS error on the arms of ``make benchmark``'s realism section
-(tendon2r_gym.benchmark.realism_arms), against PD on the same episodes, as that section scores
-the shipped bundle.
+``real_arm``, ``real_arm_scheduled``, ``real_arm_oracle``, ``real_arm_history``,
+``real_arm_blind`` and ``real_arm_frame_stack``) gives its training record (best evaluation,
+its effort, steps and wall time) and its best model's RMS error on the arms of ``make
+benchmark``'s realism section (tendon2r_gym.benchmark.realism_arms), against PD on the same
+episodes, as that section scores the shipped bundle.
 """
 
 from __future__ import annotations

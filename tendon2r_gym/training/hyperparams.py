@@ -70,6 +70,8 @@ class Hyperparams:
         integer("torch_threads", self.torch_threads, 1, 256)
         integer("frame_stack", self.frame_stack, 1, MAX_FRAME_STACK)
         integer("frame_stride", self.frame_stride, 1, MAX_FRAME_STRIDE)
+        if self.frame_stride > 1 and self.frame_stack == 1:
+            raise invalid("frame_stride", self.frame_stride, "1 when frame_stack is 1")
         set_("residual_scale", number("residual_scale", self.residual_scale, 0.0, 2.0))
         integer("eval_freq", self.eval_freq, 1, 10**10)
         integer("checkpoint_freq", self.checkpoint_freq, 1, 10**10)
