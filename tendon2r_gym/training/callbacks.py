@@ -69,14 +69,15 @@ class TrackingEvalCallback(BaseCallback):
         eval_freq: int,
         run: RunFolder,
         residual_scale: float,
-        history: tuple[int, int] = (1, 1),
+        frame_stack: int = 1,
+        frame_stride: int = 1,
         wall_offset_s: float = 0.0,
         verbose: int = 1,
     ) -> None:
         super().__init__(verbose)
         self.env_kwargs, self.seeds, self.eval_freq = env_kwargs, seeds, eval_freq
         self.run, self.residual_scale = run, residual_scale
-        self.frame_stack, self.frame_stride = history  # what the policy sees (history.py)
+        self.frame_stack, self.frame_stride = frame_stack, frame_stride  # as PPOPolicy takes them
         best = run.read_json(BEST_METRICS)
         self.best_rms = float(np.mean(best["rms_deg"])) if best else float("inf")
         self._last_eval = 0
@@ -181,7 +182,9 @@ class StopOnSignal(BaseCallback):
 def save_pair(model: Any, zip_path: Path, stats_path: Path) -> None:
     """Saves the model and its VecNormalize statistics so that a kill at any moment leaves no
     torn file: each is written under a hidden temporary name and renamed into place, the
-    statistics first, so a model zip never appears before its statistics."""
+    statistics first, so a model zip never appears before its statistics.  Where a save
+    replaces an earlier pair (last_model, best_model), a kill between the two renames leaves
+    the new statistics beside the previous zip."""
     zip_path.parent.mkdir(parents=True, exist_ok=True)
     venv = model.get_vec_normalize_env()
     if venv is not None:

@@ -273,7 +273,8 @@ def train_run(
             hp.eval_freq,
             run,
             hp.residual_scale,
-            (hp.frame_stack, hp.frame_stride),
+            hp.frame_stack,
+            hp.frame_stride,
             wall_offset_s=previous["wall_time_s"] if previous else 0.0,
         ),
         TimedCheckpointCallback(
