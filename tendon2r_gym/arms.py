@@ -130,8 +130,12 @@ RANDOMIZABLE = (
 #: What the sensors measure, drawn per episode too: EnvConfig's ``observation_delay`` (s) and
 #: the two entries of its ``observation_noise`` (angle std, rad; speed std, rad/s).
 SENSING = ("observation_delay", "observation_noise_angle", "observation_noise_speed")
+#: The gains of the env's PD (and of the PD inside a residual), drawn per episode too: Gains'
+#: ``bandwidth_hz`` and ``max_delay_phase`` (tendon2r_gym.gains).  A residual that sees them
+#: (``observe_arm``) learns on any PD, and runs on the one ``tendon2r-tune-pd`` finds for an arm.
+CONTROLLER = ("pd_bandwidth_hz", "pd_max_delay_phase")
 #: Every field ``mechanism_ranges`` may draw.
-DRAWABLE = (*RANDOMIZABLE, *SENSING)
+DRAWABLE = (*RANDOMIZABLE, *SENSING, *CONTROLLER)
 #: Drawn delays are rounded to whole control steps (EnvConfig.draw_arm).
 DELAYS = ("motor_delay", "observation_delay")
 #: Fields whose zero and non-zero values compile to models of different layouts (spools,
@@ -144,9 +148,14 @@ COURSE_NAME = "course"
 REAL_ARM_NAME = "real_arm"
 
 
-def drawn_value(arm: Any, name: str) -> float:
+def drawn_value(arm: Any, name: str) -> float | None:
     """Returns the value of a DRAWABLE field ``name`` in the arm config ``arm`` (an
-    EnvConfig): a mechanism field, or one of SENSING."""
+    EnvConfig): a mechanism field, one of SENSING, or one of CONTROLLER (None: a
+    max_delay_phase that is not set)."""
+    if name in CONTROLLER:
+        from tendon2r_gym.gains import gains_of
+
+        return getattr(gains_of(arm.pd_gains), gain_field(name))
     if name == "observation_delay":
         return arm.observation_delay
     if name in SENSING:
@@ -154,13 +163,18 @@ def drawn_value(arm: Any, name: str) -> float:
     return getattr(arm.mechanism, name)
 
 
+def gain_field(name: str) -> str:
+    """Returns the Gains field of a CONTROLLER field (``pd_bandwidth_hz``: bandwidth_hz)."""
+    return name.removeprefix("pd_")
+
+
 @dataclass(frozen=True)
 class MechanismRanges:
     """Uniform ranges [lo, hi] of DRAWABLE fields (Mechanism fields: RANDOMIZABLE; sensors:
-    SENSING), drawn independently in this order at every reset; every other field keeps the
-    nominal arm's value.  From YAML: a mapping ``{field: [lo, hi]}``, ``course`` (the course's
-    geometry, R1 R2 a b c) or ``real_arm`` (cables, motors and sensors:
-    tendon2r_gym.realism.PERTURBATIONS)."""
+    SENSING; PD's gains: CONTROLLER), drawn independently in this order at every reset; every
+    other field keeps the nominal arm's value.  From YAML: a mapping ``{field: [lo, hi]}``,
+    ``course`` (the course's geometry, R1 R2 a b c) or ``real_arm`` (cables, motors and
+    sensors: tendon2r_gym.realism.PERTURBATIONS)."""
 
     ranges: tuple[tuple[str, tuple[float, float]], ...]
 
@@ -177,6 +191,8 @@ class MechanismRanges:
             lo, hi = pair(field, value, 0.0, hi_limit)
             if lo > hi:
                 raise invalid(field, value, f"[lo, hi] with 0 <= lo <= hi <= {hi_limit:g}")
+            if name in CONTROLLER and lo <= 0.0:
+                raise invalid(field, value, f"[lo, hi] with 0 < lo <= hi <= {hi_limit:g}")
             if name in LAYOUT_FIELDS and lo == 0.0 < hi:
                 raise invalid(
                     field,
@@ -189,7 +205,18 @@ class MechanismRanges:
 
     @classmethod
     def from_value(cls, value: Any) -> MechanismRanges:
-        """Reads ``course``, ``real_arm`` or a mapping ``{field: [lo, hi]}``."""
+        """Reads ``course``, ``real_arm``, a mapping ``{field: [lo, hi]}``, or a list of these
+        merged in order (a later range of a field replaces an earlier one), e.g. ``[real_arm,
+        {pd_bandwidth_hz: [12, 47]}]``."""
+        if isinstance(value, list | tuple) and not isinstance(value, str):
+            if not value:
+                raise invalid("mechanism_ranges", value, f"at least one of {DRAWABLE}")
+            merged: dict[str, tuple[float, float]] = {}
+            for part in value:
+                if isinstance(part, list | tuple):
+                    raise invalid("mechanism_ranges", value, "a list of names and mappings")
+                merged.update(cls.from_value(part).ranges)
+            return cls(tuple(merged.items()))
         if value == COURSE_NAME:
             return cls(tuple((k, getattr(COURSE, k)) for k in GEOMETRY))
         if value == REAL_ARM_NAME:
@@ -209,6 +236,11 @@ class MechanismRanges:
     def names(self) -> tuple[str, ...]:
         """Returns the drawn fields, in drawing order (and the order of the arm features)."""
         return tuple(name for name, _ in self.ranges)
+
+    @property
+    def draws_gains(self) -> bool:
+        """Returns whether PD's gains are drawn (a CONTROLLER field)."""
+        return any(name in CONTROLLER for name in self.names)
 
     def high(self, name: str) -> float:
         """Returns the upper end of the range of ``name`` (0 if it is not drawn)."""
@@ -230,10 +262,11 @@ class MechanismRanges:
     def violations(self, arm: Any) -> list[str]:
         """Returns the fields of the arm config ``arm`` outside the ranges (empty if it is
         inside)."""
+        inside = lambda v, lo, hi: v is not None and lo - 1e-12 <= v <= hi + 1e-12  # noqa: E731
         return [
             f"{name} = {drawn_value(arm, name)!r} outside [{lo:g}, {hi:g}]"
             for name, (lo, hi) in self.ranges
-            if not lo - 1e-12 <= drawn_value(arm, name) <= hi + 1e-12
+            if not inside(drawn_value(arm, name), lo, hi)
         ]
 
 

@@ -113,7 +113,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     | `mechanism` | `None` | dict of Mechanism fields overriding the preset, or a Mechanism |
     | `reference` | `None` | dict of Reference fields overriding the preset, or a Reference |
     | `reference_ranges` | `None` | dict of ReferenceRanges: draw a new reference every reset |
-    | `mechanism_ranges` | `None` | {{field: [lo, hi]}} of Mechanism or sensor fields, "course" or "real_arm": a new arm every reset |
+    | `mechanism_ranges` | `None` | {{field: [lo, hi]}} of Mechanism, sensor or PD gain fields, "course", "real_arm", or a list of these: a new arm every reset |
     | `observe_arm` | `False` | end the observation with the drawn fields, normalized (``arm``) |
     | `fit_to_workspace` | `False` | scale the amplitudes down (with a warning) instead of raising |
     | `ctrl_dt` | `0.001` | control period (s), an integer multiple of the mechanism's sim_dt |

@@ -23,7 +23,15 @@ import numpy as np
 
 from tendon2r_gym import observation
 from tendon2r_gym.actuation import MomentArms, distribute
-from tendon2r_gym.arms import DELAYS, MAX_TRIES, SENSING, MechanismRanges, reference_ranges
+from tendon2r_gym.arms import (
+    CONTROLLER,
+    DELAYS,
+    MAX_TRIES,
+    SENSING,
+    MechanismRanges,
+    gain_field,
+    reference_ranges,
+)
 from tendon2r_gym.gains import Gains, gains_of
 from tendon2r_gym.mechanism import AUTO, Mechanism
 from tendon2r_gym.model import build_model
@@ -249,14 +257,16 @@ class EnvConfig:
                 drawn.pop(k, v) for k, v in zip(SENSING[1:], self.observation_noise, strict=True)
             ]
             delay = drawn.pop("observation_delay", self.observation_delay)
+            gains = {gain_field(k): drawn.pop(k) for k in CONTROLLER if k in drawn}
             try:
                 mech = self.base_mechanism.replace(**drawn)
                 ref = reference
                 if ref is None and self.reference_ranges is not None:
                     ref = self.reference_ranges.sample(rng, mech)
-                return self.for_arm(
-                    mech, ref, observation_noise=tuple(noise), observation_delay=delay
-                )
+                sensing = {"observation_noise": tuple(noise), "observation_delay": delay}
+                if gains:
+                    sensing["pd_gains"] = dataclasses.replace(gains_of(self.pd_gains), **gains)
+                return self.for_arm(mech, ref, **sensing)
             except ValueError:
                 continue
         raise invalid(
@@ -271,7 +281,8 @@ class EnvConfig:
         """Returns the config of one arm and one reference (default: the nominal one), as a
         user's experiment file gives them: nothing drawn, the reference's amplitudes fitted
         to the arm's workspace (quietly), and an ``auto`` force limit sized for this arm and
-        this reference; ``sensing``: its observation_noise and observation_delay, if drawn.
+        this reference; ``sensing``: its observation_noise, observation_delay and pd_gains,
+        if drawn.
         An env with this config runs the randomized env's episode exactly."""
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")

@@ -13,6 +13,7 @@ reference set or observation layout.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from typing import Any
@@ -21,7 +22,7 @@ import gymnasium as gym
 import numpy as np
 
 from tendon2r_gym import observation
-from tendon2r_gym.arms import MechanismRanges, reference_ranges
+from tendon2r_gym.arms import CONTROLLER, MechanismRanges, gain_field, reference_ranges
 from tendon2r_gym.gains import Gains, gains_of
 from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.policies import PDPolicy
@@ -105,7 +106,7 @@ def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
     arm_ranges = MechanismRanges.from_value(arms) if arms else None
     ranges = recorded.get("reference_ranges")
     if arm_ranges is not None and config.mechanism_ranges is None:  # a generalist on one arm
-        if arm_features(recorded, env) is not None:  # PPOPolicy appends the arm's features
+        if _observes_arm(recorded):  # PPOPolicy appends the arm's features (arm_features)
             ours["observation"] = [*ours["observation"], theirs["observation"][-1]]
         drawn = {*arm_ranges.names, "max_tendon_force"}  # auto: sized per arm
         undrawn = lambda m: {k: v for k, v in m.ideal().to_dict().items() if k not in drawn}  # noqa: E731
@@ -137,12 +138,31 @@ def arm_features(recorded: dict[str, Any], env: gym.Env) -> np.ndarray | None:
     one fixed arm (no mechanism_ranges, so its observation has no such slice): the arm's
     fields normalized over the model's training ranges, as its training env computed them.
     None if the model did not observe its arm or the env draws arms itself."""
-    layout = recorded.get("observation") or []
     config = env.unwrapped.config
-    if not layout or layout[-1][0] != "arm" or config.mechanism_ranges is not None:
+    if not _observes_arm(recorded) or config.mechanism_ranges is not None:
         return None
     ranges = MechanismRanges.from_value(recorded["mechanism_ranges"])
     return np.array(ranges.features(config), dtype=np.float64)
+
+
+def _observes_arm(recorded: dict[str, Any]) -> bool:
+    """Returns whether a model's recorded observation layout ends with the ``arm`` slice."""
+    layout = recorded.get("observation") or []
+    return bool(layout) and layout[-1][0] == "arm"
+
+
+def deployed_gains(recorded: dict[str, Any], env: gym.Env) -> Gains:
+    """Returns the gains of the PD inside a residual model deployed on ``env``: those of its
+    training env (``pd_gains``), except the gains its training drew per episode
+    (CONTROLLER fields of its mechanism_ranges), which are ``env``'s: the gains a user tuned
+    for their arm, inside the training ranges (check_model_env)."""
+    gains = gains_of(recorded.get("pd_gains"))
+    arms = recorded.get("mechanism_ranges")
+    drawn = [n for n in MechanismRanges.from_value(arms).names if n in CONTROLLER] if arms else []
+    theirs = gains_of(env.unwrapped.config.pd_gains)
+    return dataclasses.replace(
+        gains, **{gain_field(n): getattr(theirs, gain_field(n)) for n in drawn}
+    )
 
 
 def _compare(theirs: dict[str, Any], ours: dict[str, Any], where: str) -> None:
@@ -191,7 +211,8 @@ class PPOPolicy:
     """A trained PPO (+ its VecNormalize statistics) behind the SB3 ``predict`` interface,
     acting on raw observations of the unwrapped env: normalizes them with VecNormalize's own
     ``normalize_obs``, and adds PD if it was residual: the PD of its training env's gains
-    (``pd_gains``), whatever the env's are."""
+    (``pd_gains``), whatever the env's are, except gains drawn in training, which are the
+    env's (:func:`deployed_gains`)."""
 
     def __init__(
         self,
@@ -234,7 +255,7 @@ class PPOPolicy:
         seen = env if arm is None else _with_arm(env, arm)
         vecnorm = VecNormalize.load(str(stats), DummyVecEnv([lambda: seen]))
         vecnorm.training, vecnorm.norm_reward = False, False
-        gains = meta["env_config"].get("pd_gains")
+        gains = deployed_gains(meta["env_config"], env)
         history = int(meta.get("frame_stack", 1)), int(meta.get("frame_stride", 1))
         return cls(model, vecnorm, float(meta["residual_scale"]), env, gains, arm, *history)
 

@@ -65,8 +65,12 @@ class _TendonController:
         self.action_mode = action_mode
         self.ctrl_dt, self.observation_delay = ctrl_dt, observation_delay
         self.gains = gains_of(gains)
-        #: The arms and measurement ages that kp, kd were set for.
-        self._gains_for: tuple[list[Mechanism], list[float]] = ([mechanism], [observation_delay])
+        #: The arms, measurement ages and own gains (None: these) that kp, kd were set for.
+        self._gains_for: tuple[list[Mechanism], list[float], list[Gains] | None] = (
+            [mechanism],
+            [observation_delay],
+            None,
+        )
         self._set_gains(*self._gains_for)
         self.actuation = TorqueToTension(mechanism, self.gains.force_damping)
         self.kinematics = self.actuation.kinematics
@@ -90,43 +94,59 @@ class _TendonController:
         """Returns the private MjData of :attr:`model`."""
         return self.actuation.data
 
-    def _set_gains(self, mechanisms: list[Mechanism], observation_delays: list[float]) -> None:
-        """Sets kp, kd: numbers, or with ``max_delay_phase`` one row per arm, each held to the
-        phase over its loop delay (tendon2r_gym.gains)."""
-        if self.gains.max_delay_phase is None:
-            w = self.gains.natural_frequency(self.ctrl_dt)
+    def _set_gains(
+        self,
+        mechanisms: list[Mechanism],
+        observation_delays: list[float],
+        gains: list[Gains] | None = None,
+    ) -> None:
+        """Sets kp, kd: numbers, or one row per arm where the arms have their own gains
+        (``gains``: drawn per episode) or gains scheduled on the loop delay (each arm held to
+        the phase over its own delay: tendon2r_gym.gains)."""
+        if gains is None and self.gains.max_delay_phase is None:
+            w, zeta = self.gains.natural_frequency(self.ctrl_dt), self.gains.damping_ratio
         else:
-            delays = [
-                loop_delay(m, d, self.ctrl_dt)
-                for m, d in zip(mechanisms, observation_delays, strict=True)
-            ]
-            w = self.gains.natural_frequency(self.ctrl_dt, np.array(delays))[:, None]
-        self.kp, self.kd = w * w, 2.0 * self.gains.damping_ratio * w
+            per_arm = gains or [self.gains] * len(mechanisms)
+            arms = zip(per_arm, mechanisms, observation_delays, strict=True)
+            w = np.array(
+                [
+                    g.natural_frequency(self.ctrl_dt, loop_delay(m, d, self.ctrl_dt))
+                    for g, m, d in arms
+                ],
+                dtype=float,
+            )[:, None]
+            zeta = np.array([g.damping_ratio for g in per_arm])[:, None]
+        self.kp, self.kd = w * w, 2.0 * zeta * w
 
     def follow(
-        self, mechanisms: list[Mechanism], observation_delays: list[float] | None = None
+        self,
+        mechanisms: list[Mechanism],
+        observation_delays: list[float] | None = None,
+        gains: list[Gains] | None = None,
     ) -> None:
         """Controls the arms ``mechanisms`` (one, or one per row of the observations; random
         arms): each one's nominal model and force limit, and with gains scheduled on the loop
         delay each one's gains (``observation_delays``: each arm's age of its measurements;
-        None: the env's)."""
+        None: the env's); ``gains``: each arm's own gains (drawn per episode), None: this
+        controller's."""
         self.actuation.follow(mechanisms)
         self.mechanism = mechanisms[0]
-        if self.gains.max_delay_phase is not None:
+        if self.gains.max_delay_phase is not None or gains is not None:
             delays = observation_delays or [self.observation_delay] * len(mechanisms)
-            arms = (list(mechanisms), list(delays))
+            arms = (list(mechanisms), list(delays), None if gains is None else list(gains))
             if arms != self._gains_for:  # the SB3 vector env calls follow at every step
                 self._gains_for = arms
                 self._set_gains(*arms)
 
     def reset(self, info: dict[str, Any]) -> None:
-        """Follows the episode's arm, if the env draws arms (``mechanism`` and
-        ``observation_delay`` in the reset info of Tendon2R-v0, or of its vector env: one arm
-        per row)."""
+        """Follows the episode's arm, if the env draws arms (``mechanism``,
+        ``observation_delay`` and, if drawn, ``pd_gains`` in the reset info of Tendon2R-v0, or
+        of its vector env: one arm per row)."""
         if "mechanism" in info:
             delay = info.get("observation_delay", self.observation_delay)
             delays = np.atleast_1d(delay).astype(float).tolist()
-            self.follow(_per_arm(info, "mechanism", Mechanism.from_dict), delays)
+            gains = _per_arm(info, "pd_gains", Gains.from_dict) if "pd_gains" in info else None
+            self.follow(_per_arm(info, "mechanism", Mechanism.from_dict), delays, gains)
 
     def _torque(self, obs: np.ndarray, M: np.ndarray) -> np.ndarray:
         raise NotImplementedError

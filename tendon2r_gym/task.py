@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from tendon2r_gym import observation as L
+from tendon2r_gym.gains import gains_of
 from tendon2r_gym.ops import Ops
 from tendon2r_gym.presets import merge_reference
 from tendon2r_gym.reference import Reference
@@ -86,7 +87,8 @@ STEP_INFO_KEYS = (
 )
 #: Keys of ``info`` after every reset; with ``mechanism_ranges`` also ``mechanism``, the
 #: episode's arm (Mechanism fields), which PD, CT and the residual wrapper follow, and its
-#: sensors' ``observation_noise`` and ``observation_delay``.
+#: sensors' ``observation_noise`` and ``observation_delay``; where mechanism_ranges draws PD's
+#: gains, also the episode's ``pd_gains`` (Gains fields).
 RESET_INFO_KEYS = ("reference", "time", "force_need_N", "max_tendon_force_N")
 
 
@@ -207,6 +209,8 @@ class Task:
             info["mechanism"] = arm.mechanism.to_dict()
             info["observation_noise"] = list(arm.observation_noise)
             info["observation_delay"] = arm.observation_delay
+            if self.config.mechanism_ranges.draws_gains:
+                info["pd_gains"] = gains_of(arm.pd_gains).to_dict()
         return info
 
     # -- observation -----------------------------------------------------------------------------

@@ -8,6 +8,7 @@ import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
 from tendon2r_gym import observation
+from tendon2r_gym.gains import gains_of
 from tendon2r_gym.learned import residual_command
 from tendon2r_gym.policies import PDPolicy
 from tendon2r_gym.validation import invalid
@@ -29,7 +30,9 @@ class SB3VecEnv(VecEnv):
         super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
         self.venv, self.residual_scale = venv, residual_scale
         self.pd = PDPolicy.from_env(venv) if residual_scale > 0 else None
-        self._random_arms = venv.config.mechanism_ranges is not None
+        ranges = venv.config.mechanism_ranges
+        self._random_arms = ranges is not None
+        self._drawn_gains = ranges is not None and ranges.draws_gains
         self._mask = observation.mask(zero_obs, venv.single_observation_space.shape[0])
         self._raw: np.ndarray | None = None
         self._actions: np.ndarray | None = None
@@ -49,7 +52,10 @@ class SB3VecEnv(VecEnv):
         if self.pd is not None:
             if self._random_arms:  # PD follows each slot's arm
                 arms = self.venv.arms
-                self.pd.follow([a.mechanism for a in arms], [a.observation_delay for a in arms])
+                gains = [gains_of(a.pd_gains) for a in arms] if self._drawn_gains else None
+                self.pd.follow(
+                    [a.mechanism for a in arms], [a.observation_delay for a in arms], gains
+                )
             base, _ = self.pd.predict(self._raw)
             actions = residual_command(base, actions, self.residual_scale)
         obs, rewards, terminated, truncated, info = self.venv.step(actions)

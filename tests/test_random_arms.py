@@ -36,7 +36,10 @@ def _episode(env, policy, seed, steps=200):
      ({"motor_tau": [0.0, 0.01]}, r"mechanism_ranges.motor_tau = .*different layouts"),
      ({}, "mechanism_ranges = {}"),
      ("everything", "mechanism_ranges = 'everything'"),
-     ({"a": [0.001, 0.002]}, "mechanism_ranges = .*valid arm")],
+     ({"a": [0.001, 0.002]}, "mechanism_ranges = .*valid arm"),
+     ({"pd_bandwidth_hz": [0.0, 30.0]}, r"mechanism_ranges.pd_bandwidth_hz = .*0 < lo"),
+     ([], r"mechanism_ranges = \[\]"),
+     (["real_arm", [{"c": [0.05, 0.06]}]], "mechanism_ranges = .*a list of names and mappings")],
 )  # fmt: skip
 def test_bad_ranges_raise_at_construction_naming_the_field(ranges, match):
     with pytest.raises(ValueError, match=match):
@@ -80,7 +83,9 @@ REAL = {"tendon_elasticity": 4000.0, "motor_tau": 0.002}
     "kwargs",
     [{"preset": "generalist"},
      {"preset": "pull_only", "mechanism": REAL, "mechanism_ranges": CABLES},
-     {"preset": "real_arm", "observation_noise": [0.0, 0.0], "mechanism_ranges": DELAYS}],
+     {"preset": "real_arm", "observation_noise": [0.0, 0.0], "mechanism_ranges": DELAYS},
+     {"preset": "real_arm", "observation_noise": [0.0, 0.0],
+      "mechanism_ranges": [DELAYS, {"pd_bandwidth_hz": [10.0, 40.0]}]}],
 )  # fmt: skip
 def test_a_random_episode_is_the_episode_of_its_arms_experiment_file(kwargs):
     """The drawn arm, as a static config (EnvConfig.for_arm: the arm, its reference, its own
@@ -256,3 +261,67 @@ def test_command_delay_holds_each_arm_its_own_steps(steps):
         np.testing.assert_array_equal([o[i] for o in out], [-1.0] * k + list(range(6 - k)))
     with pytest.raises(ValueError, match="motor delay"):
         delay.set_arm(0, max(steps) + 1, [0.0])
+
+
+def test_a_list_of_ranges_merges_in_order():
+    """``[real_arm, {...}]``: the named set's ranges, then the mapping's, a later range of a
+    field replacing an earlier one in place."""
+    from tendon2r_gym.realism import PERTURBATIONS
+
+    merged = MechanismRanges.from_value(
+        ["real_arm", {"motor_tau": [0.002, 0.003], "pd_bandwidth_hz": [10.0, 40.0]}]
+    )
+    expected = {**PERTURBATIONS, "motor_tau": (0.002, 0.003), "pd_bandwidth_hz": (10.0, 40.0)}
+    assert merged.ranges == tuple(expected.items())
+    assert merged.draws_gains and not MechanismRanges.from_value("real_arm").draws_gains
+
+
+def test_drawn_pd_gains_are_each_episodes_and_pd_follows_them():
+    """pd_bandwidth_hz drawn: each reset draws a bandwidth inside the range, reports the
+    episode's gains in the reset info and observes it (normalized) in the arm slice; PD and a
+    residual's PD use it: kp = (2 pi bandwidth)^2 on the arm."""
+    from tendon2r_gym.learned import ResidualPDWrapper
+
+    lo, hi = 10.0, 40.0
+    kwargs = {"preset": "real_arm", "observe_arm": True}
+    env = gym.make(
+        "Tendon2R-v0", mechanism_ranges=[DELAYS, {"pd_bandwidth_hz": [lo, hi]}], **kwargs
+    )
+    pd, residual = PDPolicy.from_env(env), ResidualPDWrapper(env, 0.5)
+    seen = set()
+    for seed in range(4):
+        obs, info = env.reset(seed=seed)
+        bandwidth = info["pd_gains"]["bandwidth_hz"]
+        assert lo <= bandwidth <= hi and bandwidth == env.unwrapped.arm.pd_gains.bandwidth_hz
+        assert obs[-1] == 2 * (bandwidth - lo) / (hi - lo) - 1
+        pd.reset(info)
+        residual.reset(seed=seed)
+        for controller in (pd, residual.pd):
+            np.testing.assert_allclose(controller.kp, (2 * np.pi * bandwidth) ** 2, rtol=1e-12)
+        seen.add(bandwidth)
+    assert len(seen) == 4
+    _, info = gym.make("Tendon2R-v0", mechanism_ranges=DELAYS, **kwargs).reset(seed=0)
+    assert "pd_gains" not in info  # only where they are drawn
+
+
+def test_a_model_trained_on_drawn_gains_runs_on_the_users_tuned_gains():
+    """Deployed on one arm, a residual trained on drawn PD gains runs the PD of the arm's own
+    gains (what tendon2r-tune-pd wrote) and sees them; gains outside its training range, or
+    none where a phase was drawn, are refused by name."""
+    from tendon2r_gym.learned import arm_features, deployed_gains
+
+    ranges = ["real_arm", {"pd_bandwidth_hz": [10.0, 40.0]}]
+    trained = EnvConfig.make("real_arm", mechanism_ranges=ranges, observe_arm=True,
+                             pd_gains={"bandwidth_hz": 12.0, "damping_ratio": 0.9})  # fmt: skip
+    recorded = {**trained.to_dict(), "observation": trained.observation_layout()}
+    arm = gym.make("Tendon2R-v0", preset="real_arm", pd_gains={"bandwidth_hz": 25.0})
+    check_model_env(recorded, arm, "model")
+    gains = deployed_gains(recorded, arm)
+    assert (gains.bandwidth_hz, gains.damping_ratio) == (25.0, 0.9)  # the arm's, the model's
+    assert arm_features(recorded, arm)[-1] == 2 * (25.0 - 10.0) / 30.0 - 1
+    too_stiff = gym.make("Tendon2R-v0", preset="real_arm", pd_gains={"bandwidth_hz": 45.0})
+    with pytest.raises(ValueError, match=r"pd_bandwidth_hz = 45.0 outside \[10, 40\]"):
+        check_model_env(recorded, too_stiff, "model")
+    phase = {**recorded, "mechanism_ranges": [*ranges, {"pd_max_delay_phase": [0.3, 0.6]}]}
+    with pytest.raises(ValueError, match=r"pd_max_delay_phase = None outside \[0.3, 0.6\]"):
+        check_model_env(phase, arm, "model")

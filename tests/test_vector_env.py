@@ -17,6 +17,10 @@ ARMS = {"c": [0.08, 0.1], "tendon_elasticity": [2000.0, 6000.0], "motor_tau": [0
         "tendon_friction": [0.005, 0.02], "joint_damping": [0.0, 1e-4]}  # fmt: skip
 
 
+#: Random real arms, each with its own PD bandwidth (Hz).
+GAINS = ["real_arm", {"pd_bandwidth_hz": [10.0, 40.0]}]
+
+
 def _native(n, **kw):
     return gym.make_vec("Tendon2R-v0", num_envs=n, vectorization_mode="vector_entry_point", **kw)
 
@@ -36,7 +40,8 @@ def _native(n, **kw):
      (3, 1, {"preset": "generalist", "observe_arm": True}),
      (3, 1, {"preset": "generalist", "action_mode": "joint_torque"}),
      (3, 1, {"preset": "pull_only", "mechanism": REAL, "mechanism_ranges": ARMS}),
-     (4, 1, {"preset": "real_arm", "mechanism_ranges": "real_arm", "observe_arm": True})],
+     (4, 1, {"preset": "real_arm", "mechanism_ranges": "real_arm", "observe_arm": True}),
+     (3, 1, {"preset": "real_arm", "mechanism_ranges": GAINS, "observe_arm": True})],
 )  # fmt: skip
 @pytest.mark.parametrize("mode", ["NextStep", "SameStep"])
 def test_same_seeds_same_trajectories_as_single_envs_bit_for_bit(n, nthread, kwargs, mode):
@@ -160,7 +165,9 @@ def test_batched_pd_equals_single_pd():
     [{"preset": "default", "episode_duration": 0.01},
      # random real arms, PD's gains scheduled on each one's loop delay (pd_gains)
      {"preset": "real_arm", "mechanism_ranges": "real_arm", "episode_duration": 0.01,
-      "pd_gains": {"bandwidth_hz": 46.0, "max_delay_phase": 0.5}}],
+      "pd_gains": {"bandwidth_hz": 46.0, "max_delay_phase": 0.5}},
+     # random real arms, each with its own drawn PD bandwidth
+     {"preset": "real_arm", "mechanism_ranges": GAINS, "episode_duration": 0.01}],
 )  # fmt: skip
 def test_sb3_adapter_steps_like_dummy_vec_env(kwargs):
     """SB3's VecEnv API over the native env (SAME_STEP autoreset, terminal_observation,
