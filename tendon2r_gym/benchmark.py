@@ -21,6 +21,7 @@ import numpy as np
 
 from tendon2r_gym.bundle import bundle_meta, bundle_names, bundled_model, training_summary
 from tendon2r_gym.evaluation import BASELINE, evaluate, names
+from tendon2r_gym.learned import trained_on_drawn_gains
 from tendon2r_gym.metrics import beats, rms_ratio, worst_ratio
 from tendon2r_gym.plots import plot_trace
 from tendon2r_gym.presets import DATA_DIR
@@ -439,15 +440,16 @@ def realism(episodes: int) -> list[dict[str, Any]]:
     rows = []
     for name, kwargs in arms:
         row: dict[str, Any] = {"arm": name, "env_kwargs": kwargs}
+        # PD as a user would tune it on this arm (tendon2r-tune-pd, held-out episodes)
+        scan = tune_pd(kwargs, TUNE_EPISODES)
+        tuned = {**kwargs, "pd_gains": scan.gains.to_dict()}
         for key, _, policy, bundle in policies:
             model = bundled_model(bundle) if bundle else None
-            metrics, _ = evaluate(policy, kwargs, seeds, model)
+            metrics, _ = evaluate(policy, on_its_pd(kwargs, tuned, model), seeds, model)
             row[key] = {
                 k: metrics[k] for k in ("rms_deg", "rms_tension_N", "rms_tension_rate_N_per_s")
             }
-        # PD as a user would tune it on this arm (tendon2r-tune-pd, held-out episodes)
-        scan = tune_pd(kwargs, TUNE_EPISODES)
-        metrics, _ = evaluate("pd", {**kwargs, "pd_gains": scan.gains.to_dict()}, seeds)
+        metrics, _ = evaluate("pd", tuned, seeds)
         row["pd_tuned"] = {
             "rms_deg": metrics["rms_deg"],
             "rms_tension_rate_N_per_s": metrics["rms_tension_rate_N_per_s"],
@@ -457,6 +459,13 @@ def realism(episodes: int) -> list[dict[str, Any]]:
         shown = "  ".join(f"{k} {_fmt(row[k]['rms_deg'])}" for k in [p[0] for p in policies])
         print(f"realism {name:12s} {shown}  pd_tuned {_fmt(metrics['rms_deg'])} deg", flush=True)
     return rows
+
+
+def on_its_pd(kwargs: dict[str, Any], tuned: dict[str, Any], model: Path | None) -> dict[str, Any]:
+    """Returns the env kwargs a policy runs on an arm with: the arm's ``kwargs``, or for a
+    residual trained on drawn PD gains (learned.trained_on_drawn_gains) ``tuned``, the arm
+    with the gains tendon2r-tune-pd finds on it, which its PD then uses."""
+    return tuned if model is not None and trained_on_drawn_gains(model) else kwargs
 
 
 def realism_lines(rows: list[dict[str, Any]]) -> list[str]:

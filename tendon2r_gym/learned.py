@@ -151,14 +151,27 @@ def _observes_arm(recorded: dict[str, Any]) -> bool:
     return bool(layout) and layout[-1][0] == "arm"
 
 
+def drawn_gains(recorded: dict[str, Any]) -> list[str]:
+    """Returns the PD gains (CONTROLLER fields) that a model's training env drew per episode
+    (``recorded``: its run.json env_config)."""
+    arms = recorded.get("mechanism_ranges")
+    return [n for n in MechanismRanges.from_value(arms).names if n in CONTROLLER] if arms else []
+
+
+def trained_on_drawn_gains(model_path: str | Path) -> bool:
+    """Returns whether the model (``<name>.zip`` in a run folder or bundle) was trained on
+    drawn PD gains: then it runs on an arm's own, e.g. tendon2r-tune-pd's."""
+    meta = json.loads((stem_of(model_path).parent / RUN_META).read_text())
+    return bool(drawn_gains(meta["env_config"]))
+
+
 def deployed_gains(recorded: dict[str, Any], env: gym.Env) -> Gains:
     """Returns the gains of the PD inside a residual model deployed on ``env``: those of its
     training env (``pd_gains``), except the gains its training drew per episode
-    (CONTROLLER fields of its mechanism_ranges), which are ``env``'s: the gains a user tuned
-    for their arm, inside the training ranges (check_model_env)."""
+    (:func:`drawn_gains`), which are ``env``'s: the gains a user tuned for their arm, inside
+    the training ranges (check_model_env)."""
     gains = gains_of(recorded.get("pd_gains"))
-    arms = recorded.get("mechanism_ranges")
-    drawn = [n for n in MechanismRanges.from_value(arms).names if n in CONTROLLER] if arms else []
+    drawn = drawn_gains(recorded)
     theirs = gains_of(env.unwrapped.config.pd_gains)
     return dataclasses.replace(
         gains, **{gain_field(n): getattr(theirs, gain_field(n)) for n in drawn}

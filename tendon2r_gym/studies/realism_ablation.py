@@ -20,12 +20,15 @@ from typing import Any
 
 import numpy as np
 
-from tendon2r_gym.benchmark import realism_arms
+from tendon2r_gym.arms import MechanismRanges
+from tendon2r_gym.benchmark import TUNE_EPISODES, on_its_pd, realism_arms
 from tendon2r_gym.evaluation import evaluate
 from tendon2r_gym.gains import gains_of
+from tendon2r_gym.learned import trained_on_drawn_gains
 from tendon2r_gym.metrics import beats, worst_ratio
 from tendon2r_gym.runs import BEST_METRICS, CONFIG, SUMMARY, RunFolder, command_line
 from tendon2r_gym.studies import joints, save_json
+from tendon2r_gym.tuning import tune_pd
 from tendon2r_gym.validation import invalid
 
 
@@ -63,11 +66,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     records = [_record(run) for run in runs]  # every folder checked before any evaluation
     seeds = list(range(args.episodes))
     arms = []
+    models = [run.best.with_suffix(".zip") for run in runs]
     for name, kwargs in realism_arms():
         pd, _ = evaluate("pd", kwargs, seeds)
         row = {"arm": name, "pd": pd["rms_deg"], "runs": []}
-        for run in runs:
-            metrics, _ = evaluate("ppo", kwargs, seeds, run.best.with_suffix(".zip"))
+        tuned = None  # the arm with its tuned PD gains, for runs trained on drawn gains
+        if any(map(trained_on_drawn_gains, models)):
+            tuned = {**kwargs, "pd_gains": tune_pd(kwargs, TUNE_EPISODES).gains.to_dict()}
+        for model in models:
+            metrics, _ = evaluate("ppo", on_its_pd(kwargs, tuned, model), seeds, model)
             row["runs"].append(metrics["rms_deg"])
         arms.append(row)
         print(name, joints(pd["rms_deg"]), *(joints(r) for r in row["runs"]), flush=True)
@@ -107,8 +114,13 @@ def _network_and_pd(record: dict[str, Any]) -> str:
     arm's loop delay: tendon2r_gym.gains)."""
     net = record["net_arch"]
     layers = " x ".join(map(str, net)) if isinstance(net, list) else "SB3's default"
-    gains = gains_of(record["env_kwargs"].get("pd_gains"))
-    if gains.max_delay_phase is None:
+    kwargs = record["env_kwargs"]
+    gains = gains_of(kwargs.get("pd_gains"))
+    ranges = dict(MechanismRanges.from_value(kwargs["mechanism_ranges"]).ranges)
+    if "pd_bandwidth_hz" in ranges:
+        lo, hi = ranges["pd_bandwidth_hz"]
+        pd = f"tuned per arm (trained on {lo:.3g} to {hi:.3g} Hz drawn per episode)"
+    elif gains.max_delay_phase is None:
         pd = f"{gains.bandwidth_hz:g} Hz"
     else:
         pd = f"{gains.max_delay_phase:.3g} rad / loop delay, <= {gains.bandwidth_hz:g} Hz"
