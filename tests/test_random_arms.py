@@ -325,3 +325,23 @@ def test_a_model_trained_on_drawn_gains_runs_on_the_users_tuned_gains():
     phase = {**recorded, "mechanism_ranges": [*ranges, {"pd_max_delay_phase": [0.3, 0.6]}]}
     with pytest.raises(ValueError, match=r"pd_max_delay_phase = None outside \[0.3, 0.6\]"):
         check_model_env(phase, arm, "model")
+
+
+def test_the_benchmark_runs_a_residual_on_drawn_gains_on_the_arms_tuned_pd(tmp_path):
+    """In the realism section (and its ablation) a residual trained on drawn PD gains runs on
+    the arm with the gains tendon2r-tune-pd found there; any other policy on the arm as is."""
+    import json
+
+    from tendon2r_gym.benchmark import on_its_pd
+
+    ranges = {"drawn": ["real_arm", {"pd_bandwidth_hz": [10.0, 40.0]}], "fixed": "real_arm"}
+    models = {}
+    for name, value in ranges.items():
+        (tmp_path / name).mkdir()
+        config = EnvConfig.make("real_arm", mechanism_ranges=value).to_dict()
+        (tmp_path / name / "run.json").write_text(json.dumps({"env_config": config}))
+        models[name] = tmp_path / name / "best_model.zip"
+    arm, tuned = {"preset": "real_arm"}, {"preset": "real_arm", "pd_gains": {"bandwidth_hz": 20}}
+    assert on_its_pd(arm, tuned, models["drawn"]) is tuned
+    assert on_its_pd(arm, tuned, models["fixed"]) is arm
+    assert on_its_pd(arm, tuned, None) is arm

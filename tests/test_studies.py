@@ -161,5 +161,8 @@ def test_realism_ablation_scores_runs_on_the_realism_arms(tmp_path):
     assert f"| {net}; PD {record['env_kwargs']['pd_gains']['bandwidth_hz']:g} Hz |" in text
     scheduled = {**record, "env_kwargs": {"pd_gains": {"max_delay_phase": 0.5}}}
     assert "PD 0.5 rad / loop delay, <= 30 Hz" in realism_ablation._network_and_pd(scheduled)
+    drawn = {"mechanism_ranges": ["real_arm", {"pd_bandwidth_hz": [10.0, 40.0]}]}
+    shown = realism_ablation._network_and_pd({**record, "env_kwargs": drawn})
+    assert "PD tuned per arm (trained on 10 to 40 Hz drawn per episode)" in shown
     with pytest.raises(ValueError, match=r"--runs = .* is invalid; allowed: run folders"):
         realism_ablation.main(["--runs", str(tmp_path), "--out", str(tmp_path)])

@@ -6,10 +6,12 @@ realism section's arms.
 
 Each run (a folder written by ``tendon2r-train``, e.g. of the configs/ppo.yaml entries
 ``real_arm``, ``real_arm_scheduled``, ``real_arm_oracle``, ``real_arm_history``,
-``real_arm_blind`` and ``real_arm_frame_stack``) gives its training record (best evaluation,
-its effort, steps and wall time) and its best model's RMS error on the arms of ``make
-benchmark``'s realism section (tendon2r_gym.benchmark.realism_arms), against PD on the same
-episodes, as that section scores the shipped bundle.
+``real_arm_blind``, ``real_arm_frame_stack`` and ``real_arm_gains``) gives its training record
+(best evaluation, its effort, steps and wall time) and its best model's (``--model last``: its
+last model's) RMS error on the arms of ``make benchmark``'s realism section
+(tendon2r_gym.benchmark.realism_arms), against PD on the same episodes, as that section scores
+the shipped bundle: a run trained on drawn PD gains on the gains tendon2r-tune-pd finds on each
+arm (tendon2r_gym.benchmark.on_its_pd).
 """
 
 from __future__ import annotations
@@ -59,6 +61,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("--runs", nargs="+", required=True, help="run folders (seed_<n>)")
     p.add_argument("--episodes", type=int, default=3, help="per arm, as make benchmark")
+    p.add_argument(
+        "--model",
+        choices=("best", "last"),
+        default="best",
+        help="each run's best model (by its training evaluations) or its last",
+    )
     p.add_argument("--out", default="results")
     args = p.parse_args(argv)
     command = command_line(argv, "python scripts/realism_ablation.py")
@@ -66,7 +74,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     records = [_record(run) for run in runs]  # every folder checked before any evaluation
     seeds = list(range(args.episodes))
     arms = []
-    models = [run.best.with_suffix(".zip") for run in runs]
+    models = [getattr(run, args.model).with_suffix(".zip") for run in runs]
     for name, kwargs in realism_arms():
         pd, _ = evaluate("pd", kwargs, seeds)
         row = {"arm": name, "pd": pd["rms_deg"], "runs": []}
@@ -86,7 +94,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             max_worst_ratio=float(np.max(ratios)),
             lost_to_pd=[a["arm"] for a, r in zip(arms, ratios, strict=True) if r > 1.0],
         )
-    result = {"command": command, "episodes": args.episodes, "runs": records, "arms": arms}
+    result = {
+        "command": command,
+        "episodes": args.episodes,
+        "model": args.model,
+        "runs": records,
+        "arms": arms,
+    }
     write(result, Path(args.out))
     return result
 
@@ -116,7 +130,8 @@ def _network_and_pd(record: dict[str, Any]) -> str:
     layers = " x ".join(map(str, net)) if isinstance(net, list) else "SB3's default"
     kwargs = record["env_kwargs"]
     gains = gains_of(kwargs.get("pd_gains"))
-    ranges = dict(MechanismRanges.from_value(kwargs["mechanism_ranges"]).ranges)
+    drawn = kwargs.get("mechanism_ranges")
+    ranges = dict(MechanismRanges.from_value(drawn).ranges) if drawn else {}
     if "pd_bandwidth_hz" in ranges:
         lo, hi = ranges["pd_bandwidth_hz"]
         pd = f"tuned per arm (trained on {lo:.3g} to {hi:.3g} Hz drawn per episode)"
@@ -137,7 +152,8 @@ def write(result: dict[str, Any], out: Path) -> None:
         f"Produced by `{result['command']}`. Training: each run's best evaluation (its "
         "`best_metrics.json`, on the entry's evaluation seeds: random arms from its ranges). "
         f"Realism arms: the {n} arms of `make benchmark`'s realism section, "
-        f"{result['episodes']} episodes each, the run's best model against PD on the same "
+        f"{result['episodes']} episodes each, the run's {result.get('model', 'best')} model "
+        "against PD on the same "
         "episodes; ratio: the worse joint's RMS as a multiple of PD's. Tensions per tendon.",
         "",
         "| # | run | sees | network; PD | steps (best at) | wall (s) | training RMS A / B (deg) "
