@@ -253,11 +253,15 @@ class MechanismRanges:
 
     def features(self, arm: Any) -> list[float]:
         """Returns the drawn fields of the arm config ``arm`` normalized over their ranges to
-        [-1, 1] (0 for a range of one value): the ``arm`` slice of the observation."""
-        return [
-            0.0 if hi == lo else 2.0 * (drawn_value(arm, name) - lo) / (hi - lo) - 1.0
-            for name, (lo, hi) in self.ranges
-        ]
+        [-1, 1] (0 for a range of one value): the ``arm`` slice of the observation.  A
+        max_delay_phase that is not set (no cap: the env's own config, before its first
+        draw) counts as the top of its range."""
+        out = []
+        for name, (lo, hi) in self.ranges:
+            value = drawn_value(arm, name)
+            value = hi if value is None else value
+            out.append(0.0 if hi == lo else 2.0 * (value - lo) / (hi - lo) - 1.0)
+        return out
 
     def violations(self, arm: Any) -> list[str]:
         """Returns the fields of the arm config ``arm`` outside the ranges (empty if it is

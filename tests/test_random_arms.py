@@ -345,3 +345,23 @@ def test_the_benchmark_runs_a_residual_on_drawn_gains_on_the_arms_tuned_pd(tmp_p
     assert on_its_pd(arm, tuned, models["drawn"]) is tuned
     assert on_its_pd(arm, tuned, models["fixed"]) is arm
     assert on_its_pd(arm, tuned, None) is arm
+
+
+def test_a_drawn_delay_phase_schedules_each_episodes_pd_on_its_loop_delay():
+    """pd_max_delay_phase drawn (the env's own gains set none): each episode's PD is held to
+    the drawn phase over the arm's loop delay, and the env builds and observes it."""
+    from tendon2r_gym.gains import loop_delay
+
+    kwargs = {"preset": "real_arm", "observe_arm": True}
+    ranges = ["real_arm", {"pd_max_delay_phase": [0.3, 0.6]}]
+    env = gym.make("Tendon2R-v0", mechanism_ranges=ranges, **kwargs)
+    pd = PDPolicy.from_env(env)
+    for seed in range(3):
+        obs, info = env.reset(seed=seed)
+        phase = info["pd_gains"]["max_delay_phase"]
+        assert 0.3 <= phase <= 0.6 and obs[-1] == 2 * (phase - 0.3) / 0.3 - 1
+        pd.reset(info)
+        arm = env.unwrapped.arm
+        tau = loop_delay(arm.mechanism, arm.observation_delay, env.unwrapped.ctrl_dt)
+        w = min(2 * np.pi * info["pd_gains"]["bandwidth_hz"], phase / tau)
+        np.testing.assert_allclose(pd.kp, w * w, rtol=1e-12)
