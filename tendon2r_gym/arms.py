@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from tendon2r_gym.gains import gains_of
 from tendon2r_gym.mechanism import (
     LIMITS,
     MODEL_ERROR_LIMITS,
@@ -134,6 +135,8 @@ SENSING = ("observation_delay", "observation_noise_angle", "observation_noise_sp
 #: ``bandwidth_hz`` and ``max_delay_phase`` (tendon2r_gym.gains).  A residual that sees them
 #: (``observe_arm``) learns on any PD, and runs on the one ``tendon2r-tune-pd`` finds for an arm.
 CONTROLLER = ("pd_bandwidth_hz", "pd_max_delay_phase")
+#: The unit of each CONTROLLER field.
+GAIN_UNITS = {"pd_bandwidth_hz": "Hz", "pd_max_delay_phase": "rad"}
 #: Every field ``mechanism_ranges`` may draw.
 DRAWABLE = (*RANDOMIZABLE, *SENSING, *CONTROLLER)
 #: Drawn delays are rounded to whole control steps (EnvConfig.draw_arm).
@@ -153,8 +156,6 @@ def drawn_value(arm: Any, name: str) -> float | None:
     EnvConfig): a mechanism field, one of SENSING, or one of CONTROLLER (None: a
     max_delay_phase that is not set)."""
     if name in CONTROLLER:
-        from tendon2r_gym.gains import gains_of
-
         return getattr(gains_of(arm.pd_gains), gain_field(name))
     if name == "observation_delay":
         return arm.observation_delay

@@ -263,10 +263,10 @@ class EnvConfig:
                 ref = reference
                 if ref is None and self.reference_ranges is not None:
                     ref = self.reference_ranges.sample(rng, mech)
-                sensing = {"observation_noise": tuple(noise), "observation_delay": delay}
+                drawn_env = {"observation_noise": tuple(noise), "observation_delay": delay}
                 if gains:
-                    sensing["pd_gains"] = dataclasses.replace(gains_of(self.pd_gains), **gains)
-                return self.for_arm(mech, ref, **sensing)
+                    drawn_env["pd_gains"] = dataclasses.replace(gains_of(self.pd_gains), **gains)
+                return self.for_arm(mech, ref, **drawn_env)
             except ValueError:
                 continue
         raise invalid(
@@ -276,12 +276,12 @@ class EnvConfig:
         )
 
     def for_arm(
-        self, mechanism: Mechanism, reference: Reference | None = None, **sensing: Any
+        self, mechanism: Mechanism, reference: Reference | None = None, **drawn_env: Any
     ) -> EnvConfig:
         """Returns the config of one arm and one reference (default: the nominal one), as a
         user's experiment file gives them: nothing drawn, the reference's amplitudes fitted
         to the arm's workspace (quietly), and an ``auto`` force limit sized for this arm and
-        this reference; ``sensing``: its observation_noise, observation_delay and pd_gains,
+        this reference; ``drawn_env``: its observation_noise, observation_delay and pd_gains,
         if drawn.
         An env with this config runs the randomized env's episode exactly."""
         with warnings.catch_warnings():
@@ -295,7 +295,7 @@ class EnvConfig:
                 mechanism_ranges=None,
                 observe_arm=False,
                 fit_to_workspace=True,
-                **sensing,
+                **drawn_env,
             )
 
     # -- derived quantities ------------------------------------------------------------------

@@ -164,5 +164,8 @@ def test_realism_ablation_scores_runs_on_the_realism_arms(tmp_path):
     drawn = {"mechanism_ranges": ["real_arm", {"pd_bandwidth_hz": [10.0, 40.0]}]}
     shown = realism_ablation._network_and_pd({**record, "env_kwargs": drawn})
     assert "PD tuned per arm (trained on 10 to 40 Hz drawn per episode)" in shown
+    phase = {"mechanism_ranges": ["real_arm", {"pd_max_delay_phase": [0.3, 0.6]}]}
+    shown = realism_ablation._network_and_pd({**record, "env_kwargs": phase})
+    assert "PD tuned per arm (trained on 0.3 to 0.6 rad drawn per episode)" in shown
     with pytest.raises(ValueError, match=r"--runs = .* is invalid; allowed: run folders"):
         realism_ablation.main(["--runs", str(tmp_path), "--out", str(tmp_path)])

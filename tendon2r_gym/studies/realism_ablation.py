@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from tendon2r_gym.arms import MechanismRanges
+from tendon2r_gym.arms import CONTROLLER, GAIN_UNITS, MechanismRanges
 from tendon2r_gym.benchmark import TUNE_EPISODES, on_its_pd, realism_arms
 from tendon2r_gym.evaluation import evaluate
 from tendon2r_gym.gains import gains_of
@@ -75,11 +75,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     seeds = list(range(args.episodes))
     arms = []
     models = [getattr(run, args.model).with_suffix(".zip") for run in runs]
+    needs_tuning = any(map(trained_on_drawn_gains, models))
     for name, kwargs in realism_arms():
         pd, _ = evaluate("pd", kwargs, seeds)
         row = {"arm": name, "pd": pd["rms_deg"], "runs": []}
         tuned = None  # the arm with its tuned PD gains, for runs trained on drawn gains
-        if any(map(trained_on_drawn_gains, models)):
+        if needs_tuning:
             tuned = {**kwargs, "pd_gains": tune_pd(kwargs, TUNE_EPISODES).gains.to_dict()}
         for model in models:
             metrics, _ = evaluate("ppo", on_its_pd(kwargs, tuned, model), seeds, model)
@@ -124,17 +125,22 @@ def _sees(record: dict[str, Any]) -> str:
 
 
 def _network_and_pd(record: dict[str, Any]) -> str:
-    """Returns the run's hidden layers and its PD's gains (a bandwidth, or scheduled on each
-    arm's loop delay: tendon2r_gym.gains)."""
+    """Returns the run's hidden layers and its PD's gains (a bandwidth, scheduled on each
+    arm's loop delay: tendon2r_gym.gains, or drawn per episode in training and tuned per arm
+    when deployed)."""
     net = record["net_arch"]
     layers = " x ".join(map(str, net)) if isinstance(net, list) else "SB3's default"
     kwargs = record["env_kwargs"]
     gains = gains_of(kwargs.get("pd_gains"))
     drawn = kwargs.get("mechanism_ranges")
-    ranges = dict(MechanismRanges.from_value(drawn).ranges) if drawn else {}
-    if "pd_bandwidth_hz" in ranges:
-        lo, hi = ranges["pd_bandwidth_hz"]
-        pd = f"tuned per arm (trained on {lo:.3g} to {hi:.3g} Hz drawn per episode)"
+    ranges = MechanismRanges.from_value(drawn).ranges if drawn else ()
+    gain_ranges = [
+        f"{lo:.3g} to {hi:.3g} {GAIN_UNITS[name]}"
+        for name, (lo, hi) in ranges
+        if name in CONTROLLER
+    ]
+    if gain_ranges:
+        pd = f"tuned per arm (trained on {', '.join(gain_ranges)} drawn per episode)"
     elif gains.max_delay_phase is None:
         pd = f"{gains.bandwidth_hz:g} Hz"
     else:
