@@ -137,6 +137,9 @@ SENSING = ("observation_delay", "observation_noise_angle", "observation_noise_sp
 CONTROLLER = ("pd_bandwidth_hz", "pd_max_delay_phase")
 #: The unit of each CONTROLLER field.
 GAIN_UNITS = {"pd_bandwidth_hz": "Hz", "pd_max_delay_phase": "rad"}
+#: ``mechanism_ranges`` key of the phase at which PD's bandwidth is drawn as tuned for each
+#: drawn arm (MechanismRanges.tuned_phase, tendon2r_gym.gains.tuned_bandwidth).
+TUNED_PHASE = "pd_tuned_phase"
 #: Every field ``mechanism_ranges`` may draw.
 DRAWABLE = (*RANDOMIZABLE, *SENSING, *CONTROLLER)
 #: Drawn delays are rounded to whole control steps (EnvConfig.draw_arm).
@@ -175,9 +178,16 @@ class MechanismRanges:
     SENSING; PD's gains: CONTROLLER), drawn independently in this order at every reset; every
     other field keeps the nominal arm's value.  From YAML: a mapping ``{field: [lo, hi]}``,
     ``course`` (the course's geometry, R1 R2 a b c) or ``real_arm`` (cables, motors and
-    sensors: tendon2r_gym.realism.PERTURBATIONS)."""
+    sensors: tendon2r_gym.realism.PERTURBATIONS).
+
+    ``pd_tuned_phase: [lo, hi]`` (``tuned_phase``, with ``pd_bandwidth_hz`` drawn) ties PD's
+    bandwidth to the drawn arm, as ``tendon2r-tune-pd`` would tune it there: the bandwidth
+    at which the arm's true loop delay takes a phase drawn from [lo, hi]
+    (tendon2r_gym.gains.tuned_bandwidth), clipped to the ``pd_bandwidth_hz`` range.  It is a
+    rule of the draw, not an arm feature: the bandwidth is what is observed."""
 
     ranges: tuple[tuple[str, tuple[float, float]], ...]
+    tuned_phase: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         if not self.ranges:
@@ -186,7 +196,9 @@ class MechanismRanges:
         for name, value in self.ranges:
             field = f"mechanism_ranges.{name}"
             if name not in DRAWABLE:
-                raise invalid("mechanism_ranges", name, f"fields among {DRAWABLE}")
+                raise invalid(
+                    "mechanism_ranges", name, f"fields among {DRAWABLE}, and {TUNED_PHASE}"
+                )
             limits = {**LIMITS, **REALISM_LIMITS, **MODEL_ERROR_LIMITS, "observation_delay": 1.0}
             hi_limit = limits.get(name, 1e6)
             lo, hi = pair(field, value, 0.0, hi_limit)
@@ -203,6 +215,18 @@ class MechanismRanges:
                 )
             out.append((name, (lo, hi)))
         object.__setattr__(self, "ranges", tuple(out))
+        if self.tuned_phase is not None:
+            field = f"mechanism_ranges.{TUNED_PHASE}"
+            lo, hi = pair(field, self.tuned_phase, 0.0, np.pi / 2)
+            if not 0.0 < lo <= hi:
+                raise invalid(field, self.tuned_phase, "[lo, hi] with 0 < lo <= hi <= pi / 2")
+            if "pd_bandwidth_hz" not in self.names:
+                raise invalid(
+                    field,
+                    self.tuned_phase,
+                    "a range only beside pd_bandwidth_hz's (the bandwidths it may give)",
+                )
+            object.__setattr__(self, "tuned_phase", (lo, hi))
 
     @classmethod
     def from_value(cls, value: Any) -> MechanismRanges:
@@ -213,11 +237,14 @@ class MechanismRanges:
             if not value:
                 raise invalid("mechanism_ranges", value, f"at least one of {DRAWABLE}")
             merged: dict[str, tuple[float, float]] = {}
+            phase = None
             for part in value:
                 if isinstance(part, list | tuple):
                     raise invalid("mechanism_ranges", value, "a list of names and mappings")
-                merged.update(cls.from_value(part).ranges)
-            return cls(tuple(merged.items()))
+                ranges = cls.from_value(part)
+                merged.update(ranges.ranges)
+                phase = ranges.tuned_phase or phase
+            return cls(tuple(merged.items()), phase)
         if value == COURSE_NAME:
             return cls(tuple((k, getattr(COURSE, k)) for k in GEOMETRY))
         if value == REAL_ARM_NAME:
@@ -226,12 +253,16 @@ class MechanismRanges:
             return cls(tuple(PERTURBATIONS.items()))
         if isinstance(value, MechanismRanges):
             return value
-        values = mapping("mechanism_ranges", value)
-        return cls(tuple((str(k), v) for k, v in values.items()))
+        values = dict(mapping("mechanism_ranges", value))
+        phase = values.pop(TUNED_PHASE, None)
+        return cls(tuple((str(k), v) for k, v in values.items()), phase)
 
     def to_dict(self) -> dict[str, list[float]]:
-        """Returns the ranges as plain YAML-friendly lists."""
-        return {name: list(r) for name, r in self.ranges}
+        """Returns the ranges as plain YAML-friendly lists (what from_value reads)."""
+        out = {name: list(r) for name, r in self.ranges}
+        if self.tuned_phase is not None:
+            out[TUNED_PHASE] = list(self.tuned_phase)
+        return out
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -248,9 +279,12 @@ class MechanismRanges:
         return dict(self.ranges).get(name, (0.0, 0.0))[1]
 
     def sample(self, rng: np.random.Generator) -> dict[str, float]:
-        """Returns a uniform draw of every field, in drawing order (EnvConfig.draw_arm makes
-        it an arm and checks it)."""
-        return {name: float(rng.uniform(lo, hi)) for name, (lo, hi) in self.ranges}
+        """Returns a uniform draw of every field, in drawing order, then of the tuned phase
+        if set (EnvConfig.draw_arm makes it an arm and checks it)."""
+        out = {name: float(rng.uniform(lo, hi)) for name, (lo, hi) in self.ranges}
+        if self.tuned_phase is not None:
+            out[TUNED_PHASE] = float(rng.uniform(*self.tuned_phase))
+        return out
 
     def features(self, arm: Any) -> list[float]:
         """Returns the drawn fields of the arm config ``arm`` normalized over their ranges to

@@ -28,11 +28,12 @@ from tendon2r_gym.arms import (
     DELAYS,
     MAX_TRIES,
     SENSING,
+    TUNED_PHASE,
     MechanismRanges,
     gain_field,
     reference_ranges,
 )
-from tendon2r_gym.gains import Gains, gains_of
+from tendon2r_gym.gains import Gains, gains_of, tuned_bandwidth
 from tendon2r_gym.mechanism import AUTO, Mechanism
 from tendon2r_gym.model import build_model
 from tendon2r_gym.presets import SECTIONS, load_preset, merge_env_kwargs
@@ -258,8 +259,13 @@ class EnvConfig:
             ]
             delay = drawn.pop("observation_delay", self.observation_delay)
             gains = {gain_field(k): drawn.pop(k) for k in CONTROLLER if k in drawn}
+            phase = drawn.pop(TUNED_PHASE, None)
             try:
                 mech = self.base_mechanism.replace(**drawn)
+                if phase is not None:  # the bandwidth a tuning would pick on this arm
+                    f = tuned_bandwidth(mech, delay, self.ctrl_dt, phase)
+                    lo, hi = dict(ranges.ranges)["pd_bandwidth_hz"]
+                    gains["bandwidth_hz"] = min(max(f, lo), hi)
                 ref = reference
                 if ref is None and self.reference_ranges is not None:
                     ref = self.reference_ranges.sample(rng, mech)

@@ -78,6 +78,26 @@ def loop_delay(mechanism: Mechanism, observation_delay: float, ctrl_dt: float) -
     return observation_delay + mechanism.motor_delay + mechanism.motor_tau + 0.5 * ctrl_dt
 
 
+def true_phase_per_hz(mechanism: Mechanism, observation_delay: float, ctrl_dt: float) -> float:
+    """Returns the phase (rad) that the arm's loop delay takes in its true closed loop per Hz
+    of PD's bandwidth: 2 pi tau / sqrt(density_scale).  PD scales its torque by the nominal
+    inertia, so on an arm density_scale times heavier its loop runs at w /
+    sqrt(density_scale).  Only a simulation knows density_scale; a user's tuning on the real
+    arm sees its effect."""
+    tau = loop_delay(mechanism, observation_delay, ctrl_dt)
+    return 2 * math.pi * tau / math.sqrt(mechanism.density_scale)
+
+
+def tuned_bandwidth(
+    mechanism: Mechanism, observation_delay: float, ctrl_dt: float, phase: float
+) -> float:
+    """Returns the bandwidth (Hz) at which the arm's true loop delay takes ``phase`` rad
+    (:func:`true_phase_per_hz`): a model of what ``tendon2r-tune-pd`` picks on the arm, used
+    to draw the gains a residual trains on (MechanismRanges' tuned_phase), not to deploy
+    them."""
+    return phase / true_phase_per_hz(mechanism, observation_delay, ctrl_dt)
+
+
 @lru_cache(maxsize=1)
 def default_gains() -> Gains:
     """Returns the package's gains (data/pd.yaml)."""

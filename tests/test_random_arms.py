@@ -38,6 +38,12 @@ def _episode(env, policy, seed, steps=200):
      ("everything", "mechanism_ranges = 'everything'"),
      ({"a": [0.001, 0.002]}, "mechanism_ranges = .*valid arm"),
      ({"pd_bandwidth_hz": [0.0, 30.0]}, r"mechanism_ranges.pd_bandwidth_hz = .*0 < lo"),
+     ({"c": [0.08, 0.09], "pd_tuned_phase": [0.4, 0.8]},
+      r"mechanism_ranges.pd_tuned_phase = .*pd_bandwidth_hz"),
+     ({"pd_bandwidth_hz": [10.0, 40.0], "pd_tuned_phase": [0.0, 0.8]},
+      r"mechanism_ranges.pd_tuned_phase = .*0 < lo"),
+     ({"pd_bandwidth_hz": [10.0, 40.0], "pd_tuned_phase": [0.5, 2.0]},
+      r"mechanism_ranges.pd_tuned_phase = \[0.5, 2.0\]"),
      ([], r"mechanism_ranges = \[\]"),
      (["real_arm", [{"c": [0.05, 0.06]}]], "mechanism_ranges = .*a list of names and mappings")],
 )  # fmt: skip
@@ -365,3 +371,33 @@ def test_a_drawn_delay_phase_schedules_each_episodes_pd_on_its_loop_delay():
         tau = loop_delay(arm.mechanism, arm.observation_delay, env.unwrapped.ctrl_dt)
         w = min(2 * np.pi * info["pd_gains"]["bandwidth_hz"], phase / tau)
         np.testing.assert_allclose(pd.kp, w * w, rtol=1e-12)
+
+
+def test_a_tuned_phase_draws_each_arms_bandwidth_as_a_tuning_would_pick_it():
+    """pd_tuned_phase: each episode's bandwidth takes a phase in the range of the drawn arm's
+    true loop (w tau / sqrt(density_scale)), clipped to pd_bandwidth_hz's range, so a heavier
+    or faster arm gets a stiffer PD; the rule survives the run's record (to_dict)."""
+    from tendon2r_gym.gains import loop_delay, tuned_bandwidth
+
+    lo, hi, phase = 10.0, 40.0, (0.5, 0.7)
+    ranges = ["real_arm", {"pd_bandwidth_hz": [lo, hi], "pd_tuned_phase": list(phase)}]
+    cfg = EnvConfig.make("real_arm", mechanism_ranges=ranges, observe_arm=True)
+    assert MechanismRanges.from_value(cfg.mechanism_ranges.to_dict()) == cfg.mechanism_ranges
+    assert cfg.arm_fields == cfg.mechanism_ranges.names  # the bandwidth is seen, not the phase
+    rng, clipped, inside = np.random.default_rng(0), 0, 0
+    for _ in range(200):
+        arm = cfg.draw_arm(rng)
+        f = arm.pd_gains.bandwidth_hz
+        m = arm.mechanism
+        tau = loop_delay(m, arm.observation_delay, cfg.ctrl_dt)
+        taken = 2 * np.pi * f * tau / np.sqrt(m.density_scale)
+        if lo < f < hi:
+            assert phase[0] - 1e-12 <= taken <= phase[1] + 1e-12
+            inside += 1
+        else:
+            clipped += 1
+        heavier = m.replace(density_scale=2 * m.density_scale)
+        assert tuned_bandwidth(heavier, arm.observation_delay, cfg.ctrl_dt, 0.6) == pytest.approx(
+            np.sqrt(2) * tuned_bandwidth(m, arm.observation_delay, cfg.ctrl_dt, 0.6)
+        )
+    assert inside > 100 and clipped > 0

@@ -143,6 +143,8 @@ def test_realism_ablation_scores_runs_on_the_realism_arms(tmp_path):
 
     from tendon2r_gym.benchmark import realism_arms
     from tendon2r_gym.bundle import bundled_model
+    from tendon2r_gym.env_config import EnvConfig
+    from tendon2r_gym.gains import tuned_bandwidth
     from tendon2r_gym.metrics import beats, worst_ratio
     from tendon2r_gym.studies import realism_ablation
 
@@ -167,5 +169,17 @@ def test_realism_ablation_scores_runs_on_the_realism_arms(tmp_path):
     phase = {"mechanism_ranges": ["real_arm", {"pd_max_delay_phase": [0.3, 0.6]}]}
     shown = realism_ablation._network_and_pd({**record, "env_kwargs": phase})
     assert "PD tuned per arm (trained on 0.3 to 0.6 rad drawn per episode)" in shown
+    tied = {"pd_bandwidth_hz": [10.0, 40.0], "pd_tuned_phase": [0.5, 0.7]}
+    shown = realism_ablation._network_and_pd(
+        {**record, "env_kwargs": {"mechanism_ranges": ["real_arm", tied]}}
+    )
+    assert "10 to 40 Hz drawn per episode at 0.5 to 0.7 rad of the arm's true loop)" in shown
+    # a tuned PD's phase is the one that would draw its bandwidth (gains.tuned_bandwidth)
+    tuned = realism_ablation._tuned_pd({"preset": "real_arm", "pd_gains": {"bandwidth_hz": 20}})
+    arm = EnvConfig.make("real_arm")
+    drawn_back = tuned_bandwidth(
+        arm.mechanism, arm.observation_delay, arm.ctrl_dt, tuned["true_loop_phase_rad"]
+    )
+    assert tuned["bandwidth_hz"] == 20 and drawn_back == pytest.approx(20, rel=1e-12)
     with pytest.raises(ValueError, match=r"--runs = .* is invalid; allowed: run folders"):
         realism_ablation.main(["--runs", str(tmp_path), "--out", str(tmp_path)])

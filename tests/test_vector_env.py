@@ -19,6 +19,8 @@ ARMS = {"c": [0.08, 0.1], "tendon_elasticity": [2000.0, 6000.0], "motor_tau": [0
 
 #: Random real arms, each with its own PD bandwidth (Hz).
 GAINS = ["real_arm", {"pd_bandwidth_hz": [10.0, 40.0]}]
+#: ... and with the bandwidth a tuning would pick on each arm.
+TUNED = ["real_arm", {"pd_bandwidth_hz": [10.0, 40.0], "pd_tuned_phase": [0.5, 0.7]}]
 
 
 def _native(n, **kw):
@@ -167,7 +169,8 @@ def test_batched_pd_equals_single_pd():
      {"preset": "real_arm", "mechanism_ranges": "real_arm", "episode_duration": 0.01,
       "pd_gains": {"bandwidth_hz": 46.0, "max_delay_phase": 0.5}},
      # random real arms, each with its own drawn PD bandwidth
-     {"preset": "real_arm", "mechanism_ranges": GAINS, "episode_duration": 0.01}],
+     {"preset": "real_arm", "mechanism_ranges": GAINS, "episode_duration": 0.01},
+     {"preset": "real_arm", "mechanism_ranges": TUNED, "episode_duration": 0.01}],
 )  # fmt: skip
 def test_sb3_adapter_steps_like_dummy_vec_env(kwargs):
     """SB3's VecEnv API over the native env (SAME_STEP autoreset, terminal_observation,

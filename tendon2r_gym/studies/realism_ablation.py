@@ -24,8 +24,9 @@ import numpy as np
 
 from tendon2r_gym.arms import CONTROLLER, GAIN_UNITS, MechanismRanges
 from tendon2r_gym.benchmark import TUNE_EPISODES, on_its_pd, realism_arms
+from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.evaluation import evaluate
-from tendon2r_gym.gains import gains_of
+from tendon2r_gym.gains import gains_of, true_phase_per_hz
 from tendon2r_gym.learned import trained_on_drawn_gains
 from tendon2r_gym.metrics import beats, worst_ratio
 from tendon2r_gym.runs import BEST_METRICS, CONFIG, SUMMARY, RunFolder, command_line
@@ -82,6 +83,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         tuned = None  # the arm with its tuned PD gains, for runs trained on drawn gains
         if needs_tuning:
             tuned = {**kwargs, "pd_gains": tune_pd(kwargs, TUNE_EPISODES).gains.to_dict()}
+            row["tuned_pd"] = _tuned_pd(tuned)
         for model in models:
             metrics, _ = evaluate("ppo", on_its_pd(kwargs, tuned, model), seeds, model)
             row["runs"].append(metrics["rms_deg"])
@@ -104,6 +106,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     }
     write(result, Path(args.out))
     return result
+
+
+def _tuned_pd(tuned: dict[str, Any]) -> dict[str, float]:
+    """Returns the tuned PD's bandwidth (Hz) on the arm and the phase the arm's true loop
+    delay takes at it (what MechanismRanges' tuned_phase draws: tendon2r_gym.gains)."""
+    arm = EnvConfig.make(**tuned)
+    f = arm.pd_gains.bandwidth_hz
+    per_hz = true_phase_per_hz(arm.mechanism, arm.observation_delay, arm.ctrl_dt)
+    return {"bandwidth_hz": f, "true_loop_phase_rad": f * per_hz}
 
 
 def _sees(record: dict[str, Any]) -> str:
@@ -140,7 +151,9 @@ def _network_and_pd(record: dict[str, Any]) -> str:
         if name in CONTROLLER
     ]
     if gain_ranges:
-        pd = f"tuned per arm (trained on {', '.join(gain_ranges)} drawn per episode)"
+        tied = MechanismRanges.from_value(drawn).tuned_phase
+        how = f" at {tied[0]:.3g} to {tied[1]:.3g} rad of the arm's true loop" if tied else ""
+        pd = f"tuned per arm (trained on {', '.join(gain_ranges)} drawn per episode{how})"
     elif gains.max_delay_phase is None:
         pd = f"{gains.bandwidth_hz:g} Hz"
     else:
@@ -179,10 +192,22 @@ def write(result: dict[str, Any], out: Path) -> None:
         )
     lines += ["", "Per arm, RMS A / B (deg):", ""]
     numbers = range(1, len(result["runs"]) + 1)
-    lines.append("| arm | PD | " + " | ".join(f"run {i}" for i in numbers) + " |")
-    lines.append("|---|---|" + "---|" * len(result["runs"]))
+    tuned = all("tuned_pd" in a for a in result["arms"])
+    if tuned:
+        lines[-1] += (
+            " tuned PD: the bandwidth tendon2r-tune-pd finds on the arm, and the phase the "
+            "arm's true loop delay takes at it (2 pi f tau / sqrt(density_scale), "
+            "tendon2r_gym.gains.true_phase_per_hz)."
+        )
+        lines.append("")
+    head = "| arm | PD | " + ("tuned PD | " if tuned else "")
+    lines.append(head + " | ".join(f"run {i}" for i in numbers) + " |")
+    lines.append("|---|---|" + ("---|" if tuned else "") + "---|" * len(result["runs"]))
     for a in result["arms"]:
         cells = [f"{joints(x)} ({worst_ratio(x, a['pd']):.2f}x)" for x in a["runs"]]
+        if tuned:
+            t = a["tuned_pd"]
+            cells.insert(0, f"{t['bandwidth_hz']:.3g} Hz, {t['true_loop_phase_rad']:.2f} rad")
         lines.append(f"| {a['arm']} | {joints(a['pd'])} | " + " | ".join(cells) + " |")
     (out / "realism_ablation.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines), flush=True)
