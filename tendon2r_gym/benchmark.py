@@ -486,9 +486,10 @@ def realism_lines(rows: list[dict[str, Any]]) -> list[str]:
         "every one of these drawn anew every episode from the same ranges "
         "(`mechanism_ranges: real_arm`); its actor sees each arm's drawn cables, motors and "
         "sensors, which a user knows of their arm (`observe_arm`), and only its critic the "
-        "model's errors (`hide_from_actor`); on a PD "
-        "whose gains `tendon2r-tune-pd --hyperparams real_arm` tuned over the same ranges "
-        "(its `pd_gains`). PD (tuned): PD with the gains `tendon2r-tune-pd` finds on that arm "
+        "model's errors (`hide_from_actor`); in training, on a PD whose bandwidth is drawn "
+        "each episode as a tuning would pick it on the drawn arm, which it sees "
+        "(`pd_tuned_phase`), and here on the gains `tendon2r-tune-pd` finds on each arm "
+        "(PD (tuned)). PD (tuned): PD with the gains `tendon2r-tune-pd` finds on that arm "
         f"({TUNE_EPISODES} held-out episodes; its bandwidth in Hz). RMS error A / B (deg); for "
         "a residual, (its worst joint as a multiple of PD's).",
         "",

@@ -90,6 +90,13 @@ def tune_pd(env_kwargs: dict[str, Any], episodes: int = 3, scan: str = "bandwidt
     if scan not in SCANS:
         raise invalid("scan", scan, f"one of {SCANS}")
     config = EnvConfig.make(**env_kwargs)
+    if config.mechanism_ranges is not None and config.mechanism_ranges.draws_gains:
+        raise invalid(
+            "mechanism_ranges",
+            config.mechanism_ranges.to_dict(),
+            "ranges that leave PD's gains alone: they are drawn per episode here, so a scan "
+            "would not set them",
+        )
     base = gains_of(config.pd_gains).to_dict()
     if scan == "bandwidth_hz":
         grid = bandwidth_grid(config)

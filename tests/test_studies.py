@@ -135,10 +135,11 @@ def test_generalist_fine_tuning_curve(tmp_path):
     )
 
 
-def test_realism_ablation_scores_runs_on_the_realism_arms(tmp_path):
-    """The realism ablation reads a run folder (here the bundled real_arm run) and scores its
-    best model on the realism section's arms against PD: its counts follow its own per-arm
-    figures, and a folder that is not a run is refused by name."""
+def test_realism_ablation_scores_runs_on_the_realism_arms(tmp_path, monkeypatch):
+    """The realism ablation reads a run folder (here the bundled real_arm run, trained on
+    drawn PD gains) and scores its best model on the realism section's arms (the first two)
+    against PD, on each arm's tuned PD: its counts follow its own per-arm figures, and a
+    folder that is not a run is refused by name."""
     import pytest
 
     from tendon2r_gym.benchmark import realism_arms
@@ -148,19 +149,24 @@ def test_realism_ablation_scores_runs_on_the_realism_arms(tmp_path):
     from tendon2r_gym.metrics import beats, worst_ratio
     from tendon2r_gym.studies import realism_ablation
 
+    monkeypatch.setattr(realism_ablation, "realism_arms", lambda: realism_arms()[:2])
     run = bundled_model("real_arm").parent
     out = realism_ablation.main(["--runs", str(run), "--episodes", "1", "--out", str(tmp_path)])
     arms, (record,) = out["arms"], out["runs"]
-    assert [a["arm"] for a in arms] == [name for name, _ in realism_arms()]
+    assert [a["arm"] for a in arms] == [name for name, _ in realism_arms()[:2]]
     assert record["arms_le_pd"] == sum(beats(a["runs"][0], a["pd"]) for a in arms)
     lost = [a["arm"] for a in arms if worst_ratio(a["runs"][0], a["pd"]) > 1]
     assert record["lost_to_pd"] == lost
-    assert record["command"].startswith("tendon2r-train --hyperparams real_arm")
+    assert record["command"].startswith("tendon2r-train --hyperparams real_arm ")
     text = (tmp_path / "realism_ablation.md").read_text()
     per_arm = [line for line in text.splitlines() if line.startswith("| perturbed ")]
     assert len(per_arm) == len(arms) - 1 and "actor not arm.density_scale" in text
-    net = " x ".join(map(str, record["net_arch"]))
-    assert f"| {net}; PD {record['env_kwargs']['pd_gains']['bandwidth_hz']:g} Hz |" in text
+    assert f"| {realism_ablation._network_and_pd(record)} |" in text
+    assert "PD tuned per arm (trained on 9.83 to 46.9 Hz" in text  # each arm's tuned PD
+    for a in arms:
+        assert f"| {a['tuned_pd']['bandwidth_hz']:.3g} Hz, " in text
+    fixed = {**record, "env_kwargs": {"pd_gains": {"bandwidth_hz": 12.29}}}
+    assert realism_ablation._network_and_pd(fixed).endswith("; PD 12.29 Hz")
     scheduled = {**record, "env_kwargs": {"pd_gains": {"max_delay_phase": 0.5}}}
     assert "PD 0.5 rad / loop delay, <= 30 Hz" in realism_ablation._network_and_pd(scheduled)
     drawn = {"mechanism_ranges": ["real_arm", {"pd_bandwidth_hz": [10.0, 40.0]}]}

@@ -167,3 +167,10 @@ def test_tune_pd_scans_the_delay_phase():
     assert max(tuned["rms_deg"]) < 1.0
     with pytest.raises(ValueError, match="scan = 'kp'"):
         tune_pd(LAGGING, scan="kp")
+
+
+def test_tuning_an_env_that_draws_pd_gains_is_refused():
+    """A scan cannot set gains that the env draws per episode: refused, naming the ranges."""
+    drawn = {**LAGGING, "mechanism_ranges": ["real_arm", {"pd_bandwidth_hz": [10.0, 40.0]}]}
+    with pytest.raises(ValueError, match="mechanism_ranges = .*pd_bandwidth_hz.*leave PD's gains"):
+        tune_pd(drawn, episodes=1)
