@@ -189,3 +189,19 @@ def test_realism_ablation_scores_runs_on_the_realism_arms(tmp_path, monkeypatch)
     assert tuned["bandwidth_hz"] == 20 and drawn_back == pytest.approx(20, rel=1e-12)
     with pytest.raises(ValueError, match=r"--runs = .* is invalid; allowed: run folders"):
         realism_ablation.main(["--runs", str(tmp_path), "--out", str(tmp_path)])
+
+
+def test_generalist_ablation_names_each_bundles_reward_as_its_entry_sets_it():
+    """The reward column reads the bundle's recorded env config: the registered reward is
+    "log" with no changed weight; a reward ablation shows its entry's form and weights."""
+    from tendon2r_gym.bundle import bundle_names, bundled_model
+    from tendon2r_gym.studies import generalist
+    from tendon2r_gym.training import Hyperparams
+
+    assert generalist.reward_of(bundled_model("generalist")) == "log"
+    for name in ("generalist_multiscale", "generalist_multiscale_smooth"):
+        assert name in bundle_names() and name in generalist.ABLATIONS
+        env = Hyperparams.from_entry(name).env_kwargs
+        shown = generalist.reward_of(bundled_model(name))
+        weight = env["reward_scales"]["action_rate"]
+        assert shown == f"{env['tracking_form']}, action_rate {weight:g}"

@@ -34,15 +34,23 @@ from tendon2r_gym.bundle import bundle_names, bundled_model, training_summary
 from tendon2r_gym.evaluation import evaluate
 from tendon2r_gym.metrics import beats, rms_ratio, worst_ratio
 from tendon2r_gym.presets import load_yaml, preset_path
-from tendon2r_gym.runs import command_line
+from tendon2r_gym.runs import RUN_META, RunFolder, command_line
 from tendon2r_gym.studies import joints, save_json
+from tendon2r_gym.task import REWARD_SCALES
 
 #: The generalist bundles (configs/ppo.yaml entries of the same names: the residual, plain PPO,
 #: the residual on pull-only cables), then the ablations of
-#: the residual generalist (blind: no arm features): the drawn arm's features seen by both
-#: networks, by the actor only, by the critic only (privileged).
+#: the residual generalist (blind: no arm features, the registered reward): the drawn arm's
+#: features seen by both networks, by the actor only, by the critic only (privileged); the
+#: "multiscale" tracking reward with two weights of the action-rate term.
 BUNDLES = ("generalist", "generalist_scratch", "generalist_pull_only")
-ABLATIONS = ("generalist_arm", "generalist_actor_arm", "generalist_privileged")
+ABLATIONS = (
+    "generalist_arm",
+    "generalist_actor_arm",
+    "generalist_privileged",
+    "generalist_multiscale",
+    "generalist_multiscale_smooth",
+)
 
 #: The pull-only generalist's preset: its arms are the unseen geometries with this preset's
 #: cables (routing, pull_only, pretension), named ``unseen_<i>_pull_only``.
@@ -131,7 +139,16 @@ def ablation(bundles: list[str]) -> dict[str, Any]:
         summary = training_summary(bundled_model(b))
         out[b] = {k: summary[k] for k in ("best_rms_deg", "pd_eval_rms_deg", "timesteps",
                                           "wall_time_s", "best_tension_rate_N_per_s")}  # fmt: skip
+        out[b]["reward"] = reward_of(bundled_model(b))
     return out
+
+
+def reward_of(model_path: Path) -> str:
+    """Returns the reward a bundled model trained on, as its env config records it: the
+    tracking form and any weight that differs from the registered env's."""
+    recorded = RunFolder(Path(model_path).parent).read_json(RUN_META)["env_config"]
+    changed = [f"{k} {w:g}" for k, w in recorded["reward_scales"].items() if w != REWARD_SCALES[k]]
+    return ", ".join([recorded["tracking_form"], *changed])
 
 
 #: The fine-tuning curve's configs/ppo.yaml entry: the generalist residual's hyperparameters,
@@ -261,7 +278,9 @@ def write(result: dict[str, Any], out: Path) -> None:
         "preset's), run on the unseen geometries with those cables (unseen_<i>_pull_only); "
         "ablations of the residual (one seed each, configs/ppo.yaml): generalist_arm (the "
         "drawn arm's features, observe_arm, seen by actor and critic), generalist_actor_arm "
-        "(by the actor only), generalist_privileged (by the critic only).",
+        "(by the actor only), generalist_privileged (by the critic only); "
+        "generalist_multiscale and generalist_multiscale_smooth: blind, on the multiscale "
+        "tracking reward with the action-rate weight of their reward column below.",
         "",
         "## Summary",
         "",
@@ -279,15 +298,15 @@ def write(result: dict[str, Any], out: Path) -> None:
     if result.get("ablation"):
         lines += [
             "",
-            "## Ablation: the arm's features",
+            "## Ablations: the arm's features and the reward",
             "",
             "Each residual's training evaluation (primary seed, best model: RMS on the entry's "
             "evaluation seeds, random course arms and references, the same episodes for all; "
             "PD on them). The summary above gives each on the unseen arms, zero-shot.",
             "",
-            "| residual | arm features seen by | RMS A / B (deg) | PD A / B (deg) | steps | "
-            "wall time (s) |",
-            "|---|---|---|---|---|---|",
+            "| residual | arm features seen by | reward (tracking form, changed weights) | "
+            "RMS A / B (deg) | PD A / B (deg) | RMS tension rate (N/s) | steps | wall time (s) |",
+            "|---|---|---|---|---|---|---|---|",
         ]
         seen = {
             "generalist": "nobody (blind)",
@@ -297,8 +316,10 @@ def write(result: dict[str, Any], out: Path) -> None:
         }
         for b, a in result["ablation"].items():
             lines.append(
-                f"| {b} | {seen.get(b, '?')} | {fmt(a['best_rms_deg'])} | "
-                f"{fmt(a['pd_eval_rms_deg'])} | {a['timesteps']:,} | {a['wall_time_s']:.0f} |"
+                f"| {b} | {seen.get(b, 'nobody (blind)')} | {a.get('reward', '?')} | "
+                f"{fmt(a['best_rms_deg'])} | {fmt(a['pd_eval_rms_deg'])} | "
+                f"{fmt(a['best_tension_rate_N_per_s'])} | {a['timesteps']:,} | "
+                f"{a['wall_time_s']:.0f} |"
             )
     lines += finetune_lines(result.get("finetune", {}))
     lines += [
