@@ -19,13 +19,19 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from tendon2r_gym.bundle import bundle_meta, bundle_names, bundled_model, training_summary
+from tendon2r_gym.bundle import (
+    bundle_meta,
+    bundle_names,
+    bundled_model,
+    training_record,
+    training_summary,
+)
 from tendon2r_gym.evaluation import BASELINE, evaluate, names
 from tendon2r_gym.learned import trained_on_drawn_gains
 from tendon2r_gym.metrics import beats, rms_ratio, worst_ratio
 from tendon2r_gym.plots import plot_trace
 from tendon2r_gym.presets import DATA_DIR
-from tendon2r_gym.runs import RUN_META, RunFolder, model_files
+from tendon2r_gym.runs import model_files
 from tendon2r_gym.tuning import tune_pd
 
 #: Learned variants: label -> (bundle suffix, hyperparameter entry used to train on your arm).
@@ -532,7 +538,7 @@ def held_out() -> list[dict[str, Any]]:
     if meta is None:
         return [{"policy": "ppo", "missing": "no bundled random_reference model"}]
     model = bundled_model("random_reference")
-    env_kwargs = RunFolder(model.parent).read_json(RUN_META)["env_kwargs"]
+    env_kwargs = training_record(model)["env_kwargs"]
     rows = []
     for policy in ("pd", "ppo"):  # PD is the baseline that needs no knowledge of the reference
         errs = [

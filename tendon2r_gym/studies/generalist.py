@@ -30,11 +30,11 @@ import numpy as np
 import yaml
 
 from tendon2r_gym.arms import GEOMETRY, draw_arms
-from tendon2r_gym.bundle import bundle_names, bundled_model, training_summary
+from tendon2r_gym.bundle import bundle_names, bundled_model, training_record, training_summary
 from tendon2r_gym.evaluation import evaluate
 from tendon2r_gym.metrics import beats, rms_ratio, worst_ratio
 from tendon2r_gym.presets import load_yaml, preset_path
-from tendon2r_gym.runs import RUN_META, RunFolder, command_line
+from tendon2r_gym.runs import command_line
 from tendon2r_gym.studies import joints, save_json
 from tendon2r_gym.task import REWARD_SCALES
 
@@ -136,17 +136,18 @@ def ablation(bundles: list[str]) -> dict[str, Any]:
     models compared on the random-arm env they all trained on."""
     out = {}
     for b in bundles:
-        summary = training_summary(bundled_model(b))
+        model = bundled_model(b)
+        summary = training_summary(model)
         out[b] = {k: summary[k] for k in ("best_rms_deg", "pd_eval_rms_deg", "timesteps",
                                           "wall_time_s", "best_tension_rate_N_per_s")}  # fmt: skip
-        out[b]["reward"] = reward_of(bundled_model(b))
+        out[b]["reward"] = reward_of(model)
     return out
 
 
 def reward_of(model_path: Path) -> str:
     """Returns the reward a bundled model trained on, as its env config records it: the
     tracking form and any weight that differs from the registered env's."""
-    recorded = RunFolder(Path(model_path).parent).read_json(RUN_META)["env_config"]
+    recorded = training_record(model_path)["env_config"]
     changed = [f"{k} {w:g}" for k, w in recorded["reward_scales"].items() if w != REWARD_SCALES[k]]
     return ", ".join([recorded["tracking_form"], *changed])
 
