@@ -19,19 +19,13 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from tendon2r_gym.bundle import (
-    bundle_meta,
-    bundle_names,
-    bundled_model,
-    training_record,
-    training_summary,
-)
+from tendon2r_gym.bundle import bundle_meta, bundle_names, bundled_model
 from tendon2r_gym.evaluation import BASELINE, evaluate, names
 from tendon2r_gym.learned import trained_on_drawn_gains
 from tendon2r_gym.metrics import beats, rms_ratio, worst_ratio
 from tendon2r_gym.plots import plot_trace
 from tendon2r_gym.presets import DATA_DIR
-from tendon2r_gym.runs import model_files
+from tendon2r_gym.runs import model_files, training_record, training_summary
 from tendon2r_gym.tuning import tune_pd
 
 #: Learned variants: label -> (bundle suffix, hyperparameter entry used to train on your arm).

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from tendon2r_gym.presets import MODELS_DIR
-from tendon2r_gym.runs import BEST, BUNDLE_FILES, RUN_META, SUMMARY, RunFolder, seed_dir
+from tendon2r_gym.runs import BEST, BUNDLE_FILES, SUMMARY, RunFolder, seed_dir
 from tendon2r_gym.validation import invalid
 
 BUNDLE_META = "bundle.json"
@@ -80,14 +80,3 @@ def bundled_model(name: str, seed: int | None = None, root: Path = MODELS_DIR) -
     if seed not in meta["seeds"]:
         raise invalid(f"seed of bundle {name!r}", seed, f"one of {meta['seeds']}")
     return seed_dir(root / name, seed) / f"{BEST}.zip"
-
-
-def training_summary(model_path: Path) -> dict[str, Any]:
-    """Returns the summary.json (timesteps, wall time, ...) beside a bundled model."""
-    return RunFolder(Path(model_path).parent).read_json(SUMMARY)
-
-
-def training_record(model_path: Path) -> dict[str, Any]:
-    """Returns the run.json beside a bundled model: the env kwargs and the resolved env
-    config it trained on."""
-    return RunFolder(Path(model_path).parent).read_json(RUN_META)

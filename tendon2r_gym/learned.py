@@ -27,7 +27,7 @@ from tendon2r_gym.gains import Gains, gains_of
 from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.policies import PDPolicy
 from tendon2r_gym.reference import Reference, ReferenceRanges
-from tendon2r_gym.runs import RUN_META, model_files, stem_of
+from tendon2r_gym.runs import RUN_META, model_files, stem_of, training_record
 from tendon2r_gym.validation import number, real_array
 
 #: Env config fields a trained model depends on: what it observes and what it must track.
@@ -161,8 +161,7 @@ def drawn_gains(recorded: dict[str, Any]) -> list[str]:
 def trained_on_drawn_gains(model_path: str | Path) -> bool:
     """Returns whether the model (``<name>.zip`` in a run folder or bundle) was trained on
     drawn PD gains: then it runs on an arm's own, e.g. tendon2r-tune-pd's."""
-    meta = json.loads((stem_of(model_path).parent / RUN_META).read_text())
-    return bool(drawn_gains(meta["env_config"]))
+    return bool(drawn_gains(training_record(model_path)["env_config"]))
 
 
 def deployed_gains(recorded: dict[str, Any], env: gym.Env) -> Gains:
@@ -215,7 +214,7 @@ def trained_model(
                 f"{field} = {str(model_path)!r} is invalid: {needed.name} is missing beside "
                 "it; allowed: a model from a tendon2r-train run folder or bundle"
             )
-    meta = json.loads((zip_path.parent / RUN_META).read_text())
+    meta = training_record(zip_path)
     check_model_env(meta["env_config"], env, f"{field} {zip_path}")
     return zip_path, stats, meta
 

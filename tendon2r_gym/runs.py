@@ -77,6 +77,18 @@ def stem_of(model_path: str | Path) -> Path:
     return path.with_suffix("") if path.suffix == ".zip" else path
 
 
+def training_summary(model_path: str | Path) -> dict[str, Any] | None:
+    """Returns the summary.json (timesteps, wall time, ...) beside a saved model (``<name>``
+    or ``<name>.zip`` in a run folder or bundle), or None if there is none."""
+    return RunFolder(stem_of(model_path).parent).read_json(SUMMARY)
+
+
+def training_record(model_path: str | Path) -> dict[str, Any] | None:
+    """Returns the run.json beside a saved model: the env kwargs and the resolved env config
+    it trained on, or None if there is none."""
+    return RunFolder(stem_of(model_path).parent).read_json(RUN_META)
+
+
 def command_line(argv: list[str] | None = None, program: str | None = None) -> str:
     """Returns ``program`` (default: this process's script name) and ``argv`` (default: this
     process's arguments), quoted as a shell command."""

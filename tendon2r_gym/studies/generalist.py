@@ -30,11 +30,11 @@ import numpy as np
 import yaml
 
 from tendon2r_gym.arms import GEOMETRY, draw_arms
-from tendon2r_gym.bundle import bundle_names, bundled_model, training_record, training_summary
+from tendon2r_gym.bundle import bundle_names, bundled_model
 from tendon2r_gym.evaluation import evaluate
 from tendon2r_gym.metrics import beats, rms_ratio, worst_ratio
 from tendon2r_gym.presets import load_yaml, preset_path
-from tendon2r_gym.runs import command_line
+from tendon2r_gym.runs import command_line, training_record, training_summary
 from tendon2r_gym.studies import joints, save_json
 from tendon2r_gym.task import REWARD_SCALES
 
