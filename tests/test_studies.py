@@ -192,16 +192,18 @@ def test_realism_ablation_scores_runs_on_the_realism_arms(tmp_path, monkeypatch)
 
 
 def test_generalist_ablation_names_each_bundles_reward_as_its_entry_sets_it():
-    """The reward column reads the bundle's recorded env config: the registered reward is
-    "log" with no changed weight; a reward ablation shows its entry's form and weights."""
+    """The reward column reads the bundle's recorded env config: its entry's tracking form
+    (the registered one if the entry sets none) and each weight the entry changes."""
     from tendon2r_gym.bundle import bundle_names, bundled_model
+    from tendon2r_gym.env_config import EnvConfig
     from tendon2r_gym.studies import generalist
     from tendon2r_gym.training import Hyperparams
 
-    assert generalist.reward_of(bundled_model("generalist")) == "log"
-    for name in ("generalist_multiscale", "generalist_multiscale_smooth"):
-        assert name in bundle_names() and name in generalist.ABLATIONS
+    registered = EnvConfig.make().tracking_form
+    assert generalist.reward_of(bundled_model("generalist_log")) == registered
+    for name in ("generalist", *generalist.ABLATIONS):
+        assert name in bundle_names()
         env = Hyperparams.from_entry(name).env_kwargs
-        shown = generalist.reward_of(bundled_model(name))
-        weight = env["reward_scales"]["action_rate"]
-        assert shown == f"{env['tracking_form']}, action_rate {weight:g}"
+        weights = [f"{k} {w:g}" for k, w in env.get("reward_scales", {}).items()]
+        expected = ", ".join([env.get("tracking_form", registered), *weights])
+        assert generalist.reward_of(bundled_model(name)) == expected, name
