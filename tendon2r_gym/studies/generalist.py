@@ -284,8 +284,8 @@ def write(result: dict[str, Any], out: Path) -> None:
         "registered reward), and on its reward and budget generalist_arm (the drawn arm's "
         "features, observe_arm, seen by actor and critic), generalist_actor_arm (by the actor "
         "only), generalist_privileged (by the critic only); generalist_multiscale and "
-        "generalist_multiscale_smooth: blind, on the generalist's reward with two action-rate "
-        "weights, at its budget's 3M steps.",
+        "generalist_multiscale_smooth: blind, on the generalist's reward at 3M steps, with "
+        "two action-rate weights.",
         "",
         "## Summary",
         "",
