@@ -74,7 +74,7 @@ class EnvConfig:
     action_filter_tau: float = 0.0
     episode_duration: float = 2.0
     reward_scales: Mapping[str, float] = field(default_factory=lambda: dict(REWARD_SCALES))
-    tracking_form: str = "log"
+    tracking_form: str = "multiscale"
     tracking_sigma_deg: float = 1.0
     reset_noise_scale: float = 0.001
     preview_steps: int = 3

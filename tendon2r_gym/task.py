@@ -37,21 +37,24 @@ DIVERGED_PAST_LIMIT = 0.5  # rad past a joint limit that counts as diverged
 #: limit reach about 500 rad/s.
 DIVERGED_SPEED = 1e4
 
-#: Default weight of the action-rate term (tendon2r_gym.studies.learnability, reward rows).
-ACTION_RATE_WEIGHT = 0.01
+#: Default weight of the action-rate term: plain PPO's tension rate within a few times PD's
+#: (README, One reward).
+ACTION_RATE_WEIGHT = 0.1
 
 #: Reward terms: name -> (default weight, what the unscaled term is).  reward = sum of weight *
 #: term; each scaled term is in ``info`` as ``reward_<name>``.
 TERMS: dict[str, tuple[float, str]] = {
     "tracking": (
         1.0,
-        'with ``tracking_form="log"`` (default): ``-sum(log(1 + (e / sigma)^2)) / (2 log(1 + '
-        "(180 / sigma)^2))`` with the errors e in deg and sigma = ``tracking_sigma_deg``: in "
-        "[-1, 0] for abs(e) <= 180 deg, 0 on the reference, quadratic (the RMS metric) below "
-        "sigma and logarithmic far from it, so that training from 90 deg off still has a "
-        "gradient; no constant offset, so VecNormalize's reward scaling does not clip it.  "
-        '``"multiscale"``: the mean of such kernels at MULTISCALE x sigma.  ``"quadratic"``: '
-        "``-sum(e^2)`` in deg^2, the RMS metric everywhere, steep far from the reference",
+        'with ``tracking_form="multiscale"`` (default): the mean of "log" kernels at MULTISCALE '
+        "x sigma (one per decade, 0.01 to 10 deg for sigma = ``tracking_sigma_deg`` = 1), in "
+        "[-1, 0]: its gradient stays useful from 90 deg off down to 0.01 deg, so that plain and "
+        'residual PPO both train on it.  ``"log"``: ``-sum(log(1 + (e / sigma)^2)) / (2 log(1 + '
+        "(180 / sigma)^2))`` with the errors e in deg, one kernel: quadratic below sigma and "
+        "logarithmic far from it, flat below about sigma / 10 (the generalist's ablations use "
+        'it).  ``"quadratic"``: ``-sum(e^2)`` in deg^2, the RMS metric everywhere, steep far '
+        "from the reference (the residual's reward before the multiscale one).  No form has a "
+        "constant offset, so VecNormalize's reward scaling does not clip it",
     ),
     "ctrl": (0.001, "``-sum(command^2)`` on the applied command (for pull-only, -1 is slack)"),
     "action_rate": (

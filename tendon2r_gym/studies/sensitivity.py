@@ -30,8 +30,16 @@ def _ppo(**kw: Any) -> Any:
     return lambda h: {"ppo": {**h.ppo, **kw}}
 
 
-def _scaled(key: str, factor: float, cast: type = float) -> Any:
-    return lambda h: {"ppo": {**h.ppo, key: cast(h.ppo[key] * factor)}}
+def _scaled(key: str, factor: float) -> Any:
+    return lambda h: {"ppo": {**h.ppo, key: int(h.ppo[key] * factor)}}
+
+
+def _scaled_rate(factor: float) -> Any:
+    from tendon2r_gym.training.hyperparams import scaled_schedule
+
+    return lambda h: {
+        "ppo": {**h.ppo, "learning_rate": scaled_schedule(h.ppo["learning_rate"], factor)}
+    }
 
 
 def _normalize(**kw: Any) -> Any:
@@ -48,12 +56,12 @@ VARIANTS: dict[str, tuple[str, Any]] = {
     "norm_reward_off": ("reward normalization off", _normalize(norm_reward=False)),
     "8x512": ("8 envs x 512 steps", lambda h: {"n_envs": 8, "ppo": {**h.ppo, "n_steps": 512}}),
     "64x64": ("64 envs x 64 steps", lambda h: {"n_envs": 64, "ppo": {**h.ppo, "n_steps": 64}}),
-    "batch_x0.25": ("batch size x 0.25", _scaled("batch_size", 0.25, int)),
-    "batch_x4": ("batch size x 4", _scaled("batch_size", 4, int)),
+    "batch_x0.25": ("batch size x 0.25", _scaled("batch_size", 0.25)),
+    "batch_x4": ("batch size x 4", _scaled("batch_size", 4)),
     "epochs_5": ("n_epochs 5", _ppo(n_epochs=5)),
     "epochs_20": ("n_epochs 20", _ppo(n_epochs=20)),
-    "lr_x0.3": ("learning rate x 0.3", _scaled("learning_rate", 0.3)),
-    "lr_x3": ("learning rate x 3", _scaled("learning_rate", 3.0)),
+    "lr_x0.3": ("learning rate x 0.3", _scaled_rate(0.3)),
+    "lr_x3": ("learning rate x 3", _scaled_rate(3.0)),
     "gamma_0.95": ("gamma 0.95", _ppo(gamma=0.95)),
     "gamma_0.99": ("gamma 0.99", _ppo(gamma=0.99)),
     "net_64": ("network 64 x 64", _policy(net_arch=[64, 64])),

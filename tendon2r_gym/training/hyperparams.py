@@ -196,6 +196,14 @@ def schedule(field: str, value: Any) -> float | str | None:
     return number(field, value, 0.0, lo_open=True)
 
 
+def scaled_schedule(value: float | str, factor: float) -> float | str:
+    """Returns a number or a ``lin_<v>`` schedule (rl_zoo3's notation) times ``factor``: the
+    schedule ``lin_<v * factor>``."""
+    if isinstance(value, str) and value.startswith(LINEAR):
+        return f"{LINEAR}{float(value[len(LINEAR) :]) * factor:g}"
+    return float(value) * factor
+
+
 def keys() -> list[str]:
     """Returns the keys a hyperparameter entry may hold."""
     return [f.name for f in dataclasses.fields(Hyperparams)]
