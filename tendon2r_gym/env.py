@@ -103,7 +103,8 @@ class Tendon2REnv(MujocoEnv, EzPickle):
       returns the last good observation (never larger than the observations before it) and the
       reward of that state minus ``reward_scales["divergence"]``, so it is bounded: in [-1 -
       divergence - ctrl - action_rate terms, 0] for the "multiscale" and "log" forms.
-      ``info["diverged"]`` is True.  Construction refuses parameters the integrator cannot integrate (tendon2r_gym.stability).
+      ``info["diverged"]`` is True.  Construction refuses parameters the integrator cannot
+      integrate (tendon2r_gym.stability).
 
     ## Arguments
 
