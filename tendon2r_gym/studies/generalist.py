@@ -40,7 +40,7 @@ from tendon2r_gym.task import REWARD_SCALES
 
 #: The generalist bundles (configs/ppo.yaml entries of the same names: the residual, plain PPO,
 #: the residual on pull-only cables), then the ablations of the residual generalist (blind: no
-#: arm features; the "multiscale" reward, 10M steps): the registered "log" reward at 3M steps;
+#: arm features; the "multiscale" reward, 10M steps): the "log" reward at 3M steps;
 #: on that reward and budget, the drawn arm's features seen by both networks, by the actor
 #: only, by the critic only (privileged); the multiscale reward at 3M steps with two weights
 #: of the action-rate term.
@@ -281,7 +281,7 @@ def write(result: dict[str, Any], out: Path) -> None:
         "preset's), run on the unseen geometries with those cables (unseen_<i>_pull_only); "
         "ablations of the residual (one seed each, configs/ppo.yaml; the reward and training "
         "steps of each residual are in the ablation table below): generalist_log (blind, the "
-        "registered reward), and on its reward and budget generalist_arm (the drawn arm's "
+        "log reward), and on its reward and budget generalist_arm (the drawn arm's "
         "features, observe_arm, seen by actor and critic), generalist_actor_arm (by the actor "
         "only), generalist_privileged (by the critic only); generalist_multiscale and "
         "generalist_multiscale_smooth: blind, on the generalist's reward at 3M steps, with "

@@ -30,7 +30,7 @@ def _ppo(**kw: Any) -> Any:
     return lambda h: {"ppo": {**h.ppo, **kw}}
 
 
-def _scaled(key: str, factor: float) -> Any:
+def _scaled_int(key: str, factor: float) -> Any:
     return lambda h: {"ppo": {**h.ppo, key: int(h.ppo[key] * factor)}}
 
 
@@ -56,8 +56,8 @@ VARIANTS: dict[str, tuple[str, Any]] = {
     "norm_reward_off": ("reward normalization off", _normalize(norm_reward=False)),
     "8x512": ("8 envs x 512 steps", lambda h: {"n_envs": 8, "ppo": {**h.ppo, "n_steps": 512}}),
     "64x64": ("64 envs x 64 steps", lambda h: {"n_envs": 64, "ppo": {**h.ppo, "n_steps": 64}}),
-    "batch_x0.25": ("batch size x 0.25", _scaled("batch_size", 0.25)),
-    "batch_x4": ("batch size x 4", _scaled("batch_size", 4)),
+    "batch_x0.25": ("batch size x 0.25", _scaled_int("batch_size", 0.25)),
+    "batch_x4": ("batch size x 4", _scaled_int("batch_size", 4)),
     "epochs_5": ("n_epochs 5", _ppo(n_epochs=5)),
     "epochs_20": ("n_epochs 20", _ppo(n_epochs=20)),
     "lr_x0.3": ("learning rate x 0.3", _scaled_rate(0.3)),
