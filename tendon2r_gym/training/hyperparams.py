@@ -162,7 +162,7 @@ class Hyperparams:
         for key in SCHEDULES:
             value = out.get(key)
             if isinstance(value, str):
-                out[key] = LinearSchedule(float(value[len(LINEAR) :]), 0.0, 1.0)
+                out[key] = LinearSchedule(linear_start(value), 0.0, 1.0)
         return out
 
     def policy(self, env_config: EnvConfig) -> tuple[Any, dict[str, Any]]:
@@ -189,18 +189,24 @@ def schedule(field: str, value: Any) -> float | str | None:
         if not value.startswith(LINEAR):
             raise invalid(field, value, allowed)
         try:
-            number(field, float(value[len(LINEAR) :]), 0.0, lo_open=True)
+            number(field, linear_start(value), 0.0, lo_open=True)
         except ValueError:
             raise invalid(field, value, allowed) from None
         return value
     return number(field, value, 0.0, lo_open=True)
 
 
+def linear_start(value: str) -> float:
+    """Returns v of a ``lin_<v>`` schedule (rl_zoo3's notation); raises ValueError if v is not
+    a number."""
+    return float(value[len(LINEAR) :])
+
+
 def scaled_schedule(value: float | str, factor: float) -> float | str:
     """Returns a number or a ``lin_<v>`` schedule (rl_zoo3's notation) times ``factor``: the
     schedule ``lin_<v * factor>``."""
     if isinstance(value, str) and value.startswith(LINEAR):
-        return f"{LINEAR}{float(value[len(LINEAR) :]) * factor:g}"
+        return f"{LINEAR}{linear_start(value) * factor:g}"
     return float(value) * factor
 
 
