@@ -30,16 +30,18 @@ from tendon2r_gym.reference import Reference, ReferenceRanges
 from tendon2r_gym.runs import RUN_META, model_files, stem_of, training_record
 from tendon2r_gym.validation import number, real_array
 
-#: Env config fields a trained model depends on: what it observes and what it must track.
+#: Env config settings a trained model depends on, compared as recorded (a setting recorded
+#: before it existed takes its EnvConfig default): what its actions mean and its timing.
+MODEL_SETTINGS = ("action_mode", "action_filter_tau", "ctrl_dt", "preview_steps", "preview_dt")
+#: Env config fields a trained model depends on: what it observes, what its actions mean and
+#: what it must track.
 MODEL_ENV_FIELDS = (
     "observation",
     "mechanism",
     "reference",
     "reference_ranges",
-    "ctrl_dt",
-    "preview_steps",
-    "preview_dt",
     "mechanism_ranges",
+    *MODEL_SETTINGS,
 )
 
 
@@ -98,9 +100,13 @@ def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
     fields and its reference lie inside the training ranges, else the ValueError names the
     first field out, its value and the range."""
     config = env.unwrapped.config
-    common = ("ctrl_dt", "preview_steps", "preview_dt")
-    theirs = {"observation": recorded.get("observation"), **{k: recorded.get(k) for k in common}}
-    ours = {"observation": config.observation_layout(), **{k: getattr(config, k) for k in common}}
+    default = {f.name: f.default for f in dataclasses.fields(config)}
+    recorded_settings = {k: recorded.get(k, default[k]) for k in MODEL_SETTINGS}
+    theirs = {"observation": recorded.get("observation"), **recorded_settings}
+    ours = {
+        "observation": config.observation_layout(),
+        **{k: getattr(config, k) for k in MODEL_SETTINGS},
+    }
     mech = Mechanism.from_dict(recorded["mechanism"])
     arms = recorded.get("mechanism_ranges")
     arm_ranges = MechanismRanges.from_value(arms) if arms else None

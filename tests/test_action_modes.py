@@ -115,3 +115,23 @@ def test_baselines_track_through_the_action_filter(preset):
 def test_bad_action_filter_names_the_field():
     with pytest.raises(ValueError, match="action_filter_tau"):
         gym.make("Tendon2R-v0", action_filter_tau=-0.01)
+
+
+@pytest.mark.parametrize(
+    ("field", "trained", "deployed"),
+    [("action_mode", "tension", "joint_torque"), ("action_filter_tau", 0.0, 0.005)],
+)
+def test_a_model_runs_only_in_the_action_semantics_it_was_trained_in(field, trained, deployed):
+    """A model's actions mean tensions or joint torques, filtered or not: another setting is a
+    ValueError naming it, and a run recorded before the setting existed takes its default."""
+    from tendon2r_gym.learned import check_model_env
+
+    def recorded(**kw):
+        config = gym.make("Tendon2R-v0", **kw).unwrapped.config
+        return {**config.to_dict(), "observation": config.observation_layout()}
+
+    check_model_env(recorded(**{field: trained}), gym.make("Tendon2R-v0"), "model")
+    old = {k: v for k, v in recorded().items() if k != field}
+    check_model_env(old, gym.make("Tendon2R-v0"), "model")
+    with pytest.raises(ValueError, match=f"model was trained for another env: {field} = "):
+        check_model_env(recorded(), gym.make("Tendon2R-v0", **{field: deployed}), "model")

@@ -84,6 +84,36 @@ def test_random_course_arms_are_valid_and_seeded(tmp_path):
     assert cfg.mechanism.R1 == arms[1]["mechanism"]["R1"] and cfg.action_mode == "joint_torque"
 
 
+def test_arm_sweep_summary_counts_push_pull_arms_in_tension_mode(tmp_path):
+    """The summary's push-pull line counts plain PPO in tension mode on arms whose tendons
+    push and pull, and never a pull-only arm or the joint-torque mode."""
+    from tendon2r_gym.studies import arm_sweep
+
+    def arm(name, mode, pull_only, wins):
+        v = {"rms_deg": [0.1, 0.1], "beats_pd": wins, "tension_x_pd": 1.0, "tension_rate_x_pd": 2}
+        return {
+            "arm": name, "action_mode": mode, "pd": [0.2, 0.2], "ct": [0.0, 0.0],
+            "env_config": {"mechanism": {"pull_only": pull_only}},
+            "ppo scratch": v, "ppo residual": {**v, "beats_pd": True},
+        }  # fmt: skip
+
+    arms = [
+        arm("a", "tension", False, False),
+        arm("a", "joint_torque", False, True),
+        arm("b", "tension", True, True),
+        arm("c", "tension", False, True),
+    ]
+    result = {"command": "x", "modes": ["tension", "joint_torque"]}
+    arm_sweep.write(
+        {**result, "arms": {f"{a['arm']}_{a['action_mode']}": a for a in arms}}, tmp_path
+    )
+    md = (tmp_path / "arm_sweep.md").read_text()
+    assert "tension mode, push-pull arms: <= PD on 1 of 2." in md
+    assert "at least one action mode on 3 of 3 arms" in md
+    assert "ppo scratch, tension: <= PD on both joints on 2 of 3 arms" in md
+    assert "**WORSE**; tension 1.0x, rate 2.0x PD" in md
+
+
 def test_sensitivity_variants_change_one_knob():
     from tendon2r_gym.studies.sensitivity import variant
     from tendon2r_gym.training.hyperparams import scaled_schedule

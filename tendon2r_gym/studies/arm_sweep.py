@@ -63,6 +63,7 @@ def _verdict(rows: list[dict[str, Any]]) -> dict[str, Any]:
             else {
                 "rms_deg": r["rms_deg"],
                 "beats_pd": beats(r["rms_deg"], pd),
+                "tension_x_pd": rms_ratio(r["rms_tension_N"], by["pd"]["rms_tension_N"]),
                 "tension_rate_x_pd": rms_ratio(
                     r["rms_tension_rate_N_per_s"], by["pd"]["rms_tension_rate_N_per_s"]
                 ),
@@ -115,7 +116,8 @@ def write(result: dict[str, Any], out: Path) -> None:
         if v is None:
             return "-"
         mark = "<= PD" if v["beats_pd"] else "**WORSE**"
-        return f"{fmt(v['rms_deg'])} ({mark}; rate {v['tension_rate_x_pd']:.0f}x PD)"
+        tension = f"tension {v['tension_x_pd']:.1f}x, " if "tension_x_pd" in v else ""
+        return f"{fmt(v['rms_deg'])} ({mark}; {tension}rate {v['tension_rate_x_pd']:.1f}x PD)"
 
     arms = result["arms"]
     lines = [
@@ -123,8 +125,9 @@ def write(result: dict[str, Any], out: Path) -> None:
         "",
         f"Produced by `{result['command']}`. One training seed per arm, the shipped "
         "hyperparameters (configs/ppo.yaml `default_scratch` and `default`), no per-arm tuning;",
-        "RMS tracking error (deg, joint A / B) on evaluation seeds 0-2; `rate`: the RMS rate of",
-        "change of the tendon tensions, as a multiple of PD's (in the same action mode).",
+        "RMS tracking error (deg, joint A / B) on evaluation seeds 0-2; `tension` and `rate`: the",
+        "RMS tendon tension and its RMS rate of change, over the tendons, as multiples of PD's (in",
+        "the same action mode).",
         "",
         "| arm | action mode | PD | CT | plain PPO | residual PPO |",
         "|---|---|---|---|---|---|",
@@ -154,6 +157,18 @@ def write(result: dict[str, Any], out: Path) -> None:
     lines.append(
         f"- ppo scratch: <= PD in at least one action mode on {either} of {len(names)} arms."
     )
+    push_pull = [
+        a["ppo scratch"]
+        for a in arms.values()
+        if a["action_mode"] == "tension"
+        and not a["env_config"]["mechanism"]["pull_only"]
+        and a["ppo scratch"] is not None
+    ]
+    if push_pull:
+        wins = sum(v["beats_pd"] for v in push_pull)
+        lines.append(
+            f"- ppo scratch, tension mode, push-pull arms: <= PD on {wins} of {len(push_pull)}."
+        )
     (out / "arm_sweep.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines), flush=True)
 
