@@ -129,6 +129,20 @@ def test_sensitivity_variants_change_one_knob():
     assert variant("gamma_0.95", 2048).total_timesteps == 2048
 
 
+def test_sensitivity_rerun_reuses_a_finished_variant(tmp_path):
+    """A rerun with the same run folder reuses the finished run (no training is lost or
+    repeated): the same summary, the best model untouched."""
+    from tendon2r_gym.studies.sensitivity import _run
+
+    first = _run("gamma_0.95", 2048, str(tmp_path))
+    best = tmp_path / "gamma_0.95" / "seed_0" / "best_model.zip"
+    stamp = best.stat().st_mtime_ns
+    again = _run("gamma_0.95", 2048, str(tmp_path))
+    assert again["timesteps"] == first["timesteps"] >= 2048
+    assert again["best_rms_deg"] == first["best_rms_deg"]
+    assert best.stat().st_mtime_ns == stamp
+
+
 def test_generalist_study_end_to_end(tmp_path):
     """Unseen arms, PD and CT rows, the summary and the markdown (no bundle: baselines only)."""
     from tendon2r_gym.metrics import worst_ratio

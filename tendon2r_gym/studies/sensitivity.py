@@ -84,11 +84,13 @@ def variant(name: str, steps: int | None) -> Any:
 
 
 def _run(name: str, steps: int | None, root: str) -> dict[str, Any]:
-    from tendon2r_gym.runs import RunFolder, seed_dir
-    from tendon2r_gym.training import train_run
+    """Trains a variant in ``root/<name>`` (continuing or reusing a run found there)."""
+    from tendon2r_gym.runs import SUMMARY
+    from tendon2r_gym.training import Experiment
 
-    run = RunFolder(seed_dir(Path(root) / name, 0))
-    summary = train_run(variant(name, steps), run, 0, command=f"sensitivity {name}")
+    exp = Experiment(variant(name, steps), Path(root) / name, [0], f"sensitivity {name}")
+    exp.train(resume=True)
+    summary = exp.run_folder(0).read_json(SUMMARY)
     return {"variant": name, **{k: v for k, v in summary.items() if k != "segments"}}
 
 
@@ -100,7 +102,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     p.add_argument("--jobs", type=int, default=2)
     p.add_argument("--out", default="results")
-    p.add_argument("--run-dir", default=None, help="keep the runs here (default: a temp dir)")
+    p.add_argument(
+        "--run-dir",
+        default=None,
+        help="keep the runs here (default: a temp dir); a rerun continues or reuses them",
+    )
     args = p.parse_args(argv)
     command = command_line(argv, "python scripts/sensitivity.py")
     names = [n for n in args.variants if variant(n, args.steps) is not None]
