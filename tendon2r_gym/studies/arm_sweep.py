@@ -116,8 +116,10 @@ def write(result: dict[str, Any], out: Path) -> None:
         if v is None:
             return "-"
         mark = "<= PD" if v["beats_pd"] else "**WORSE**"
-        tension = f"tension {v['tension_x_pd']:.1f}x, " if "tension_x_pd" in v else ""
-        return f"{fmt(v['rms_deg'])} ({mark}; {tension}rate {v['tension_rate_x_pd']:.1f}x PD)"
+        return (
+            f"{fmt(v['rms_deg'])} ({mark}; tension {v['tension_x_pd']:.1f}x, "
+            f"rate {v['tension_rate_x_pd']:.1f}x PD)"
+        )
 
     arms = result["arms"]
     lines = [
