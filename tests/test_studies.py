@@ -143,6 +143,32 @@ def test_sensitivity_rerun_reuses_a_finished_variant(tmp_path):
     assert best.stat().st_mtime_ns == stamp
 
 
+def test_sensitivity_reports_the_tension_rate_against_pd(tmp_path):
+    """Each row gives the best model's tension rate and its multiple of PD's on the same
+    episodes; the pass count excludes the shipped entry's own row."""
+    from tendon2r_gym.studies import sensitivity
+
+    def run(name, rms, rate):
+        return {"variant": name, "best_rms_deg": rms, "pd_eval_rms_deg": [0.1, 0.1],
+                "best_tension_rate_N_per_s": rate, "timesteps": 10, "wall_time_s": 1.0}  # fmt: skip
+
+    result = {
+        "command": "x",
+        "entry": sensitivity.ENTRY,
+        "runs": [
+            run("defaults", [0.01, 0.01], [2.0, 2.0]),
+            run("gamma_0.95", [0.2, 0.01], [6.0, 6.0]),
+        ],
+        "same_as_shipped": [],
+        "pd_tension_rate_N_per_s": [2.0, 2.0],
+    }
+    sensitivity.write(result, tmp_path)
+    md = (tmp_path / "sensitivity.md").read_text()
+    assert "| yes | 2.00 / 2.00 (1.0x) |" in md
+    assert "| **no** | 6.00 / 6.00 (3.0x) |" in md
+    assert "**0 of 1**" in md
+
+
 def test_generalist_study_end_to_end(tmp_path):
     """Unseen arms, PD and CT rows, the summary and the markdown (no bundle: baselines only)."""
     from tendon2r_gym.metrics import worst_ratio

@@ -12,9 +12,9 @@ from pathlib import Path
 from typing import Any
 
 
-def joints(values: Sequence[float]) -> str:
-    """Returns per-joint figures as the tables show them: ``A / B`` with 3 decimals."""
-    return " / ".join(f"{x:.3f}" for x in values)
+def joints(values: Sequence[float], digits: int = 3) -> str:
+    """Returns per-joint (or per-tendon) figures as the tables show them: ``A / B``."""
+    return " / ".join(f"{x:.{digits}f}" for x in values)
 
 
 def save_json(out: Path, name: str, result: dict[str, Any]) -> None:

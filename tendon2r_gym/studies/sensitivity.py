@@ -117,36 +117,58 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             args.jobs, mp_context=multiprocessing.get_context("spawn")
         ) as pool:
             runs = list(pool.map(_run, names, [args.steps] * len(names), [root] * len(names)))
-    result = {"command": command, "entry": ENTRY, "runs": runs, "same_as_shipped": skipped}
+    result = {
+        "command": command,
+        "entry": ENTRY,
+        "runs": runs,
+        "same_as_shipped": skipped,
+        "pd_tension_rate_N_per_s": pd_tension_rate(),
+    }
     write(result, Path(args.out))
     return result
 
 
+def pd_tension_rate() -> list[float]:
+    """Returns PD's RMS tension rate (N/s, per tendon) on the episodes the variants' best
+    models were chosen and measured on: the entry's env and evaluation seeds."""
+    from tendon2r_gym.evaluation import evaluate
+    from tendon2r_gym.training import Hyperparams
+
+    hp = Hyperparams.from_entry(ENTRY)
+    return evaluate("pd", hp.env_kwargs, list(hp.eval_seeds))[0]["rms_tension_rate_N_per_s"]
+
+
 def write(result: dict[str, Any], out: Path) -> None:
     """Writes sensitivity.json and sensitivity.md."""
-    from tendon2r_gym.metrics import beats
+    from tendon2r_gym.metrics import beats, rms_ratio
 
     save_json(out, "sensitivity", result)
     fmt = joints
     rows = []
     passed = 0
     variants = [r for r in result["runs"] if r["variant"] != "defaults"]
+    pd_rate = result["pd_tension_rate_N_per_s"]
     for r in result["runs"]:
         ok = beats(r["best_rms_deg"], r["pd_eval_rms_deg"])
         passed += ok and r["variant"] != "defaults"
+        rate = r["best_tension_rate_N_per_s"]
         rows.append(
             f"| {r['variant']} | {VARIANTS[r['variant']][0]} | {fmt(r['best_rms_deg'])} | "
-            f"{fmt(r['pd_eval_rms_deg'])} | {'yes' if ok else '**no**'} | {r['timesteps']} | "
+            f"{fmt(r['pd_eval_rms_deg'])} | {'yes' if ok else '**no**'} | "
+            f"{fmt(rate, 2)} ({rms_ratio(rate, pd_rate):.1f}x) | {r['timesteps']} | "
             f"{r['wall_time_s']:.0f} |"
         )
     lines = [
         "# Hyperparameter sensitivity of plain PPO",
         "",
         f"Produced by `{result['command']}`: the `{result['entry']}` entry with one knob "
-        "changed per row, the `default` preset, seed 0; best RMS on the eval seeds.",
+        "changed per row, the `default` preset, seed 0; best RMS on the eval seeds, and the "
+        "best model's RMS tension rate there (N/s per tendon; x PD's on the same episodes, "
+        f"{fmt(pd_rate, 2)} N/s).",
         "",
-        "| variant | change | best RMS A / B (deg) | PD (deg) | beats PD | steps | wall (s) |",
-        "|---|---|---|---|---|---|---|",
+        "| variant | change | best RMS A / B (deg) | PD (deg) | beats PD | tension rate (N/s) | "
+        "steps | wall (s) |",
+        "|---|---|---|---|---|---|---|---|",
         *rows,
         "",
         f"Variants that beat PD on both joints: **{passed} of {len(variants)}** "
