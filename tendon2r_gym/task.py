@@ -56,7 +56,12 @@ TERMS: dict[str, tuple[float, str]] = {
         "from the reference (the residual's reward before the multiscale one).  No form has a "
         "constant offset, so VecNormalize's reward scaling does not clip it",
     ),
-    "ctrl": (0.001, "``-sum(command^2)`` on the applied command (for pull-only, -1 is slack)"),
+    "ctrl": (
+        0.001,
+        "``-sum(f^2)``, f the applied command as a fraction of the force limit: the tension "
+        "commanded (tension mode: the command for push-pull motors, ``(command + 1) / 2`` for "
+        "pull-only ones, whose command -1 is slack) or the joint torque (joint-torque mode)",
+    ),
     "action_rate": (
         ACTION_RATE_WEIGHT,
         "``-sum((command - last_command)^2)`` on the commands the env applied on this step and "
@@ -142,6 +147,10 @@ class Task:
         ]
         self.form = config.tracking_form
         self.alpha = config.action_filter_alpha
+        # The effort term's fraction of the force limit: (command + 1) / 2 for pull-only
+        # motors in tension mode (command -1 is slack), the command itself otherwise.
+        slack = mech.pull_only and config.action_mode == "tension"
+        self.effort_gain, self.effort_offset = (0.5, 0.5) if slack else (1.0, 0.0)
         self.obs_size = config.observation_size
         self._info_keys = {k: f"reward_{k}" for k in TERMS}  # formatted once, not every step
 
@@ -313,8 +322,10 @@ class Task:
         else:
             tracking = -(e1 * e1 + e2 * e2)
         effort = rate = 0.0  # in action order, as numpy's sum over a few entries
+        gain, offset = self.effort_gain, self.effort_offset
         for x, x0 in zip(action, last_action, strict=False):  # both n_actions long
-            effort += x * x
+            f = x * gain + offset if offset else x
+            effort += f * f
             d = x - x0
             rate += d * d
         return {

@@ -344,3 +344,30 @@ def test_multiscale_tracking_reward_is_bounded_and_keeps_a_gradient_near_zero():
     assert all(a > b for a, b in itertools.pairwise(values)), values
     # From 0.05 to 0.01 deg the multiscale reward gains far more than the log form.
     assert r(task, 0.01) - r(task, 0.05) > 100 * (r(log, 0.01) - r(log, 0.05))
+
+
+@pytest.mark.parametrize("preset", ["default", "pull_only"])
+def test_effort_term_charges_the_commanded_tension(preset):
+    """The ctrl term is the commanded tension as a fraction of the force limit: slack tendons
+    cost nothing (pull-only: command -1; push-pull: 0) and a tendon at its limit costs 1, in
+    both envs; in joint-torque mode it is the normalized torque."""
+    from tendon2r_gym.ops import SCALAR
+    from tendon2r_gym.task import Task
+
+    def effort(task, command):
+        zero = [0.0] * len(command)
+        return task.reward_terms(SCALAR, 0.0, 0.0, command, zero, False)["ctrl"]
+
+    cfg = EnvConfig.make(preset=preset)
+    task, n = Task(cfg), cfg.n_actions
+    slack = -1.0 if cfg.mechanism.pull_only else 0.0
+    assert effort(task, [slack] * n) == 0.0
+    assert effort(task, [1.0] * n) == -n
+    assert effort(task, [1.0] + [slack] * (n - 1)) == -1.0
+    torque = Task(EnvConfig.make(preset=preset, action_mode="joint_torque"))
+    assert effort(torque, [0.0, 0.0]) == 0.0 and effort(torque, [-1.0, 0.5]) == -1.25
+    # The env reports the same term for the command it applied.
+    env = gym.make("Tendon2R-v0", preset=preset)
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(np.full(n, slack, dtype=np.float32))
+    assert info["reward_ctrl"] == 0.0
