@@ -20,8 +20,9 @@ import gymnasium as gym
 import numpy as np
 
 from tendon2r_gym.bundle import bundle_meta, bundle_names, bundled_model
+from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.evaluation import BASELINE, evaluate, names
-from tendon2r_gym.learned import trained_on_drawn_gains
+from tendon2r_gym.learned import model_settings, trained_on_drawn_gains
 from tendon2r_gym.metrics import beats, rms_ratio, worst_ratio
 from tendon2r_gym.plots import plot_trace
 from tendon2r_gym.presets import DATA_DIR
@@ -73,14 +74,19 @@ def compare(
         if not models:
             rows.append({"env": name, "policy": label, "missing": "no trained model"})
             continue
+        # A model runs in the action mode it was trained in (the same arm, reference and
+        # episodes as PD's), and its rows say so where that differs from the env's.
+        mode = model_settings(models[0])["action_mode"]
+        kwargs = {**env_kwargs, "action_mode": mode}
+        tag = {} if mode == EnvConfig.make(**env_kwargs).action_mode else {"action_mode": mode}
         per_seed = []
         for i, model in enumerate(models):
-            row = _row(name, label, "ppo", env_kwargs, seeds, model, plots if i == 0 else None)
-            per_seed.append(row)
+            row = _row(name, label, "ppo", kwargs, seeds, model, plots if i == 0 else None)
+            per_seed.append({**row, **tag})
             _tick(progress)
         rows.append(per_seed[0])
         if len(per_seed) > 1:
-            rows.append(_spread(name, label, per_seed))
+            rows.append({**_spread(name, label, per_seed), **tag})
     for row in rows:
         _print(row)
     return rows
@@ -222,12 +228,19 @@ def verdicts(rows: list[dict[str, Any]]) -> list[str]:
                     f"{_ratio(r, by['pd'], 'rms_tension_rate_N_per_s'):.1f}x PD's"
                 )
             lines.append(
-                f"- {name}, {label}: RMS {_fmt(r['rms_deg'])} vs PD {_fmt(pd)}"
+                f"- {name}, {shown_policy(r)}: RMS {_fmt(r['rms_deg'])} vs PD {_fmt(pd)}"
                 f" deg: {'<= PD on both joints' if wins else 'WORSE than PD on at least one joint'}"
                 f"{ratios}{smooth}; trained {r['train_steps']} steps in {r['train_wall_s']} s"
                 + (f" (slowest seed {r['train_wall_s_max']} s)" if "train_wall_s_max" in r else "")
             )
     return lines
+
+
+def shown_policy(row: dict[str, Any]) -> str:
+    """Returns a row's policy label, with the action mode its model ran in where that
+    differs from the env's."""
+    mode = row.get("action_mode")
+    return row["policy"] + (f" ({mode.replace('_', '-')} mode)" if mode else "")
 
 
 def _ratio(row: dict[str, Any], pd: dict[str, Any], key: str) -> float:
@@ -257,7 +270,8 @@ def table(rows: list[dict[str, Any]], quoted: dict[str, tuple] | None = None) ->
             std = f" ± {_fmt(r['rms_deg_std'])}" if "rms_deg_std" in r else ""
             learned = "train_steps" in r
             lines.append(
-                f"| {name} | {r['policy']} | {_fmt(r['rms_deg'])}{std} | {_fmt(r['max_deg'], 3)} "
+                f"| {name} | {shown_policy(r)} | {_fmt(r['rms_deg'])}{std} | "
+                f"{_fmt(r['max_deg'], 3)} "
                 f"| {_fmt(r.get('rms_tension_N'))} | {_fmt(r.get('max_tension_N'))} | "
                 f"{_fmt(r.get('rms_tension_rate_N_per_s'), 2)} | "
                 f"{r.get('negative_tension_steps', '')} | {_fmt(r.get('saturated_fraction'), 3)} | "

@@ -23,6 +23,7 @@ import numpy as np
 
 from tendon2r_gym import observation
 from tendon2r_gym.arms import CONTROLLER, MechanismRanges, gain_field, reference_ranges
+from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.gains import Gains, gains_of
 from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.policies import PDPolicy
@@ -89,6 +90,19 @@ def make_training_env(
     return ResidualPDWrapper(env, residual_scale) if residual_scale > 0 else env
 
 
+def recorded_settings(recorded: dict[str, Any]) -> dict[str, Any]:
+    """Returns the MODEL_SETTINGS of a recorded env config (a setting recorded before it
+    existed: its EnvConfig default)."""
+    default = {f.name: f.default for f in dataclasses.fields(EnvConfig)}
+    return {k: recorded.get(k, default[k]) for k in MODEL_SETTINGS}
+
+
+def model_settings(model_path: str | Path) -> dict[str, Any]:
+    """Returns the MODEL_SETTINGS a saved model was trained with, as env kwargs: with them, any
+    arm's env is one the model runs in (what its actions mean and its timing)."""
+    return recorded_settings(training_record(model_path)["env_config"])
+
+
 def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
     """Raises if ``env`` differs from the env config a model was trained with in any field of
     MODEL_ENV_FIELDS.  The recorded config is read back through the same constructors, so a
@@ -100,9 +114,7 @@ def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
     fields and its reference lie inside the training ranges, else the ValueError names the
     first field out, its value and the range."""
     config = env.unwrapped.config
-    default = {f.name: f.default for f in dataclasses.fields(config)}
-    recorded_settings = {k: recorded.get(k, default[k]) for k in MODEL_SETTINGS}
-    theirs = {"observation": recorded.get("observation"), **recorded_settings}
+    theirs = {"observation": recorded.get("observation"), **recorded_settings(recorded)}
     ours = {
         "observation": config.observation_layout(),
         **{k: getattr(config, k) for k in MODEL_SETTINGS},
