@@ -99,8 +99,9 @@ def recorded_settings(recorded: dict[str, Any]) -> dict[str, Any]:
 
 def model_settings(model_path: str | Path) -> dict[str, Any]:
     """Returns the MODEL_SETTINGS a saved model was trained with, as env kwargs: with them, any
-    arm's env is one the model runs in (what its actions mean and its timing)."""
-    return recorded_settings(training_record(model_path)["env_config"])
+    arm's env is one the model runs in (what its actions mean and its timing); a model saved
+    without its run record: the EnvConfig defaults."""
+    return recorded_settings((training_record(model_path) or {}).get("env_config", {}))
 
 
 def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
