@@ -180,9 +180,10 @@ class TorqueToTension:
     """Joint torques -> normalized tendon commands for one mechanism, or one per row of a batch
     (:meth:`follow`: random arms), from a private copy of each nominal model
     (:meth:`Mechanism.ideal`, never the env's MjData): the moment arms at q,
-    :func:`distribute`, then push-pull: -t / F; pull-only: 2 t / F - 1 (F =
-    max_tendon_force), clipped to [-1, 1].  PD and computed torque command the tendons through
-    it, and so does the env in ``action_mode="joint_torque"``."""
+    :func:`distribute`, then the inverse of :attr:`Mechanism.command_map` (push-pull: -t / F;
+    pull-only: 2 t / F - 1, F = max_tendon_force), clipped to [-1, 1].  PD and computed
+    torque command the tendons through it, and so does the env in
+    ``action_mode="joint_torque"``."""
 
     def __init__(self, mechanism: Mechanism, damping: float = FORCE_DAMPING) -> None:
         self.damping = damping
@@ -211,6 +212,7 @@ class TorqueToTension:
         self._arms = MomentArms(self.model, self.data)
         self._M = np.zeros((self.model.nv, self.model.nv))
         self._pull_only = self.mechanism.pull_only
+        self._command_map = self.mechanism.command_map
         per_arm = lambda name: np.array([getattr(m, name) for m in mechanisms])[:, None]  # noqa: E731
         if len(mechanisms) == 1:
             self._max_force, self._pretension = (
@@ -250,7 +252,8 @@ class TorqueToTension:
         """Returns the clipped normalized commands (N, n_tendons) whose tensions give the joint
         torques tau (N, 2) through the moment arms J (N, n_tendons, 2)."""
         t = distribute(J, tau, self._pull_only, self._pretension, self.damping)
-        u = 2.0 * t / self._max_force - 1.0 if self._pull_only else -t / self._max_force
+        gain, offset = self._command_map
+        u = (t / self._max_force - offset) / gain
         return np.clip(u, -1.0, 1.0).astype(np.float32)
 
     @cached_property

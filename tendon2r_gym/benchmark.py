@@ -22,7 +22,7 @@ import numpy as np
 from tendon2r_gym.bundle import bundle_meta, bundle_names, bundled_model
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.evaluation import BASELINE, evaluate, names
-from tendon2r_gym.learned import model_settings, trained_on_drawn_gains
+from tendon2r_gym.learned import MODEL_SETTINGS, model_settings, trained_on_drawn_gains
 from tendon2r_gym.metrics import beats, rms_ratio, worst_ratio
 from tendon2r_gym.plots import plot_trace
 from tendon2r_gym.presets import DATA_DIR
@@ -74,11 +74,12 @@ def compare(
         if not models:
             rows.append({"env": name, "policy": label, "missing": "no trained model"})
             continue
-        # A model runs in the action mode it was trained in (the same arm, reference and
-        # episodes as PD's), and its rows say so where that differs from the env's.
-        mode = model_settings(models[0])["action_mode"]
-        kwargs = {**env_kwargs, "action_mode": mode}
-        tag = {} if mode == EnvConfig.make(**env_kwargs).action_mode else {"action_mode": mode}
+        # A model runs in the settings it was trained in (its action mode, timing...: the
+        # same arm, reference and episodes as PD's), and its rows name those that differ.
+        settings = model_settings(models[0])
+        env_config = EnvConfig.make(**env_kwargs)
+        tag = {k: v for k, v in settings.items() if getattr(env_config, k) != v}
+        kwargs = {**env_kwargs, **tag}
         per_seed = []
         for i, model in enumerate(models):
             row = _row(name, label, "ppo", kwargs, seeds, model, plots if i == 0 else None)
@@ -237,10 +238,14 @@ def verdicts(rows: list[dict[str, Any]]) -> list[str]:
 
 
 def shown_policy(row: dict[str, Any]) -> str:
-    """Returns a row's policy label, with the action mode its model ran in where that
-    differs from the env's."""
-    mode = row.get("action_mode")
-    return row["policy"] + (f" ({mode.replace('_', '-')} mode)" if mode else "")
+    """Returns a row's policy label, with the model settings (learned.MODEL_SETTINGS) it ran
+    in where they differ from the env's: "residual (joint-torque mode)"."""
+    shown = [
+        f"{row[k].replace('_', '-')} mode" if k == "action_mode" else f"{k} {row[k]}"
+        for k in MODEL_SETTINGS
+        if k in row
+    ]
+    return row["policy"] + (f" ({', '.join(shown)})" if shown else "")
 
 
 def _ratio(row: dict[str, Any], pd: dict[str, Any], key: str) -> float:

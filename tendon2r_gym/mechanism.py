@@ -260,13 +260,23 @@ class Mechanism:
         return self.pretension if self.pull_only else 0.0
 
     @property
+    def command_map(self) -> tuple[float, float]:
+        """Returns (gain, offset) of a tendon motor's normalized command u in [-1, 1]: its
+        cable's tension is F (gain u + offset), F = max_tendon_force.  Pull-only motors pull
+        F (u + 1) / 2, so u = -1 is slack; push-pull ones -F u (a positive command pushes).
+        The one home of this map: the model's actuators, PD's distribution, the rest command
+        and the effort term all read it."""
+        return (0.5, 0.5) if self.pull_only else (-1.0, 0.0)
+
+    @property
     def rest_ctrl(self) -> float:
         """Returns the normalized motor command whose tension is :attr:`rest_tension`: 0 for
         push-pull motors, 2 pretension / F - 1 for pull-only ones (F = max_tendon_force, once
         resolved from "auto")."""
         if not self.pull_only:
             return 0.0
-        return 2.0 * self.rest_tension / self.max_tendon_force - 1.0
+        gain, offset = self.command_map
+        return (self.rest_tension / self.max_tendon_force - offset) / gain
 
     @property
     def joint_range_rad(self) -> tuple[float, float]:

@@ -147,10 +147,11 @@ class Task:
         ]
         self.form = config.tracking_form
         self.alpha = config.action_filter_alpha
-        # The effort term's fraction of the force limit: (command + 1) / 2 for pull-only
-        # motors in tension mode (command -1 is slack), the command itself otherwise.
-        slack = mech.pull_only and config.action_mode == "tension"
-        self.effort_gain, self.effort_offset = (0.5, 0.5) if slack else (1.0, 0.0)
+        # The effort term charges the commanded tension as a fraction of the force limit
+        # (Mechanism.command_map: (command + 1) / 2 for pull-only motors, whose -1 is slack) in
+        # tension mode, the normalized joint torque in joint-torque mode.
+        tension = config.action_mode == "tension"
+        self.effort_gain, self.effort_offset = mech.command_map if tension else (1.0, 0.0)
         self.obs_size = config.observation_size
         self._info_keys = {k: f"reward_{k}" for k in TERMS}  # formatted once, not every step
 

@@ -142,15 +142,16 @@ def test_a_new_baseline_is_one_registry_line(monkeypatch):
 
 
 def test_benchmark_runs_a_model_in_the_action_mode_it_trained_in(tmp_path):
-    """A bundle trained in joint-torque mode runs on the preset's arm, reference and episodes
-    in that mode, and its rows say so; PD's rows stay in the env's mode."""
+    """A bundle trained in joint-torque mode with an action filter runs on the preset's arm,
+    reference and episodes in those settings, and its rows say so; PD's rows stay in the env's
+    settings."""
     from tendon2r_gym.benchmark import shown_policy
     from tendon2r_gym.evaluation import evaluate
     from tendon2r_gym.training import Experiment, Hyperparams
 
     env = {"preset": "default", "episode_duration": 0.05}
     hp = Hyperparams.from_entry("default").replace(
-        env_kwargs={**env, "action_mode": "joint_torque"},
+        env_kwargs={**env, "action_mode": "joint_torque", "action_filter_tau": 0.01},
         total_timesteps=256,
         n_envs=2,
         ppo={**Hyperparams.from_entry("default").ppo, "n_steps": 64, "batch_size": 64},
@@ -162,7 +163,8 @@ def test_benchmark_runs_a_model_in_the_action_mode_it_trained_in(tmp_path):
     rows = compare("default", env, {"ppo residual": models}, [0], None)
     learned = [r for r in rows if r["policy"].startswith("ppo residual")]
     assert len(learned) == 2 and all(r["action_mode"] == "joint_torque" for r in learned)
-    assert shown_policy(learned[0]) == "ppo residual (joint-torque mode)"
+    assert all(r["action_filter_tau"] == 0.01 for r in learned)
+    assert shown_policy(learned[0]) == "ppo residual (joint-torque mode, action_filter_tau 0.01)"
     assert all("action_mode" not in r for r in rows if r["policy"] in ("pd", "ct"))
     with pytest.raises(ValueError, match="action_mode = joint_torque there"):
         evaluate("ppo", env, [0], models[0])  # the env's own mode: refused, not run

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from tendon2r_gym import Mechanism, build_model
-from tendon2r_gym.actuation import ActuationAnalysis, distribute
+from tendon2r_gym.actuation import ActuationAnalysis, TorqueToTension, distribute
 from tendon2r_gym.evaluation import evaluate
 from tendon2r_gym.model import motor_name, tendon_name
 from tendon2r_gym.routing import positive_span
@@ -28,6 +28,26 @@ def test_a_positive_motor_force_lengthens_the_tendon():
             velocity = d.ten_velocity[i]
             assert np.sign(velocity) == np.sign(force) != 0, (routing, i, force, velocity)
             assert (force < 0) == pull_only
+
+
+@pytest.mark.parametrize("pull_only", [False, True])
+def test_command_map_is_the_compiled_motors_and_pds_inverse(pull_only):
+    """Mechanism.command_map, the one home of the command -> tension map, is what the compiled
+    motors apply (force = -tension along the tendon) and what PD's distribution inverts."""
+    mech = Mechanism(routing="n_plus_1", pull_only=pull_only, max_tendon_force=0.5)
+    gain, offset = mech.command_map
+    m, u = build_model(mech), np.linspace(-1.0, 1.0, 9)
+    d = mujoco.MjData(m)
+    for x in u:
+        d.ctrl[:] = x
+        mujoco.mj_forward(m, d)
+        np.testing.assert_allclose(-d.actuator_force, 0.5 * (gain * x + offset), atol=1e-12)
+    analysis = TorqueToTension(mech)
+    J, _ = analysis.kinematics(np.array([[0.3, -0.4]]))
+    tau = np.array([[0.002, -0.001]])
+    t = distribute(J, tau, pull_only, mech.pretension, analysis.damping)
+    np.testing.assert_allclose(0.5 * (gain * analysis.command(J, tau) + offset), t, atol=1e-7)
+    assert np.isclose(0.5 * (gain * mech.rest_ctrl + offset), mech.rest_tension)
 
 
 def test_info_tension_is_positive_when_pulling_for_every_routing():
