@@ -43,7 +43,7 @@ from tendon2r_gym.task import REWARD_SCALES
 #: arm features; the "multiscale" reward, 10M steps): the "log" reward at 3M steps;
 #: on that reward and budget, the drawn arm's features seen by both networks, by the actor
 #: only, by the critic only (privileged); the multiscale reward at 3M steps with two weights
-#: of the action-rate term.
+#: of the action-rate term; and the pull-only residual with a 3x heavier action-rate term.
 BUNDLES = ("generalist", "generalist_scratch", "generalist_pull_only")
 ABLATIONS = (
     "generalist_log",
@@ -52,6 +52,7 @@ ABLATIONS = (
     "generalist_privileged",
     "generalist_multiscale",
     "generalist_multiscale_smooth",
+    "generalist_pull_only_smooth",
 )
 
 #: The pull-only generalist's preset: its arms are the unseen geometries with this preset's
@@ -242,7 +243,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         kwargs = {k: spec["env_config"][k] for k in ("mechanism", "reference")}
         arms[f"sweep_{name}"] = {"env_kwargs": kwargs, "specialist_rms_deg": spec["rms_deg"]}
     result: dict[str, Any] = {"command": command, "bundles": bundles, "seeds": seeds, "arms": {}}
-    result["ablation"] = ablation([b for b in ("generalist", *ABLATIONS) if b in bundle_names()])
+    compared = ("generalist", PULL_ONLY_PRESET, *ABLATIONS)  # each beside what it changes
+    result["ablation"] = ablation([b for b in compared if b in bundle_names()])
     for name, arm in arms.items():
         arm["rows"] = evaluate_arm(arm["env_kwargs"], bundles, seeds)
         result["arms"][name] = arm
@@ -285,7 +287,8 @@ def write(result: dict[str, Any], out: Path) -> None:
         "features, observe_arm, seen by actor and critic), generalist_actor_arm (by the actor "
         "only), generalist_privileged (by the critic only); generalist_multiscale and "
         "generalist_multiscale_smooth: blind, on the generalist's reward at 3M steps, with "
-        "two action-rate weights.",
+        "two action-rate weights; generalist_pull_only_smooth: generalist_pull_only with a "
+        "3x heavier action-rate term (3 against 1).",
         "",
         "## Summary",
         "",
@@ -306,8 +309,9 @@ def write(result: dict[str, Any], out: Path) -> None:
             "## Ablations: the arm's features and the reward",
             "",
             "Each residual's training evaluation (primary seed, best model: RMS on the entry's "
-            "evaluation seeds, random course arms and references, the same episodes for all; "
-            "PD on them). The summary above gives each on the unseen arms, zero-shot.",
+            "evaluation seeds, random course arms and references, the same episodes for all, "
+            "with pull-only cables for the generalist_pull_only rows; PD on them). The summary "
+            "above gives each on the unseen arms, zero-shot.",
             "",
             "| residual | arm features seen by | reward (tracking form, changed weights) | "
             "RMS A / B (deg) | PD A / B (deg) | RMS tension rate (N/s) | steps | wall time (s) |",
