@@ -205,8 +205,8 @@ def build_spec(mech: Mechanism) -> mujoco.MjSpec:
 
     # Tendons, their motors and one tension sensor each.  Motors are general actuators with
     # gear 1, so MuJoCo's actuator force is the force along the tendon in N (positive
-    # lengthens), minus the tension of Mechanism.command_map: push-pull F ctrl, pull-only
-    # -F (ctrl + 1) / 2.  An unresolved "auto" limit builds with F = 1 N.
+    # lengthens): minus the tension that Mechanism.command_map gives the command, F ctrl
+    # push-pull and -F (ctrl + 1) / 2 pull-only.  An unresolved "auto" limit builds with F = 1 N.
     force = mech.max_tendon_force if isinstance(mech.max_tendon_force, float) else 1.0
     gain, bias = (-force * k for k in mech.command_map)
     for i, (_, s2) in enumerate(sides):
