@@ -152,6 +152,8 @@ class Task:
         # tension mode, the normalized joint torque in joint-torque mode.
         tension = config.action_mode == "tension"
         self.effort_gain, self.effort_offset = mech.command_map if tension else (1.0, 0.0)
+        # With no offset and a gain of +-1, f^2 is the command's own square: skip the map.
+        self._effort_mapped = self.effort_offset != 0.0 or abs(self.effort_gain) != 1.0
         self.obs_size = config.observation_size
         self._info_keys = {k: f"reward_{k}" for k in TERMS}  # formatted once, not every step
 
@@ -323,9 +325,9 @@ class Task:
         else:
             tracking = -(e1 * e1 + e2 * e2)
         effort = rate = 0.0  # in action order, as numpy's sum over a few entries
-        gain, offset = self.effort_gain, self.effort_offset
+        gain, offset, mapped = self.effort_gain, self.effort_offset, self._effort_mapped
         for x, x0 in zip(action, last_action, strict=False):  # both n_actions long
-            f = x * gain + offset if offset else x
+            f = x * gain + offset if mapped else x
             effort += f * f
             d = x - x0
             rate += d * d
