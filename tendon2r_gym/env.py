@@ -29,6 +29,7 @@ DIVERGENCE_WARNINGS = (
     mujoco.mjtWarning.mjWARN_BADQPOS,
     mujoco.mjtWarning.mjWARN_BADQVEL,
 )
+_WARNING_IDS = tuple(int(w) for w in DIVERGENCE_WARNINGS)  # indices into MjData.warning
 
 
 def _allowed_actions(n: int) -> str:
@@ -301,7 +302,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         self._cable_force = (
             self.drive.tension_view(d.qfrc_passive) if self.mechanism.elastic else None
         )
-        self._warnings = [d.warning[w] for w in DIVERGENCE_WARNINGS]
+        self._warning_numbers = d.warning.number  # a live view: one count per mjtWarning
         self._warning_count = 0
         self._arms = MomentArms(self.model, d)
         self._arm = arm_params(arm, self.config)
@@ -341,18 +342,27 @@ class Tendon2REnv(MujocoEnv, EzPickle):
             u = self._delay.one(u)
         self._ctrl[:] = u
         mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
-        diverged = self._check_divergence()
-        if self._sensing is not None:  # what the controller gets this step
+        state = self._state()
+        diverged = self._check_divergence(state)
+        if diverged:  # the state left finite by _check_divergence
             state = self._state()
-            self._measured = self._sensing.one(state, self.np_random)
+        seen = state
+        if self._sensing is not None:  # what the controller gets this step
+            seen = self._measured = self._sensing.one(state, self.np_random)
         # A diverged step reports the last good state: nothing enormous reaches a learner.
-        entries = None if diverged else self._obs_entries()
+        entries = None if diverged else self._obs_entries(seen)
         obs = self._last_obs.copy() if entries is None else np.array(entries, dtype=np.float64)
-        truth = obs
+        truth, true_entries = obs, entries
         if self._sensing is not None:  # reward and info on the true state
-            truth = self._last_truth.copy() if entries is None else self._true_obs(entries, state)
+            if entries is None:
+                truth = self._last_truth.copy()
+            else:
+                true_entries = self._true_entries(entries, state)
+                truth = np.array(true_entries, dtype=np.float64)
             self._last_truth = truth
-        reward, terms = self._get_rew(truth, a, last, diverged)
+        reward, terms = self._get_rew(
+            truth.tolist() if true_entries is None else true_entries, a, last, diverged
+        )
         info = self._get_info(truth, terms, diverged)
         self._last_obs = obs
         if self.render_mode == "human":
@@ -365,15 +375,22 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         if type(action) is not np.ndarray or action.shape != (n,) or action.dtype.kind != "f":
             action = real_array("action", action, (n,), _allowed_actions(n))
         a = action.tolist()
-        if not all(math.isfinite(x) for x in a):
+        # A finite sum has finite terms; only a non-finite one needs each term checked.
+        if not math.isfinite(sum(a)) and not all(map(math.isfinite, a)):
             raise invalid("action", action, _allowed_actions(n))
-        return [min(max(x, -1.0), 1.0) for x in a]
+        return [-1.0 if x < -1.0 else 1.0 if x > 1.0 else x for x in a]
 
-    def _check_divergence(self) -> bool:
-        """Returns whether the last step diverged (a new MuJoCo instability warning, or a state
-        outside the task's domain); if so, leaves a finite state."""
-        n_warn = sum(w.number for w in self._warnings)
-        (q1, q2), (w1, w2) = self._qpos.tolist(), self._qvel.tolist()
+    def _warnings(self) -> int:
+        """Returns how many of DIVERGENCE_WARNINGS MuJoCo has raised since MjData was made."""
+        counts = self._warning_numbers.tolist()
+        return sum([counts[w] for w in _WARNING_IDS])
+
+    def _check_divergence(self, state: list[float]) -> bool:
+        """Returns whether the last step, which left the true ``state`` (:meth:`_state`),
+        diverged (a new MuJoCo instability warning, or a state outside the task's domain); if
+        so, leaves a finite state."""
+        n_warn = self._warnings()
+        q1, q2, w1, w2 = state
         diverged = n_warn > self._warning_count or self.task.out_of_domain(SCALAR, q1, q2, w1, w2)
         self._warning_count = n_warn
         if diverged:  # MuJoCo already reset the state on a bad QACC; make sure it is finite.
@@ -386,35 +403,35 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         """Returns the true (q_A, q_B, dq_A, dq_B)."""
         return self._qpos.tolist() + self._qvel.tolist()
 
-    def _obs_entries(self, measured: bool = True) -> list[float]:
-        """Returns the observation's entries (tendon2r_gym.task.Task.observation on this arm):
-        of what the sensors measure, or with ``measured=False`` of the true state."""
-        if measured and self._sensing is not None:
-            q1, q2, w1, w2 = self._measured
-        else:
-            (q1, q2), (w1, w2) = self._qpos.tolist(), self._qvel.tolist()
+    def _obs_entries(self, state: list[float]) -> list[float]:
+        """Returns the observation's entries (tendon2r_gym.task.Task.observation on this arm)
+        of the joint state (q_A, q_B, dq_A, dq_B)."""
+        q1, q2, w1, w2 = state
         return self.task.observation(
             SCALAR, q1, q2, w1, w2, self.data.time, self._ref, self._arm, self._last_action
         )
 
     def _get_obs(self, measured: bool = True) -> np.ndarray:
-        """Returns the observation (:meth:`_obs_entries` as an array)."""
-        return np.array(self._obs_entries(measured), dtype=np.float64)
+        """Returns the observation (:meth:`_obs_entries` as an array): of what the sensors
+        measure, or with ``measured=False`` of the true state."""
+        state = self._measured if measured and self._sensing is not None else self._state()
+        return np.array(self._obs_entries(state), dtype=np.float64)
 
-    def _true_obs(self, parts: list[float], state: list[float]) -> np.ndarray:
-        """Returns the observation of the true ``state`` (:meth:`_state`): ``parts`` (the
-        entries of the sensors' observation of this step) with the entries the joint state
-        sets rewritten (Task.state_entries)."""
+    def _true_entries(self, parts: list[float], state: list[float]) -> list[float]:
+        """Returns the observation's entries of the true ``state`` (:meth:`_state`): ``parts``
+        (the entries of the sensors' observation of this step) with the entries the joint
+        state sets rewritten (Task.state_entries)."""
         qd1, qd2 = parts[obs_layout.Q_DES]
         joints, rest = self.task.state_entries(SCALAR, *state, qd1, qd2, self._arm)
         head, tail = obs_layout.STATE
-        return np.array(joints + parts[head.stop : tail.start] + rest + parts[tail.stop :])
+        return joints + parts[head.stop : tail.start] + rest + parts[tail.stop :]
 
     def _get_rew(
-        self, obs: np.ndarray, action: list[float], last: list[float], diverged: bool
+        self, entries: list[float], action: list[float], last: list[float], diverged: bool
     ) -> tuple[float, dict[str, float]]:
-        """Returns (reward, scaled terms); the reward is the sum of the terms."""
-        e1, e2 = obs[self._err].tolist()
+        """Returns (reward, scaled terms) from the observation's entries of the true state; the
+        reward is the sum of the terms."""
+        e1, e2 = entries[self._err]
         return self.task.scale(self.task.reward_terms(SCALAR, e1, e2, action, last, diverged))
 
     def _get_info(self, obs: np.ndarray, terms: dict[str, float], diverged: bool) -> dict[str, Any]:
@@ -445,7 +462,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
             self._sensing.reset(0, self._state(), self.np_random)
             self._measured = self._sensing.read()[0].tolist()
             self._last_truth = self._get_obs(measured=False)
-        self._warning_count = sum(w.number for w in self._warnings)
+        self._warning_count = self._warnings()
         self._last_obs = self._get_obs()
         return self._last_obs
 

@@ -247,16 +247,17 @@ class Task:
         :func:`arm_params` and the last clipped action (one value, or one column of N values,
         per action dimension)."""
         amp1, amp2, om1, om2, ph1, ph2, bias1, bias2 = ref
+        sin, cos = ops.sin, ops.cos
         arg1, arg2 = om1 * t + ph1, om2 * t + ph2
-        qd1, qd2 = amp1 * ops.sin(arg1) + bias1, amp2 * ops.sin(arg2) + bias2
+        qd1, qd2 = amp1 * sin(arg1) + bias1, amp2 * sin(arg2) + bias2
         joints, rest = self.state_entries(ops, q1, q2, w1, w2, qd1, qd2, arm)
-        obs = joints + [qd1, qd2, amp1 * om1 * ops.cos(arg1), amp2 * om2 * ops.cos(arg2)] + rest
+        joints += [qd1, qd2, amp1 * om1 * cos(arg1), amp2 * om2 * cos(arg2), *rest]
         for dt in self.offsets:
-            obs.append(amp1 * ops.sin(arg1 + om1 * dt) + bias1)
-            obs.append(amp2 * ops.sin(arg2 + om2 * dt) + bias2)
-        obs.extend(last_action)
-        obs.extend(arm[3:])
-        return obs
+            joints += [amp1 * sin(arg1 + om1 * dt) + bias1, amp2 * sin(arg2 + om2 * dt) + bias2]
+        joints += last_action
+        if len(arm) > 3:
+            joints += arm[3:]
+        return joints
 
     def state_entries(
         self, ops: Ops, q1: Any, q2: Any, w1: Any, w2: Any, qd1: Any, qd2: Any, arm: Sequence[Any]
@@ -267,16 +268,17 @@ class Task:
         gives their slices).  With sensors, the envs rewrite these of the measured observation
         with the true state for the reward and info."""
         a, b, c = arm[0], arm[1], arm[2]
-        c1, s1 = ops.cos(q1), ops.sin(q1)
+        sin, cos, copysign, log1p = ops.sin, ops.cos, ops.copysign, ops.log1p
+        c1, s1 = cos(q1), sin(q1)
         q12 = q1 + q2
-        c12, s12 = ops.cos(q12), ops.sin(q12)
+        c12, s12 = cos(q12), sin(q12)
         w12 = w1 + w2
         e1, e2 = qd1 - q1, qd2 - q2
         scale = L.ERROR_LOG_SCALE
         rest = [
             e1, e2,
-            ops.copysign(ops.log1p(abs(e1) / scale), e1),
-            ops.copysign(ops.log1p(abs(e2) / scale), e2),
+            copysign(log1p(abs(e1) / scale), e1),
+            copysign(log1p(abs(e2) / scale), e2),
             a + c * c1 + b * c12, c * s1 + b * s12,  # effector x, z
             -c * s1 * w1 - b * s12 * w12, c * c1 * w1 + b * c12 * w12,  # effector velocity
         ]  # fmt: skip
@@ -319,9 +321,10 @@ class Task:
             tracking = -(ops.log1p(u1 * u1) + ops.log1p(u2 * u2)) / self.log_norm
         elif self.form == "multiscale":
             tracking = 0.0
+            log1p = ops.log1p
             for inv, norm in self.kernels:
                 u1, u2 = e1 * inv, e2 * inv
-                tracking -= (ops.log1p(u1 * u1) + ops.log1p(u2 * u2)) / norm
+                tracking -= (log1p(u1 * u1) + log1p(u2 * u2)) / norm
         else:
             tracking = -(e1 * e1 + e2 * e2)
         effort = rate = 0.0  # in action order, as numpy's sum over a few entries
@@ -339,10 +342,15 @@ class Task:
         }
 
     def scale(self, terms: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
-        """Returns (reward, scaled terms): each term times its weight, and their sum."""
-        scales = self.scales
-        scaled = {k: scales[k] * v for k, v in terms.items()}
-        return sum(scaled.values()), scaled
+        """Returns (reward, scaled terms): each term times its weight, keyed ``reward_<name>``
+        as ``info`` reports it, and their sum (in the order of ``terms``, as ``sum``)."""
+        scales, keys = self.scales, self._info_keys
+        scaled = {}
+        reward = 0
+        for k, v in terms.items():
+            scaled[keys[k]] = x = scales[k] * v
+            reward = reward + x
+        return reward, scaled
 
     # -- divergence ------------------------------------------------------------------------------
     def out_of_domain(self, ops: Ops, q1: Any, q2: Any, w1: Any, w2: Any) -> Any:
@@ -363,10 +371,9 @@ class Task:
         diverged: Any,
     ) -> dict[str, Any]:
         """Returns the info of a step (keys STEP_INFO_KEYS) from the observation (one, or N
-        rows), the scaled reward terms, the tendon tensions (N, positive pulling), the
-        moment-arm condition number, the time and divergence."""
-        keys = self._info_keys
-        info = {keys[k]: v for k, v in scaled.items()}
+        rows), the scaled reward terms (:meth:`scale`), the tendon tensions (N, positive
+        pulling), the moment-arm condition number, the time and divergence."""
+        info = dict(scaled)
         if obs.ndim == 1:  # one env
             q, q_des, err, pos = obs[L.Q], obs[L.Q_DES], obs[L.ERROR], obs[L.EFFECTOR_POS]
         else:  # N arms
