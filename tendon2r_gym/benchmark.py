@@ -20,9 +20,8 @@ import gymnasium as gym
 import numpy as np
 
 from tendon2r_gym.bundle import bundle_meta, bundle_names, bundled_model
-from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.evaluation import BASELINE, evaluate, names
-from tendon2r_gym.learned import MODEL_SETTINGS, model_settings, trained_on_drawn_gains
+from tendon2r_gym.learned import MODEL_SETTINGS, settings_on, trained_on_drawn_gains
 from tendon2r_gym.metrics import beats, rms_ratio, worst_ratio
 from tendon2r_gym.plots import plot_trace
 from tendon2r_gym.presets import DATA_DIR
@@ -76,9 +75,7 @@ def compare(
             continue
         # A model runs in the settings it was trained in (its action mode, timing...: the
         # same arm, reference and episodes as PD's), and its rows name those that differ.
-        settings = model_settings(models[0])
-        env_config = EnvConfig.make(**env_kwargs)
-        tag = {k: v for k, v in settings.items() if getattr(env_config, k) != v}
+        tag = settings_on(models[0], env_kwargs)
         kwargs = {**env_kwargs, **tag}
         per_seed = []
         for i, model in enumerate(models):
@@ -108,8 +105,10 @@ def not_covered(bundle: str, env_kwargs: dict[str, Any]) -> str | None:
     ranges, another observation...), or None if it can."""
     from tendon2r_gym.learned import trained_model
 
+    model = bundled_model(bundle)
+    kwargs = {**env_kwargs, **settings_on(model, env_kwargs)}
     try:
-        trained_model(bundled_model(bundle), gym.make("Tendon2R-v0", **env_kwargs), bundle)
+        trained_model(model, gym.make("Tendon2R-v0", **kwargs), bundle)
     except ValueError as e:
         return str(e)
     return None
@@ -125,7 +124,9 @@ def generalist_rows(name: str, env_kwargs: dict[str, Any], seeds: list[int]) -> 
         if reason is not None:
             rows.append({"env": name, "policy": label, "missing": reason})
             continue
-        rows.append(_row(name, label, "ppo", env_kwargs, seeds, model, None))
+        tag = settings_on(model, env_kwargs)  # as compare: the settings it trained in
+        row = _row(name, label, "ppo", {**env_kwargs, **tag}, seeds, model, None)
+        rows.append({**row, **tag})
         _print(rows[-1])
     return rows
 

@@ -104,6 +104,14 @@ def model_settings(model_path: str | Path) -> dict[str, Any]:
     return recorded_settings((training_record(model_path) or {}).get("env_config", {}))
 
 
+def settings_on(model_path: str | Path, env_kwargs: dict[str, Any]) -> dict[str, Any]:
+    """Returns the model's :func:`model_settings` that differ from those of the env of
+    ``env_kwargs`` (an arm): with them added, the arm's env is one the model runs in, and a
+    report names them beside its row."""
+    config = EnvConfig.make(**env_kwargs)
+    return {k: v for k, v in model_settings(model_path).items() if getattr(config, k) != v}
+
+
 def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
     """Raises if ``env`` differs from the env config a model was trained with in any field of
     MODEL_ENV_FIELDS.  The recorded config is read back through the same constructors, so a

@@ -141,12 +141,14 @@ def test_a_new_baseline_is_one_registry_line(monkeypatch):
     assert rows[2]["rms_deg"] != rows[0]["rms_deg"]
 
 
-def test_benchmark_runs_a_model_in_the_action_mode_it_trained_in(tmp_path):
+def test_benchmark_runs_a_model_in_the_action_mode_it_trained_in(tmp_path, monkeypatch):
     """A bundle trained in joint-torque mode with an action filter runs on the preset's arm,
-    reference and episodes in those settings, and its rows say so; PD's rows stay in the env's
-    settings."""
+    reference and episodes in those settings, in the benchmark and in the generalist study,
+    and its rows say so; PD's rows stay in the env's settings."""
     from tendon2r_gym.benchmark import shown_policy
     from tendon2r_gym.evaluation import evaluate
+    from tendon2r_gym.learned import settings_on
+    from tendon2r_gym.studies import generalist as generalist_study
     from tendon2r_gym.training import Experiment, Hyperparams
 
     env = {"preset": "default", "episode_duration": 0.05}
@@ -168,3 +170,10 @@ def test_benchmark_runs_a_model_in_the_action_mode_it_trained_in(tmp_path):
     assert all("action_mode" not in r for r in rows if r["policy"] in ("pd", "ct"))
     with pytest.raises(ValueError, match="action_mode = joint_torque there"):
         evaluate("ppo", env, [0], models[0])  # the env's own mode: refused, not run
+    # One home for those settings (learned.settings_on), which the generalist study uses too.
+    settings = {"action_mode": "joint_torque", "action_filter_tau": 0.01}
+    assert settings_on(models[0], env) == settings
+    assert settings_on(models[0], {**env, **settings}) == {}
+    monkeypatch.setattr(generalist_study, "bundled_model", lambda name: models[0])
+    study_rows = generalist_study.evaluate_arm(env, ["trained"], [0])
+    assert study_rows["trained"]["rms_deg"] == learned[0]["rms_deg"]

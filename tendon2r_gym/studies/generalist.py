@@ -32,6 +32,7 @@ import yaml
 from tendon2r_gym.arms import GEOMETRY, draw_arms
 from tendon2r_gym.bundle import bundle_names, bundled_model
 from tendon2r_gym.evaluation import evaluate
+from tendon2r_gym.learned import settings_on
 from tendon2r_gym.metrics import beats, rms_ratio, worst_ratio
 from tendon2r_gym.presets import load_yaml, preset_path
 from tendon2r_gym.runs import command_line, training_record, training_summary
@@ -77,8 +78,10 @@ def evaluate_arm(
     for name in ("pd", "ct"):
         rows[name], _ = evaluate(name, env_kwargs, seeds)
     for bundle in bundles:
+        model = bundled_model(bundle)
+        kwargs = {**env_kwargs, **settings_on(model, env_kwargs)}  # as the benchmark runs it
         try:
-            rows[bundle], _ = evaluate("ppo", env_kwargs, seeds, bundled_model(bundle))
+            rows[bundle], _ = evaluate("ppo", kwargs, seeds, model)
         except ValueError as e:  # outside the generalist's ranges
             rows[bundle] = {"error": str(e)}
     return rows
