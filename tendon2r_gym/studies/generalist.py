@@ -44,7 +44,8 @@ from tendon2r_gym.task import REWARD_SCALES
 #: arm features; the "multiscale" reward, 10M steps): the "log" reward at 3M steps;
 #: on that reward and budget, the drawn arm's features seen by both networks, by the actor
 #: only, by the critic only (privileged); the multiscale reward at 3M steps with two weights
-#: of the action-rate term; and the pull-only residual with a 3x heavier action-rate term.
+#: of the action-rate term; and the pull-only residual in tension mode with a 3x heavier
+#: action-rate term (the shipped one runs in joint-torque mode).
 BUNDLES = ("generalist", "generalist_scratch", "generalist_pull_only")
 ABLATIONS = (
     "generalist_log",
@@ -283,15 +284,16 @@ def write(result: dict[str, Any], out: Path) -> None:
         "training never uses; sweep arms: results/arm_sweep.md, with their own specialist. "
         "generalist: residual on PD, blind (no arm features); generalist_scratch: plain PPO; "
         "generalist_pull_only: the residual on arms with three pull-only cables (its "
-        "preset's), run on the unseen geometries with those cables (unseen_<i>_pull_only); "
+        "preset's), in joint-torque mode, run on the unseen geometries with those cables "
+        "(unseen_<i>_pull_only); each bundle runs in the action mode it trained in; "
         "ablations of the residual (one seed each, configs/ppo.yaml; the reward and training "
         "steps of each residual are in the ablation table below): generalist_log (blind, the "
         "log reward), and on its reward and budget generalist_arm (the drawn arm's "
         "features, observe_arm, seen by actor and critic), generalist_actor_arm (by the actor "
         "only), generalist_privileged (by the critic only); generalist_multiscale and "
         "generalist_multiscale_smooth: blind, on the generalist's reward at 3M steps, with "
-        "two action-rate weights; generalist_pull_only_smooth: generalist_pull_only with a "
-        "3x heavier action-rate term (3 against 1).",
+        "two action-rate weights; generalist_pull_only_smooth: the pull-only residual in "
+        "tension mode with a 3x heavier action-rate term (3 against 1).",
         "",
         "## Summary",
         "",
