@@ -23,13 +23,14 @@ from tendon2r_gym.reference import Reference
 from tendon2r_gym.task import Task, arm_params, reference_params, rewards_table
 from tendon2r_gym.validation import integer, invalid, real_array
 
-#: MuJoCo's warnings that mean the integration failed.
+#: MuJoCo's warnings that mean the integration failed (DIVERGENCE_WARNING_IDS: their indices
+#: into MjData.warning, which both envs count).
 DIVERGENCE_WARNINGS = (
     mujoco.mjtWarning.mjWARN_BADQACC,
     mujoco.mjtWarning.mjWARN_BADQPOS,
     mujoco.mjtWarning.mjWARN_BADQVEL,
 )
-_WARNING_IDS = tuple(int(w) for w in DIVERGENCE_WARNINGS)  # indices into MjData.warning
+DIVERGENCE_WARNING_IDS = [int(w) for w in DIVERGENCE_WARNINGS]
 
 
 def _allowed_actions(n: int) -> str:
@@ -383,7 +384,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     def _warnings(self) -> int:
         """Returns how many of DIVERGENCE_WARNINGS MuJoCo has raised since MjData was made."""
         counts = self._warning_numbers.tolist()
-        return sum([counts[w] for w in _WARNING_IDS])
+        return sum([counts[w] for w in DIVERGENCE_WARNING_IDS])
 
     def _check_divergence(self, state: list[float]) -> bool:
         """Returns whether the last step, which left the true ``state`` (:meth:`_state`),

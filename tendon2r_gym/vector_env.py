@@ -28,7 +28,7 @@ from mujoco import batch as mj_batch
 
 from tendon2r_gym import observation as obs_layout
 from tendon2r_gym.actuation import TorqueToTension, cond_of_rows
-from tendon2r_gym.env import DIVERGENCE_WARNINGS
+from tendon2r_gym.env import DIVERGENCE_WARNING_IDS
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.model import build_model, tendon_name
 from tendon2r_gym.ops import BATCH
@@ -115,7 +115,6 @@ class Tendon2RVectorEnv(VectorEnv):
             self._bind_delays(i, cfg, self.drive)
         if cfg.mechanism.elastic:
             self._qfrc_passive = b.bind("qfrc_passive")  # the cables' force on their spools
-        self._warn_ids = [int(w) for w in DIVERGENCE_WARNINGS]
         self.task = Task(cfg)
 
         n = self.num_envs
@@ -336,7 +335,7 @@ class Tendon2RVectorEnv(VectorEnv):
         return obs.copy(), rewards, terminated, truncated, info
 
     def _warnings(self) -> np.ndarray:
-        return self.batch.warning[:, self._warn_ids, 1].sum(axis=1)  # (lastinfo, number)
+        return self.batch.warning[:, DIVERGENCE_WARNING_IDS, 1].sum(axis=1)  # (lastinfo, number)
 
     def _check_divergence(self, active: np.ndarray | slice, failed: np.ndarray) -> np.ndarray:
         """Per arm: a new MuJoCo instability warning, a failed call, or a state outside the
