@@ -102,8 +102,8 @@ def _specialists(sweep: Path) -> dict[str, dict[str, Any]]:
 
 def summarize(arms: dict[str, Any], bundles: list[str]) -> dict[str, Any]:
     """Returns, per bundle, over the unseen arms it covers: <= PD fraction, median and worst
-    worst-joint ratio to PD, median tension-rate ratio to PD; over the sweep arms it covers:
-    <= specialist fraction."""
+    worst-joint ratio to PD, median RMS-tension and tension-rate ratios to PD; over the sweep
+    arms it covers: <= specialist fraction."""
     out = {}
     unseen = {k: a for k, a in arms.items() if k.startswith("unseen_")}
     for b in bundles:
@@ -111,13 +111,10 @@ def summarize(arms: dict[str, Any], bundles: list[str]) -> dict[str, Any]:
         if not covered:
             continue
         ratios = [worst_ratio(a["rows"][b]["rms_deg"], a["rows"]["pd"]["rms_deg"]) for a in covered]
-        rate = [
-            rms_ratio(
-                a["rows"][b]["rms_tension_rate_N_per_s"],
-                a["rows"]["pd"]["rms_tension_rate_N_per_s"],
-            )
-            for a in covered
-        ]
+        rate, tension = (
+            [rms_ratio(a["rows"][b][key], a["rows"]["pd"][key]) for a in covered]
+            for key in ("rms_tension_rate_N_per_s", "rms_tension_N")
+        )
         vs_spec = [
             beats(a["rows"][b]["rms_deg"], a["specialist_rms_deg"])
             for a in arms.values()
@@ -131,6 +128,7 @@ def summarize(arms: dict[str, Any], bundles: list[str]) -> dict[str, Any]:
             "median_worst_ratio_to_pd": float(np.median(ratios)),
             "max_worst_ratio_to_pd": float(np.max(ratios)),
             "median_tension_rate_x_pd": float(np.median(rate)),
+            "median_tension_x_pd": float(np.median(tension)),
             "specialist_arms": len(vs_spec),
             "beats_specialist": int(sum(vs_spec)),
         }
@@ -298,14 +296,14 @@ def write(result: dict[str, Any], out: Path) -> None:
         "## Summary",
         "",
         "| policy | unseen arms | <= PD on both joints | median worst-joint ratio to PD | worst | "
-        "median tension rate (x PD) | <= specialist (sweep arms) |",
-        "|---|---|---|---|---|---|---|",
+        "median RMS tension (x PD) | median tension rate (x PD) | <= specialist (sweep arms) |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for b, s in result.get("summary", {}).items():
         lines.append(
             f"| {b} | {s['arms']} | {s['beats_pd']} of {s['arms']} | "
             f"{s['median_worst_ratio_to_pd']:.3f} | {s['max_worst_ratio_to_pd']:.3f} | "
-            f"{s['median_tension_rate_x_pd']:.2f} | "
+            f"{s['median_tension_x_pd']:.2f} | {s['median_tension_rate_x_pd']:.2f} | "
             f"{s['beats_specialist']} of {s['specialist_arms']} |"
         )
     if result.get("ablation"):
