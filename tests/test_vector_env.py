@@ -35,6 +35,7 @@ def _native(n, **kw):
      (3, 1, {"action_mode": "joint_torque"}),
      (5, 1, {"action_mode": "joint_torque", "preset": "pull_only"}),
      (4, 1, {"action_filter_tau": 0.005, "preset": "pull_only"}),
+     (3, 1, {"action_mode": "joint_torque", "action_filter_tau": 0.002, "preset": "pull_only"}),
      (3, 1, {"mechanism": REAL}), (3, 1, {"preset": "pull_only", "mechanism": REAL}),
      (3, 1, {"action_mode": "joint_torque", "mechanism": REAL}),
      (3, 1, {"observation_noise": [1e-3, 0.1], "observation_delay": 0.002}),
