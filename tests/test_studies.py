@@ -281,3 +281,14 @@ def test_generalist_ablation_names_each_bundles_reward_as_its_entry_sets_it():
         weights = [f"{k} {w:g}" for k, w in env.get("reward_scales", {}).items()]
         expected = ", ".join([env.get("tracking_form", registered), *weights])
         assert generalist.reward_of(bundled_model(name)) == expected, name
+
+
+def test_generalist_ablation_reads_who_saw_the_arm_from_each_run():
+    """The ablation table's "arm features seen by" comes from each bundle's recorded run (its
+    observation layout and hide lists), not from its name."""
+    from tendon2r_gym.bundle import bundled_model
+    from tendon2r_gym.studies.generalist import arm_seen_by
+
+    assert arm_seen_by(bundled_model("generalist")) == "nobody (blind)"
+    assert arm_seen_by(bundled_model("generalist_arm")) == "actor and critic"
+    assert arm_seen_by(bundled_model("generalist_actor_arm")) == "actor only"

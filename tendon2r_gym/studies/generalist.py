@@ -35,7 +35,7 @@ from tendon2r_gym.evaluation import evaluate
 from tendon2r_gym.learned import settings_on
 from tendon2r_gym.metrics import beats, rms_ratio, worst_ratio
 from tendon2r_gym.presets import load_yaml, preset_path
-from tendon2r_gym.runs import command_line, training_record, training_summary
+from tendon2r_gym.runs import RunFolder, command_line, stem_of, training_record, training_summary
 from tendon2r_gym.studies import joints, save_json
 from tendon2r_gym.task import REWARD_SCALES
 
@@ -45,7 +45,8 @@ from tendon2r_gym.task import REWARD_SCALES
 #: on that reward and budget, the drawn arm's features seen by both networks, by the actor
 #: only, by the critic only (privileged); the multiscale reward at 3M steps with two weights
 #: of the action-rate term; and the pull-only residual in tension mode with a 3x heavier
-#: action-rate term (the shipped one runs in joint-torque mode).
+#: action-rate term (the shipped one runs in joint-torque mode); the generalist's entry with
+#: the drawn arm's features seen by both networks.
 BUNDLES = ("generalist", "generalist_scratch", "generalist_pull_only")
 ABLATIONS = (
     "generalist_log",
@@ -55,6 +56,7 @@ ABLATIONS = (
     "generalist_multiscale",
     "generalist_multiscale_smooth",
     "generalist_pull_only_smooth",
+    "generalist_observe_arm",
 )
 
 #: The pull-only generalist's preset: its arms are the unseen geometries with this preset's
@@ -146,7 +148,22 @@ def ablation(bundles: list[str]) -> dict[str, Any]:
         out[b] = {k: summary[k] for k in ("best_rms_deg", "pd_eval_rms_deg", "timesteps",
                                           "wall_time_s", "best_tension_rate_N_per_s")}  # fmt: skip
         out[b]["reward"] = reward_of(model)
+        out[b]["arm_seen_by"] = arm_seen_by(model)
     return out
+
+
+def arm_seen_by(model_path: Path) -> str:
+    """Returns which networks of a bundled model saw the drawn arm's features, as its run
+    recorded them: its observation layout (observe_arm) and its hide_from_actor and
+    hide_from_critic lists."""
+    layout = training_record(model_path)["env_config"]["observation"]
+    if not any(name == "arm" for name, _ in layout):
+        return "nobody (blind)"
+    hp = RunFolder(stem_of(model_path).parent).read_config()
+    actor = "arm" not in (hp.get("hide_from_actor") or [])
+    critic = "arm" not in (hp.get("hide_from_critic") or [])
+    return {(True, True): "actor and critic", (True, False): "actor only",
+            (False, True): "critic only"}.get((actor, critic), "nobody (hidden)")  # fmt: skip
 
 
 def reward_of(model_path: Path) -> str:
@@ -291,7 +308,9 @@ def write(result: dict[str, Any], out: Path) -> None:
         "only), generalist_privileged (by the critic only); generalist_multiscale and "
         "generalist_multiscale_smooth: blind, on the generalist's reward at 3M steps, with "
         "two action-rate weights; generalist_pull_only_smooth: the pull-only residual in "
-        "tension mode with a 3x heavier action-rate term (3 against 1).",
+        "tension mode with a 3x heavier action-rate term (3 against 1); "
+        "generalist_observe_arm: the generalist's entry (its reward and budget) with the "
+        "drawn arm's features seen by actor and critic.",
         "",
         "## Summary",
         "",
@@ -320,15 +339,9 @@ def write(result: dict[str, Any], out: Path) -> None:
             "RMS A / B (deg) | PD A / B (deg) | RMS tension rate (N/s) | steps | wall time (s) |",
             "|---|---|---|---|---|---|---|---|",
         ]
-        seen = {
-            "generalist": "nobody (blind)",
-            "generalist_arm": "actor and critic",
-            "generalist_actor_arm": "actor only",
-            "generalist_privileged": "critic only",
-        }
         for b, a in result["ablation"].items():
             lines.append(
-                f"| {b} | {seen.get(b, 'nobody (blind)')} | {a.get('reward', '?')} | "
+                f"| {b} | {a.get('arm_seen_by', '?')} | {a.get('reward', '?')} | "
                 f"{fmt(a['best_rms_deg'])} | {fmt(a['pd_eval_rms_deg'])} | "
                 f"{fmt(a['best_tension_rate_N_per_s'])} | {a['timesteps']:,} | "
                 f"{a['wall_time_s']:.0f} |"
