@@ -30,6 +30,7 @@ import numpy as np
 import yaml
 
 from tendon2r_gym.arms import GEOMETRY, draw_arms
+from tendon2r_gym.benchmark import GENERALISTS
 from tendon2r_gym.bundle import bundle_names, bundled_model
 from tendon2r_gym.evaluation import evaluate
 from tendon2r_gym.learned import settings_on
@@ -47,7 +48,7 @@ from tendon2r_gym.task import REWARD_SCALES
 #: of the action-rate term; and the pull-only residual in tension mode with a 3x heavier
 #: action-rate term (the shipped one runs in joint-torque mode); the generalist's entry with
 #: the drawn arm's features seen by both networks.
-BUNDLES = ("generalist", "generalist_scratch", "generalist_pull_only")
+BUNDLES = GENERALISTS
 ABLATIONS = (
     "generalist_log",
     "generalist_arm",
@@ -297,7 +298,8 @@ def write(result: dict[str, Any], out: Path) -> None:
         f"evaluation seeds {result['seeds']}; for a generalist, (its worst joint's RMS as a "
         "multiple of PD's). Unseen arms: drawn by tendon2r_gym.arms.draw_arms with a seed that "
         "training never uses; sweep arms: results/arm_sweep.md, with their own specialist. "
-        "generalist: residual on PD, blind (no arm features); generalist_scratch: plain PPO; "
+        "generalist: residual on PD, blind (no arm features); generalist_scratch: plain PPO "
+        "(normalized joint torques through a 2 ms action filter); "
         "generalist_pull_only: the residual on arms with three pull-only cables (its "
         "preset's), in joint-torque mode, run on the unseen geometries with those cables "
         "(unseen_<i>_pull_only); each bundle runs in the action mode it trained in; "
