@@ -292,3 +292,4 @@ def test_generalist_ablation_reads_who_saw_the_arm_from_each_run():
     assert arm_seen_by(bundled_model("generalist")) == "nobody (blind)"
     assert arm_seen_by(bundled_model("generalist_arm")) == "actor and critic"
     assert arm_seen_by(bundled_model("generalist_actor_arm")) == "actor only"
+    assert arm_seen_by(bundled_model("generalist_observe_arm")) == "actor and critic"

@@ -15,8 +15,8 @@ The fine-tuning curve: on the ``--finetune-arms`` arms where the generalist does
 generalist fine-tuned against the same training from scratch.
 
 Summary per learned policy: the fraction of arms where it is <= PD on both joints, the
-median worst-joint ratio of its RMS error to PD's, its tension rate as a multiple of PD's,
-and the fraction of arms where it is <= the specialist.
+median worst-joint ratio of its RMS error to PD's, its RMS tension and tension rate as
+multiples of PD's, and the fraction of arms where it is <= the specialist.
 """
 
 from __future__ import annotations
@@ -155,8 +155,9 @@ def ablation(bundles: list[str]) -> dict[str, Any]:
 
 def arm_seen_by(model_path: Path) -> str:
     """Returns which networks of a bundled model saw the drawn arm's features, as its run
-    recorded them: its observation layout (observe_arm) and its hide_from_actor and
-    hide_from_critic lists."""
+    recorded them: its observation layout (observe_arm) and whether its hide_from_actor and
+    hide_from_critic lists hide the whole ``arm`` slice (a slice hidden field by field, as the
+    realism entries do, counts as seen)."""
     layout = training_record(model_path)["env_config"]["observation"]
     if not any(name == "arm" for name, _ in layout):
         return "nobody (blind)"
