@@ -133,7 +133,7 @@ def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
     arm_ranges = MechanismRanges.from_value(arms) if arms else None
     ranges = recorded.get("reference_ranges")
     if arm_ranges is not None and config.mechanism_ranges is None:  # a generalist on one arm
-        if _observes_arm(recorded):  # PPOPolicy appends the arm's features (arm_features)
+        if observes_arm(recorded):  # PPOPolicy appends the arm's features (arm_features)
             ours["observation"] = [*ours["observation"], theirs["observation"][-1]]
         drawn = {*arm_ranges.names, "max_tendon_force"}  # auto: sized per arm
         undrawn = lambda m: {k: v for k, v in m.ideal().to_dict().items() if k not in drawn}  # noqa: E731
@@ -166,13 +166,13 @@ def arm_features(recorded: dict[str, Any], env: gym.Env) -> np.ndarray | None:
     fields normalized over the model's training ranges, as its training env computed them.
     None if the model did not observe its arm or the env draws arms itself."""
     config = env.unwrapped.config
-    if not _observes_arm(recorded) or config.mechanism_ranges is not None:
+    if not observes_arm(recorded) or config.mechanism_ranges is not None:
         return None
     ranges = MechanismRanges.from_value(recorded["mechanism_ranges"])
     return np.array(ranges.features(config), dtype=np.float64)
 
 
-def _observes_arm(recorded: dict[str, Any]) -> bool:
+def observes_arm(recorded: dict[str, Any]) -> bool:
     """Returns whether a model's recorded observation layout ends with the ``arm`` slice."""
     layout = recorded.get("observation") or []
     return bool(layout) and layout[-1][0] == "arm"

@@ -29,12 +29,13 @@ from typing import Any
 import numpy as np
 import yaml
 
-from tendon2r_gym.arms import GEOMETRY, draw_arms
+from tendon2r_gym.arms import GEOMETRY, MechanismRanges, draw_arms
 from tendon2r_gym.benchmark import GENERALISTS
 from tendon2r_gym.bundle import bundle_names, bundled_model
 from tendon2r_gym.evaluation import evaluate
-from tendon2r_gym.learned import settings_on
+from tendon2r_gym.learned import observes_arm, settings_on
 from tendon2r_gym.metrics import beats, rms_ratio, worst_ratio
+from tendon2r_gym.observation import layout_mask
 from tendon2r_gym.presets import load_yaml, preset_path
 from tendon2r_gym.runs import RunFolder, command_line, stem_of, training_record, training_summary
 from tendon2r_gym.studies import joints, save_json
@@ -155,15 +156,20 @@ def ablation(bundles: list[str]) -> dict[str, Any]:
 
 def arm_seen_by(model_path: Path) -> str:
     """Returns which networks of a bundled model saw the drawn arm's features, as its run
-    recorded them: its observation layout (observe_arm) and whether its hide_from_actor and
-    hide_from_critic lists hide the whole ``arm`` slice (a slice hidden field by field, as the
-    realism entries do, counts as seen)."""
-    layout = training_record(model_path)["env_config"]["observation"]
-    if not any(name == "arm" for name, _ in layout):
+    recorded them: its observation layout (observe_arm) and the masks its hide_from_actor and
+    hide_from_critic lists give over the ``arm`` slice (observation.layout_mask, as training
+    applies them: a network that sees any of the arm's fields saw the arm)."""
+    recorded = training_record(model_path)["env_config"]
+    if not observes_arm(recorded):
         return "nobody (blind)"
+    layout = recorded["observation"]
+    fields = MechanismRanges.from_value(recorded["mechanism_ranges"]).names
     hp = RunFolder(stem_of(model_path).parent).read_config()
-    actor = "arm" not in (hp.get("hide_from_actor") or [])
-    critic = "arm" not in (hp.get("hide_from_critic") or [])
+    n_arm = layout[-1][1]  # the arm slice closes the layout
+    actor, critic = (
+        bool(layout_mask(layout, hp.get(f"hide_from_{who}") or [], fields)[-n_arm:].any())
+        for who in ("actor", "critic")
+    )
     return {(True, True): "actor and critic", (True, False): "actor only",
             (False, True): "critic only"}.get((actor, critic), "nobody (hidden)")  # fmt: skip
 
