@@ -80,3 +80,9 @@ def bundled_model(name: str, seed: int | None = None, root: Path = MODELS_DIR) -
     if seed not in meta["seeds"]:
         raise invalid(f"seed of bundle {name!r}", seed, f"one of {meta['seeds']}")
     return seed_dir(root / name, seed) / f"{BEST}.zip"
+
+
+def model_path(name_or_path: str | Path) -> Path:
+    """Returns the model a name stands for: a bundle's primary best_model.zip, or the path."""
+    name = str(name_or_path)
+    return bundled_model(name) if name in bundle_names() else Path(name)

@@ -118,6 +118,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     | `reference_ranges` | `None` | dict of ReferenceRanges: draw a new reference every reset |
     | `mechanism_ranges` | `None` | {{field: [lo, hi]}} of Mechanism, sensor or PD gain fields, "course", "real_arm", or a list of these: a new arm every reset |
     | `observe_arm` | `False` | end the observation with the drawn fields, normalized (``arm``) |
+    | `arm_feature_ranges` | `None` | ranges the ``arm`` slice is normalized over, if not mechanism_ranges (a generalist fine-tuned on one arm) |
     | `fit_to_workspace` | `False` | scale the amplitudes down (with a warning) instead of raising |
     | `ctrl_dt` | `0.001` | control period (s), an integer multiple of the mechanism's sim_dt |
     | `episode_duration` | `2.0` | seconds per episode |

@@ -68,6 +68,10 @@ class EnvConfig:
     mechanism_ranges: MechanismRanges | None = None
     #: Observe the drawn fields, normalized over mechanism_ranges (the ``arm`` slice).
     observe_arm: bool = False
+    #: The ranges the ``arm`` slice covers and is normalized over, if not mechanism_ranges:
+    #: a policy trained on random arms with observe_arm sees one fixed arm as it saw the
+    #: arms it was trained on (fine-tuning a generalist on one arm).
+    arm_feature_ranges: MechanismRanges | None = None
     fit_to_workspace: bool = False
     ctrl_dt: float = 0.001
     action_mode: str = "tension"
@@ -119,6 +123,12 @@ class EnvConfig:
         arms = kwargs.pop("mechanism_ranges", None)
         if arms is not None:
             arms = MechanismRanges.from_value(arms)
+        features = kwargs.pop("arm_feature_ranges", None)
+        if features is not None:
+            try:
+                features = MechanismRanges.from_value(features)
+            except ValueError as e:  # the same rules as mechanism_ranges: name the field
+                raise ValueError(f"arm_feature_ranges: {e}") from None
         if kwargs.get("pd_gains") is not None:
             kwargs["pd_gains"] = gains_of(kwargs["pd_gains"])
         return cls(
@@ -126,6 +136,7 @@ class EnvConfig:
             reference=ref,
             reference_ranges=ranges,
             mechanism_ranges=arms,
+            arm_feature_ranges=features,
             **kwargs,
         )
 
@@ -175,8 +186,14 @@ class EnvConfig:
             if abs(round(value / self.ctrl_dt) * self.ctrl_dt - value) > 1e-6 * self.ctrl_dt:
                 raise invalid(name, value, f"a multiple of ctrl_dt = {self.ctrl_dt} s")
         set_("observe_arm", boolean("observe_arm", self.observe_arm))
-        if self.observe_arm and self.mechanism_ranges is None:
-            raise invalid("observe_arm", True, "False without mechanism_ranges (nothing drawn)")
+        if self.observe_arm and self.feature_ranges is None:
+            raise invalid(
+                "observe_arm", True, "False without mechanism_ranges or arm_feature_ranges"
+            )
+        if self.arm_feature_ranges is not None and not self.observe_arm:
+            raise invalid(
+                "arm_feature_ranges", self.arm_feature_ranges.to_dict(), "None unless observe_arm"
+            )
         if self.base_mechanism is None:
             set_("base_mechanism", self.mechanism)
         self._check_reference()
@@ -300,6 +317,7 @@ class EnvConfig:
                 reference_ranges=None,
                 mechanism_ranges=None,
                 observe_arm=False,
+                arm_feature_ranges=None,
                 fit_to_workspace=True,
                 **drawn_env,
             )
@@ -320,10 +338,16 @@ class EnvConfig:
         return observation.layout(self.preview_steps, self.n_actions, self.n_arm_features)
 
     @property
+    def feature_ranges(self) -> MechanismRanges | None:
+        """Returns the ranges the observation's ``arm`` slice is normalized over:
+        arm_feature_ranges, else mechanism_ranges (None without either)."""
+        return self.arm_feature_ranges or self.mechanism_ranges
+
+    @property
     def arm_fields(self) -> tuple[str, ...]:
         """Returns the fields of the observation's ``arm`` slice, in order (none unless
         observe_arm)."""
-        return self.mechanism_ranges.names if self.observe_arm else ()
+        return self.feature_ranges.names if self.observe_arm else ()
 
     def observation_mask(self, hidden: Any) -> np.ndarray:
         """Returns the 0/1 multiplier that blanks the observation entries named in ``hidden``

@@ -121,20 +121,26 @@ def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
     cables, motors and sensors, as it would on hardware.  A model trained on random arms (a
     generalist) runs on one arm inside its ranges: its undrawn fields must match, its drawn
     fields and its reference lie inside the training ranges, else the ValueError names the
-    first field out, its value and the range."""
+    first field out, its value and the range.  A model that observed its arm sees it on an
+    env that does not (PPOPolicy appends :func:`arm_features`), or on one that observes it
+    over the same ranges."""
     config = env.unwrapped.config
     theirs = {"observation": recorded.get("observation"), **recorded_settings(recorded)}
     ours = {
         "observation": config.observation_layout(),
         **{k: getattr(config, k) for k in MODEL_SETTINGS},
     }
+    if observes_arm(recorded):
+        theirs["arm_feature_ranges"] = feature_ranges(recorded)
+        ours["arm_feature_ranges"] = config.feature_ranges
+        if arm_features(recorded, env) is not None:  # appended by PPOPolicy
+            ours["observation"] = [*ours["observation"], theirs["observation"][-1]]
+            ours["arm_feature_ranges"] = theirs["arm_feature_ranges"]
     mech = Mechanism.from_dict(recorded["mechanism"])
     arms = recorded.get("mechanism_ranges")
     arm_ranges = MechanismRanges.from_value(arms) if arms else None
     ranges = recorded.get("reference_ranges")
     if arm_ranges is not None and config.mechanism_ranges is None:  # a generalist on one arm
-        if observes_arm(recorded):  # PPOPolicy appends the arm's features (arm_features)
-            ours["observation"] = [*ours["observation"], theirs["observation"][-1]]
         drawn = {*arm_ranges.names, "max_tendon_force"}  # auto: sized per arm
         undrawn = lambda m: {k: v for k, v in m.ideal().to_dict().items() if k not in drawn}  # noqa: E731
         theirs["mechanism"], ours["mechanism"] = undrawn(mech), undrawn(config.mechanism)
@@ -162,20 +168,41 @@ def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
 
 def arm_features(recorded: dict[str, Any], env: gym.Env) -> np.ndarray | None:
     """Returns the ``arm`` slice a model trained with ``observe_arm`` expects, for an env of
-    one fixed arm (no mechanism_ranges, so its observation has no such slice): the arm's
-    fields normalized over the model's training ranges, as its training env computed them.
-    None if the model did not observe its arm or the env draws arms itself."""
+    one fixed arm that does not observe it: the arm's fields normalized over the model's
+    :func:`feature_ranges`, as its training env computed them.  None if the model did not
+    observe its arm, or the env observes it or draws arms itself."""
     config = env.unwrapped.config
-    if not observes_arm(recorded) or config.mechanism_ranges is not None:
+    if not observes_arm(recorded) or config.observe_arm or config.mechanism_ranges is not None:
         return None
-    ranges = MechanismRanges.from_value(recorded["mechanism_ranges"])
-    return np.array(ranges.features(config), dtype=np.float64)
+    return np.array(feature_ranges(recorded).features(config), dtype=np.float64)
 
 
 def observes_arm(recorded: dict[str, Any]) -> bool:
     """Returns whether a model's recorded observation layout ends with the ``arm`` slice."""
     layout = recorded.get("observation") or []
     return bool(layout) and layout[-1][0] == "arm"
+
+
+def feature_ranges(recorded: dict[str, Any]) -> MechanismRanges | None:
+    """Returns the ranges a model's ``arm`` slice was normalized over (EnvConfig.feature_ranges
+    of its recorded env config), or None if it did not observe its arm."""
+    if not observes_arm(recorded):
+        return None
+    value = recorded.get("arm_feature_ranges") or recorded["mechanism_ranges"]
+    return MechanismRanges.from_value(value)
+
+
+def fine_tune_env_kwargs(model_path: str | Path, env_kwargs: dict[str, Any]) -> dict[str, Any]:
+    """Returns the env kwargs on which a run fine-tunes the model (``init_from``) on the env
+    of ``env_kwargs``: with the model's :func:`model_settings` (what its actions mean, its
+    timing), and, if it observed its arm, the arm slice over the model's ranges
+    (``observe_arm``, ``arm_feature_ranges``), so that the run's every env, its record and
+    its deployment see the arm as the model did."""
+    out = {**env_kwargs, **settings_on(model_path, env_kwargs)}
+    recorded = (training_record(model_path) or {}).get("env_config", {})
+    if observes_arm(recorded):
+        out.update(observe_arm=True, arm_feature_ranges=feature_ranges(recorded).to_dict())
+    return out
 
 
 def drawn_gains(recorded: dict[str, Any]) -> list[str]:

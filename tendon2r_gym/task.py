@@ -116,7 +116,7 @@ def arm_params(arm: EnvConfig, observed: EnvConfig) -> tuple[float, ...]:
     of the episode's arm config ``arm``, then its features over the ranges of the env's
     config ``observed`` if that observes the arm."""
     mech = arm.mechanism
-    features = observed.mechanism_ranges.features(arm) if observed.observe_arm else []
+    features = observed.feature_ranges.features(arm) if observed.observe_arm else []
     return (mech.a, mech.b, mech.c, *features)
 
 

@@ -55,6 +55,30 @@ def test_bad_ranges_raise_at_construction_naming_the_field(ranges, match):
 def test_observe_arm_needs_ranges():
     with pytest.raises(ValueError, match="observe_arm = True"):
         EnvConfig.make("default", observe_arm=True)
+    with pytest.raises(ValueError, match="arm_feature_ranges = .* None unless observe_arm"):
+        EnvConfig.make("default", arm_feature_ranges="course")
+    with pytest.raises(ValueError, match="arm_feature_ranges: .*'R9' is invalid"):
+        EnvConfig.make("default", observe_arm=True, arm_feature_ranges={"R9": [0.0, 1.0]})
+
+
+def test_one_arm_observed_over_given_ranges():
+    """arm_feature_ranges: one fixed arm's slice is its fields normalized over those ranges,
+    as a generalist trained on them saw it, in both envs; the arm itself is not drawn."""
+    from tendon2r_gym.vector_env import Tendon2RVectorEnv
+
+    kwargs = {"preset": "default", "observe_arm": True, "arm_feature_ranges": "course"}
+    config = EnvConfig.make(**kwargs)
+    expected = MechanismRanges.from_value("course").features(config)
+    assert config.arm_fields == ("R1", "R2", "a", "b", "c") and config.mechanism_ranges is None
+    env = gym.make("Tendon2R-v0", **kwargs)
+    venv = Tendon2RVectorEnv(2, **kwargs)
+    arm = observation.arm_slice(3, 2, 5)
+    for seed in (0, 1):
+        obs, info = env.reset(seed=seed)
+        assert obs[arm].tolist() == expected and "mechanism" not in info
+    vobs, _ = venv.reset(seed=0)
+    assert (vobs[:, arm] == np.array(expected)).all()
+    assert np.array_equal(vobs[0], env.reset(seed=0)[0])
 
 
 def test_course_ranges_are_the_course_geometry():

@@ -459,3 +459,45 @@ def test_frame_stack_trains_resumes_and_deploys_as_sb3_stacks(tmp_path, stride):
     assert metrics["rms_deg"] == run.read_json("best_metrics.json")["rms_deg"]
     with pytest.raises(ValueError, match="frame_stack = 0"):
         Hyperparams.from_entry("default").replace(frame_stack=0)
+
+
+def test_fine_tuning_a_generalist_that_observed_its_arm(tmp_path):
+    """--init-from a model trained on random arms with the arm's features, in joint-torque
+    mode: the fine-tune on one arm trains in the source's action mode and sees that arm's
+    features over the source's ranges; deployed on the arm's plain env it appends them
+    (the same actions as on an env that observes them) and reproduces its training
+    evaluation; it is refused on another arm."""
+    from tendon2r_gym.arms import MechanismRanges
+    from tendon2r_gym.env_config import EnvConfig
+    from tendon2r_gym.evaluation import evaluate
+
+    config = _tiny(tmp_path)
+    cfg = yaml.safe_load(config.read_text())
+    tiny = cfg["tiny"]
+    cfg["source"] = {**tiny, "env_kwargs": {"preset": "generalist", "observe_arm": True,
+                                            "action_mode": "joint_torque",
+                                            "episode_duration": 0.1}}  # fmt: skip
+    config.write_text(yaml.safe_dump(cfg))
+    train_main(["--config", str(config), "--hyperparams", "source", "--run-dir",
+                str(tmp_path / "source")])  # fmt: skip
+    source = tmp_path / "source" / "seed_0" / "best_model.zip"
+    _train(config, tmp_path / "tuned", "--init-from", str(source))
+    run = RunFolder(tmp_path / "tuned" / "seed_0")
+    kwargs = run.read_json("run.json")["env_kwargs"]
+    course = MechanismRanges.from_value("course")
+    assert kwargs["action_mode"] == "joint_torque" and kwargs["observe_arm"] is True
+    assert MechanismRanges.from_value(kwargs["arm_feature_ranges"]) == course
+    plain = {"preset": "default", "episode_duration": 0.1, "action_mode": "joint_torque"}
+    model = run.best.with_suffix(".zip")
+    policy = PPOPolicy.load(model, gym.make("Tendon2R-v0", **plain))
+    assert policy.arm.tolist() == course.features(EnvConfig.make(**plain))
+    seen = gym.make("Tendon2R-v0", **kwargs)
+    full, _ = seen.reset(seed=3)
+    assert np.array_equal(
+        policy.predict(full[: -policy.arm.size])[0], PPOPolicy.load(model, seen).predict(full)[0]
+    )
+    metrics, _ = evaluate("ppo", plain, [0], model)
+    assert metrics["rms_deg"] == run.read_json("best_metrics.json")["rms_deg"]
+    other = gym.make("Tendon2R-v0", **plain, mechanism={"R1": 0.02})
+    with pytest.raises(ValueError, match="trained for another env: mechanism"):
+        PPOPolicy.load(model, other)

@@ -213,7 +213,7 @@ def finetune_curves(
     episodes at step 0."""
     from tendon2r_gym.presets import PPO_CONFIG
     from tendon2r_gym.runs import EVALUATIONS, SUMMARY
-    from tendon2r_gym.training import Experiment, Hyperparams
+    from tendon2r_gym.training import Experiment, Hyperparams, fine_tune
 
     out: dict[str, Any] = {}
     for name in names:
@@ -224,12 +224,13 @@ def finetune_curves(
         hp = Hyperparams.from_entry(FINETUNE_ENTRY, PPO_CONFIG, str(arm_file))
         if steps is not None:
             hp = hp.replace(total_timesteps=steps)
-        zero, _ = evaluate(
-            "ppo", arms[name]["env_kwargs"], hp.eval_seeds, bundled_model(hp.init_from)
-        )
+        source, kwargs = bundled_model(hp.init_from), arms[name]["env_kwargs"]
+        kwargs = {**kwargs, **settings_on(source, kwargs)}  # as the benchmark runs it
+        zero, _ = evaluate("ppo", kwargs, hp.eval_seeds, source)
         row: dict[str, Any] = {"zero_shot_rms_deg": zero["rms_deg"]}
-        for label, init in (("fine-tuned", hp.init_from), ("scratch", None)):
-            exp = Experiment(hp.replace(init_from=init), folder / label, [0], command)
+        tuned = fine_tune(hp)  # scratch: on the same env (action mode, arm slice)
+        for label, run_hp in (("fine-tuned", tuned), ("scratch", tuned.replace(init_from=None))):
+            exp = Experiment(run_hp, folder / label, [0], command)
             exp.train(resume=True)
             run = exp.run_folder(0)
             summary = run.read_json(SUMMARY)

@@ -179,13 +179,12 @@ def initial_model(hp: Hyperparams) -> tuple[Path, Path]:
     a model file) after checking that it covers the run's env and residual scale."""
     import gymnasium as gym
 
-    from tendon2r_gym.bundle import bundle_names, bundled_model
+    from tendon2r_gym.bundle import model_path
     from tendon2r_gym.learned import trained_model
 
     source = hp.init_from
-    path = bundled_model(source) if source in bundle_names() else Path(source)
     env = gym.make("Tendon2R-v0", **hp.env_kwargs)
-    zip_path, stats, meta = trained_model(path, env, "init_from")
+    zip_path, stats, meta = trained_model(model_path(source), env, "init_from")
     if float(meta["residual_scale"]) != hp.residual_scale:
         raise invalid(
             "init_from",
@@ -193,6 +192,22 @@ def initial_model(hp: Hyperparams) -> tuple[Path, Path]:
             f"a model with residual_scale {hp.residual_scale} (it has {meta['residual_scale']})",
         )
     return zip_path, stats
+
+
+def fine_tune(hp: Hyperparams) -> Hyperparams:
+    """Returns the hyperparameters of a run that starts from ``hp.init_from``: its env kwargs
+    take the source model's settings and arm slice (learned.fine_tune_env_kwargs), so that
+    every env of the run, its run.json and its deployment see what the model saw; ``hp``
+    itself without init_from."""
+    from tendon2r_gym.bundle import model_path
+    from tendon2r_gym.learned import fine_tune_env_kwargs
+
+    if hp.init_from is None:
+        return hp
+    path = model_path(hp.init_from)
+    if not path.is_file():
+        raise invalid("init_from", hp.init_from, "a bundle name or an existing model .zip")
+    return hp.replace(env_kwargs=fine_tune_env_kwargs(path, hp.env_kwargs))
 
 
 def _load_initial(hp: Hyperparams, venv: Any, seed: int, run: RunFolder) -> tuple[Any, Any]:
@@ -222,12 +237,14 @@ def train_run(
     command: str = "",
     progress_bar: bool = False,
 ) -> dict[str, Any]:
-    """Trains one run; returns its summary.  Ctrl-C saves, writes the summary, re-raises."""
+    """Trains one run; returns its summary.  Ctrl-C saves, writes the summary, re-raises.
+    A fine-tune (``init_from``) trains on :func:`fine_tune`'s env kwargs."""
     import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import CallbackList
     from stable_baselines3.common.vec_env import VecNormalize
 
+    hp = fine_tune(hp)
     env_config = EnvConfig.make(**hp.env_kwargs)
     previous = run.read_json(SUMMARY) if resume else None
     run.write_config(hp.to_dict())
