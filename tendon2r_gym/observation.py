@@ -4,7 +4,8 @@ The env writes the observation in this order, and policies, info and tests read 
 The fixed entries come first, so their slices do not depend on ``preview_steps``; then the
 preview of the reference, then the last action (one value per action dimension), which makes
 the action-rate reward term a function of the observed state.  With ``observe_arm`` (random
-arms, ``mechanism_ranges``), the arm's drawn fields close it, normalized over their ranges.
+arms, ``mechanism_ranges``), the arm's drawn fields close it, normalized over their ranges
+(``arm_feature_ranges`` if given: one fixed arm, seen as a generalist saw it).
 """
 
 from __future__ import annotations
@@ -68,7 +69,7 @@ def last_action_slice(preview_steps: int, n_actions: int) -> slice:
 
 def arm_slice(preview_steps: int, n_actions: int, n_arm: int) -> slice:
     """Returns the slice of the arm's features (observe_arm): each drawn Mechanism field,
-    normalized over its range to [-1, 1], in the order of mechanism_ranges."""
+    normalized over its range to [-1, 1], in the order of the ranges (EnvConfig.feature_ranges)."""
     start = N_FIXED + 2 * preview_steps + n_actions
     return slice(start, start + n_arm)
 
@@ -111,7 +112,7 @@ def table(preview_steps_name: str = "P") -> str:
     )
     rows.append(
         "| (observe_arm only) the last entries | the arm's drawn fields, normalized over "
-        "mechanism_ranges to [-1, 1] | 1 |"
+        "mechanism_ranges (or arm_feature_ranges) to [-1, 1] | 1 |"
     )
     return "\n".join(rows)
 

@@ -289,7 +289,56 @@ def test_generalist_ablation_reads_who_saw_the_arm_from_each_run():
     from tendon2r_gym.bundle import bundled_model
     from tendon2r_gym.studies.generalist import arm_seen_by
 
-    assert arm_seen_by(bundled_model("generalist")) == "nobody (blind)"
+    assert arm_seen_by(bundled_model("generalist_tension")) == "nobody (blind)"
+    assert arm_seen_by(bundled_model("generalist")) == "actor and critic"
     assert arm_seen_by(bundled_model("generalist_arm")) == "actor and critic"
     assert arm_seen_by(bundled_model("generalist_actor_arm")) == "actor only"
     assert arm_seen_by(bundled_model("generalist_observe_arm")) == "actor and critic"
+
+
+def test_generalist_ablation_reads_action_mode_and_network_from_each_run():
+    """The ablation table's action mode and network come from each bundle's run record: what
+    its configs/ppo.yaml entry trained it with."""
+    from tendon2r_gym.bundle import bundle_names
+    from tendon2r_gym.studies import generalist
+    from tendon2r_gym.training import Hyperparams
+
+    shown = [n for n in ("generalist", *generalist.ABLATIONS) if n in bundle_names()]
+    table = generalist.ablation(shown)
+    modes = {table[n]["action_mode"] for n in shown}
+    assert modes == {"tension", "joint_torque"}, "the table tells the two apart"
+    for name in shown:
+        hp = Hyperparams.from_entry(name)
+        assert table[name]["action_mode"] == hp.env_kwargs.get("action_mode", "tension"), name
+        net = hp.policy_kwargs.get("net_arch")
+        assert table[name]["network"] == " x ".join(map(str, net)), name
+
+
+def test_generalist_is_compared_with_the_specialist_of_its_own_action_mode():
+    """A sweep arm has one specialist per action mode: the summary scores each bundle against
+    the one of the mode it runs in, and fine-tuning goes to the arms furthest from it (to the
+    unseen arms furthest from PD without any)."""
+    from tendon2r_gym.studies import generalist
+
+    mode = generalist.action_mode_of("generalist")
+    other = "tension" if mode == "joint_torque" else "joint_torque"
+    row = lambda rms: {"rms_deg": rms, "rms_tension_N": [1.0], "rms_tension_rate_N_per_s": [1.0]}  # noqa: E731
+    arms = {
+        "unseen_0": {"rows": {"pd": row([1.0, 1.0]), "generalist": row([0.5, 0.5])}},
+        "unseen_1": {"rows": {"pd": row([1.0, 1.0]), "generalist": row([0.2, 0.2])}},
+        "sweep_a": {
+            "rows": {"pd": row([1.0, 1.0]), "generalist": row([0.1, 0.1])},
+            "specialist_rms_deg": {mode: [0.01, 0.01], other: [1.0, 1.0]},
+        },
+        "sweep_b": {
+            "rows": {"pd": row([1.0, 1.0]), "generalist": row([0.1, 0.1])},
+            "specialist_rms_deg": {mode: [0.05, 0.2]},
+        },
+    }
+    summary = generalist.summarize(arms, ["generalist"])["generalist"]
+    assert (summary["beats_specialist"], summary["specialist_arms"]) == (0, 2)
+    assert generalist.hardest_arms(arms, 2) == ["sweep_a", "sweep_b"]
+    for name in ("sweep_a", "sweep_b"):
+        arms[name]["specialist_rms_deg"] = {other: [0.01, 0.01]}
+    assert generalist.summarize(arms, ["generalist"])["generalist"]["specialist_arms"] == 0
+    assert generalist.hardest_arms(arms, 1) == ["unseen_0"]

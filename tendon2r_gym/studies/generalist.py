@@ -7,16 +7,19 @@ Arms: ``--n-arms`` arms drawn with ``--arm-seed`` from the course's ranges by
 tendon2r_gym.arms.draw_arms (training never draws from this generator: its arms come from the
 envs' own seeded generators), each an experiment file; plus the arm sweep's arms
 (results/arm_sweep.json) that lie inside the generalist's ranges, with their per-arm
-specialist (the sweep's residual, trained on that arm alone).
+specialists (the sweep's residuals, trained on that arm alone, one per action mode).
 
 Per arm: PD, CT and each generalist bundle zero-shot (no training on the arm), on the same
 evaluation seeds; the pull-only generalist on the same geometries with its preset's cables.
-The fine-tuning curve: on the ``--finetune-arms`` arms where the generalist does worst, the
-generalist fine-tuned against the same training from scratch.
+The fine-tuning curve: on the ``--finetune-arms`` sweep arms where the generalist is furthest
+from its specialist (without the sweep: the unseen arms where it is furthest from PD), the
+generalist fine-tuned against the same training from scratch, by default for a quarter of
+the specialist's training steps: does it reach the specialist's error within them?
 
 Summary per learned policy: the fraction of arms where it is <= PD on both joints, the
 median worst-joint ratio of its RMS error to PD's, its RMS tension and tension rate as
-multiples of PD's, and the fraction of arms where it is <= the specialist.
+multiples of PD's, and the fraction of arms where it is <= the specialist of its own action
+mode.
 """
 
 from __future__ import annotations
@@ -29,11 +32,17 @@ from typing import Any
 import numpy as np
 import yaml
 
-from tendon2r_gym.arms import GEOMETRY, MechanismRanges, draw_arms
-from tendon2r_gym.benchmark import GENERALISTS
+from tendon2r_gym.arms import GEOMETRY, draw_arms
+from tendon2r_gym.benchmark import GENERALISTS, LEARNED
 from tendon2r_gym.bundle import bundle_names, bundled_model
 from tendon2r_gym.evaluation import evaluate
-from tendon2r_gym.learned import observes_arm, settings_on
+from tendon2r_gym.learned import (
+    feature_ranges,
+    model_settings,
+    observes_arm,
+    recorded_settings,
+    settings_on,
+)
 from tendon2r_gym.metrics import beats, rms_ratio, worst_ratio
 from tendon2r_gym.observation import layout_mask
 from tendon2r_gym.presets import load_yaml, preset_path
@@ -42,15 +51,19 @@ from tendon2r_gym.studies import joints, save_json
 from tendon2r_gym.task import REWARD_SCALES
 
 #: The generalist bundles (configs/ppo.yaml entries of the same names: the residual, plain PPO,
-#: the residual on pull-only cables), then the ablations of the residual generalist (blind: no
-#: arm features; the "multiscale" reward, 10M steps): the "log" reward at 3M steps;
-#: on that reward and budget, the drawn arm's features seen by both networks, by the actor
-#: only, by the critic only (privileged); the multiscale reward at 3M steps with two weights
-#: of the action-rate term; and the pull-only residual in tension mode with a 3x heavier
-#: action-rate term (the shipped one runs in joint-torque mode); the generalist's entry with
-#: the drawn arm's features seen by both networks.
+#: the residual on pull-only cables), then the ablations of the residual generalist (what
+#: each changes is in its entry's comment; the ablation table reads its action mode, network,
+#: reward and arm features from its run record): the generalist blind to the arm; the
+#: previous generalist (tension mode, blind, 64 x 64) and it with the arm's features; the
+#: "log" reward at 3M steps, and on that reward and budget the arm's features seen by both
+#: networks, by the actor only, by the critic only (privileged); the multiscale reward at 3M
+#: steps with two weights of the action-rate term; the pull-only residual in tension mode
+#: with a 3x heavier action-rate term.
 BUNDLES = GENERALISTS
 ABLATIONS = (
+    "generalist_blind",
+    "generalist_tension",
+    "generalist_observe_arm",
     "generalist_log",
     "generalist_arm",
     "generalist_actor_arm",
@@ -58,7 +71,6 @@ ABLATIONS = (
     "generalist_multiscale",
     "generalist_multiscale_smooth",
     "generalist_pull_only_smooth",
-    "generalist_observe_arm",
 )
 
 #: The pull-only generalist's preset: its arms are the unseen geometries with this preset's
@@ -93,15 +105,33 @@ def evaluate_arm(
 
 
 def _specialists(sweep: Path) -> dict[str, dict[str, Any]]:
-    """Returns the arm sweep's arms in tension mode with their residual's RMS (deg)."""
+    """Returns the arm sweep's arms (their tension-mode experiment file) with their residual's
+    RMS (deg) in each action mode the sweep ran."""
     if not sweep.is_file():
         return {}
-    arms = json.loads(sweep.read_text())["arms"]
-    return {
-        a["arm"]: {"env_config": a["env_config"], "rms_deg": a["ppo residual"]["rms_deg"]}
-        for a in arms.values()
-        if a["action_mode"] == "tension" and a.get("ppo residual")
-    }
+    out: dict[str, dict[str, Any]] = {}
+    for a in json.loads(sweep.read_text())["arms"].values():
+        if not a.get("ppo residual"):
+            continue
+        arm = out.setdefault(a["arm"], {"rms_deg": {}})
+        arm["rms_deg"][a["action_mode"]] = a["ppo residual"]["rms_deg"]
+        if a["action_mode"] == "tension" or "env_config" not in arm:
+            arm["env_config"] = a["env_config"]
+    return out
+
+
+#: The configs/ppo.yaml entry of the sweep's residual specialists (their training steps).
+SPECIALIST_ENTRY = LEARNED["ppo residual"][1]
+
+
+def action_mode_of(bundle: str) -> str:
+    """Returns the action mode a bundle trained (and runs) in, as its run recorded it."""
+    return model_settings(bundled_model(bundle))["action_mode"]
+
+
+def specialist_rms(arm: dict[str, Any], bundle: str) -> list[float] | None:
+    """Returns the RMS (deg) of the arm's specialist in ``bundle``'s action mode, if any."""
+    return (arm.get("specialist_rms_deg") or {}).get(action_mode_of(bundle))
 
 
 def summarize(arms: dict[str, Any], bundles: list[str]) -> dict[str, Any]:
@@ -120,9 +150,9 @@ def summarize(arms: dict[str, Any], bundles: list[str]) -> dict[str, Any]:
             for key in ("rms_tension_rate_N_per_s", "rms_tension_N")
         )
         vs_spec = [
-            beats(a["rows"][b]["rms_deg"], a["specialist_rms_deg"])
+            beats(a["rows"][b]["rms_deg"], specialist_rms(a, b))
             for a in arms.values()
-            if a.get("specialist_rms_deg") and "rms_deg" in a["rows"].get(b, {})
+            if specialist_rms(a, b) and "rms_deg" in a["rows"].get(b, {})
         ]
         out[b] = {
             "arms": len(covered),
@@ -151,6 +181,11 @@ def ablation(bundles: list[str]) -> dict[str, Any]:
                                           "wall_time_s", "best_tension_rate_N_per_s")}  # fmt: skip
         out[b]["reward"] = reward_of(model)
         out[b]["arm_seen_by"] = arm_seen_by(model)
+        out[b]["action_mode"] = recorded_settings(training_record(model)["env_config"])[
+            "action_mode"
+        ]
+        net = RunFolder(stem_of(model).parent).read_config()["policy_kwargs"].get("net_arch")
+        out[b]["network"] = " x ".join(map(str, net)) if net else "SB3 default"
     return out
 
 
@@ -163,7 +198,7 @@ def arm_seen_by(model_path: Path) -> str:
     if not observes_arm(recorded):
         return "nobody (blind)"
     layout = recorded["observation"]
-    fields = MechanismRanges.from_value(recorded["mechanism_ranges"]).names
+    fields = feature_ranges(recorded).names
     hp = RunFolder(stem_of(model_path).parent).read_config()
     n_arm = layout[-1][1]  # the arm slice closes the layout
     actor, critic = (
@@ -188,12 +223,18 @@ FINETUNE_ENTRY = "generalist_finetune"
 
 
 def hardest_arms(arms: dict[str, Any], n: int, bundle: str = "generalist") -> list[str]:
-    """Returns the ``n`` unseen arms where ``bundle`` zero-shot has the highest worst-joint
-    ratio to PD (the arms a user would fine-tune on)."""
+    """Returns the ``n`` arms a user would fine-tune ``bundle`` on: the arms with a specialist
+    in its action mode where its zero-shot worst-joint ratio to that specialist is highest;
+    without any, the unseen arms where its ratio to PD is."""
+    covered = {k: a for k, a in arms.items() if "rms_deg" in a["rows"].get(bundle, {})}
     ratio = {
+        k: worst_ratio(a["rows"][bundle]["rms_deg"], specialist_rms(a, bundle))
+        for k, a in covered.items()
+        if specialist_rms(a, bundle)
+    } or {
         k: worst_ratio(a["rows"][bundle]["rms_deg"], a["rows"]["pd"]["rms_deg"])
-        for k, a in arms.items()
-        if k.startswith("unseen_") and "rms_deg" in a["rows"].get(bundle, {})
+        for k, a in covered.items()
+        if k.startswith("unseen_")
     }
     return sorted(ratio, key=ratio.get, reverse=True)[:n]
 
@@ -204,13 +245,16 @@ def finetune_curves(
     run_root: Path,
     command: str,
     steps: int | None = None,
+    seeds: tuple[int, ...] = (0, 1, 2),
 ) -> dict[str, Any]:
     """Trains FINETUNE_ENTRY on each named arm twice, one seed each: from the generalist's
     weights and normalization statistics (fine-tuned) and from fresh ones (scratch), with the
-    same hyperparameters and budget (``steps``, default the entry's; finished runs in
+    same hyperparameters and budget (``steps``; default: a quarter of the specialist's
+    training steps on an arm with a specialist, else the entry's; finished runs in
     ``run_root`` are reused).  Returns each run's curve: its training evaluations (steps, RMS
     on the entry's evaluation seeds), with the generalist zero-shot and PD on the same
-    episodes at step 0."""
+    episodes at step 0; and its best model's RMS on the study's ``seeds`` (the episodes the
+    specialist was scored on), beside the specialist's."""
     from tendon2r_gym.presets import PPO_CONFIG
     from tendon2r_gym.runs import EVALUATIONS, SUMMARY
     from tendon2r_gym.training import Experiment, Hyperparams, fine_tune
@@ -222,12 +266,17 @@ def finetune_curves(
         arm_file = folder / "arm.yaml"
         arm_file.write_text(yaml.safe_dump(arms[name]["env_kwargs"], sort_keys=False))
         hp = Hyperparams.from_entry(FINETUNE_ENTRY, PPO_CONFIG, str(arm_file))
-        if steps is not None:
-            hp = hp.replace(total_timesteps=steps)
+        specialist = specialist_rms(arms[name], hp.init_from)
+        specialist_steps = Hyperparams.from_entry(SPECIALIST_ENTRY).total_timesteps
+        budget = steps or (specialist_steps // 4 if specialist else None)
+        if budget is not None:
+            hp = hp.replace(total_timesteps=budget)
         source, kwargs = bundled_model(hp.init_from), arms[name]["env_kwargs"]
         kwargs = {**kwargs, **settings_on(source, kwargs)}  # as the benchmark runs it
         zero, _ = evaluate("ppo", kwargs, hp.eval_seeds, source)
-        row: dict[str, Any] = {"zero_shot_rms_deg": zero["rms_deg"]}
+        row: dict[str, Any] = {"zero_shot_rms_deg": zero["rms_deg"], "steps": hp.total_timesteps}
+        if specialist:
+            row["specialist"] = {"rms_deg": specialist, "steps": specialist_steps}
         tuned = fine_tune(hp)  # scratch: on the same env (action mode, arm slice)
         for label, run_hp in (("fine-tuned", tuned), ("scratch", tuned.replace(init_from=None))):
             exp = Experiment(run_hp, folder / label, [0], command)
@@ -235,10 +284,14 @@ def finetune_curves(
             run = exp.run_folder(0)
             summary = run.read_json(SUMMARY)
             row["pd_rms_deg"] = summary["pd_eval_rms_deg"]
+            final, _ = evaluate("ppo", kwargs, list(seeds), run.best.with_suffix(".zip"))
             row[label] = {
                 "curve": [[e["timesteps"], e["rms_deg"]] for e in run.read_json(EVALUATIONS)],
                 "wall_time_s": summary["wall_time_s"],
+                "final_rms_deg": final["rms_deg"],
             }
+            if specialist:
+                row[label]["reaches_specialist"] = beats(final["rms_deg"], specialist)
         out[name] = row
         print("fine-tuning", name, {k: v for k, v in row.items() if "rms" in k}, flush=True)
     return out
@@ -253,7 +306,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--sweep", default="results/arm_sweep.json", help="the arm sweep's results")
     p.add_argument("--finetune-arms", type=int, default=3, help="fine-tuning curve on N arms")
     p.add_argument("--finetune-runs", default="runs/finetune", help="its training run folders")
-    p.add_argument("--finetune-steps", type=int, default=None, help="default: the entry's")
+    p.add_argument(
+        "--finetune-steps", type=int, default=None,
+        help="default: a quarter of the specialist's steps (else the entry's)",
+    )  # fmt: skip
     p.add_argument("--out", default="results")
     args = p.parse_args(argv)
     command = command_line(argv, "python scripts/generalist.py")
@@ -281,8 +337,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     if args.finetune_arms and "generalist" in bundles:
         names = hardest_arms(result["arms"], args.finetune_arms)
         result["finetune"] = finetune_curves(
-            result["arms"], names, Path(args.finetune_runs), command, args.finetune_steps
-        )
+            result["arms"], names, Path(args.finetune_runs), command, args.finetune_steps,
+            tuple(seeds),
+        )  # fmt: skip
         write(result, Path(args.out))
     return result
 
@@ -306,26 +363,26 @@ def write(result: dict[str, Any], out: Path) -> None:
         f"evaluation seeds {result['seeds']}; for a generalist, (its worst joint's RMS as a "
         "multiple of PD's). Unseen arms: drawn by tendon2r_gym.arms.draw_arms with a seed that "
         "training never uses; sweep arms: results/arm_sweep.md, with their own specialist. "
-        "generalist: residual on PD, blind (no arm features); generalist_scratch: plain PPO "
-        "(normalized joint torques through a 2 ms action filter); "
-        "generalist_pull_only: the residual on arms with three pull-only cables (its "
+        "generalist: residual on PD in joint-torque mode, seeing the arm's features; "
+        "generalist_scratch: plain PPO (normalized joint torques through a 2 ms action "
+        "filter); generalist_pull_only: the residual on arms with three pull-only cables (its "
         "preset's), in joint-torque mode, run on the unseen geometries with those cables "
-        "(unseen_<i>_pull_only); each bundle runs in the action mode it trained in; "
-        "ablations of the residual (one seed each, configs/ppo.yaml; the reward and training "
-        "steps of each residual are in the ablation table below): generalist_log (blind, the "
-        "log reward), and on its reward and budget generalist_arm (the drawn arm's "
-        "features, observe_arm, seen by actor and critic), generalist_actor_arm (by the actor "
-        "only), generalist_privileged (by the critic only); generalist_multiscale and "
-        "generalist_multiscale_smooth: blind, on the generalist's reward at 3M steps, with "
-        "two action-rate weights; generalist_pull_only_smooth: the pull-only residual in "
-        "tension mode with a 3x heavier action-rate term (3 against 1); "
-        "generalist_observe_arm: the generalist's entry (its reward and budget) with the "
-        "drawn arm's features seen by actor and critic.",
+        "(unseen_<i>_pull_only); each bundle runs in the action mode it trained in, and one "
+        "that saw the arm's features sees each arm's. The other columns are ablations of the "
+        "residual (one seed each; configs/ppo.yaml's comment on each entry says what it "
+        "changes, and the ablation table below gives each one's action mode, network, reward, "
+        "arm features and training steps): generalist_blind, the generalist without the arm's "
+        "features; generalist_tension, the previous generalist (tension mode, blind, "
+        "64 x 64), and generalist_observe_arm, it with the arm's features; generalist_log and "
+        "on its reward and budget generalist_arm, generalist_actor_arm and "
+        "generalist_privileged; generalist_multiscale and generalist_multiscale_smooth; "
+        "generalist_pull_only_smooth.",
         "",
         "## Summary",
         "",
         "| policy | unseen arms | <= PD on both joints | median worst-joint ratio to PD | worst | "
-        "median RMS tension (x PD) | median tension rate (x PD) | <= specialist (sweep arms) |",
+        "median RMS tension (x PD) | median tension rate (x PD) | <= specialist of its action "
+        "mode (sweep arms) |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for b, s in result.get("summary", {}).items():
@@ -345,13 +402,15 @@ def write(result: dict[str, Any], out: Path) -> None:
             "with pull-only cables for the generalist_pull_only rows; PD on them). The summary "
             "above gives each on the unseen arms, zero-shot.",
             "",
-            "| residual | arm features seen by | reward (tracking form, changed weights) | "
-            "RMS A / B (deg) | PD A / B (deg) | RMS tension rate (N/s) | steps | wall time (s) |",
-            "|---|---|---|---|---|---|---|---|",
+            "| residual | arm features seen by | action mode | network | reward (tracking form, "
+            "changed weights) | RMS A / B (deg) | PD A / B (deg) | RMS tension rate (N/s) | "
+            "steps | wall time (s) |",
+            "|---|---|---|---|---|---|---|---|---|---|",
         ]
         for b, a in result["ablation"].items():
             lines.append(
-                f"| {b} | {a.get('arm_seen_by', '?')} | {a.get('reward', '?')} | "
+                f"| {b} | {a.get('arm_seen_by', '?')} | {a.get('action_mode', '?')} | "
+                f"{a.get('network', '?')} | {a.get('reward', '?')} | "
                 f"{fmt(a['best_rms_deg'])} | {fmt(a['pd_eval_rms_deg'])} | "
                 f"{fmt(a['best_tension_rate_N_per_s'])} | {a['timesteps']:,} | "
                 f"{a['wall_time_s']:.0f} |"
@@ -369,10 +428,10 @@ def write(result: dict[str, Any], out: Path) -> None:
         geo = " / ".join(f"{1000 * m[k]:.0f}" for k in ("R1", "R2", "a", "b", "c"))
         rows = arm["rows"]
         pd = rows["pd"]["rms_deg"]
-        spec = arm.get("specialist_rms_deg")
+        spec = arm.get("specialist_rms_deg") or {}
+        specs = "; ".join(f"{mode} {fmt(v)}" for mode, v in spec.items()) or "-"
         lines.append(
-            f"| {name} | {geo} | {fmt(pd)} | {fmt(rows['ct']['rms_deg'])} | "
-            f"{fmt(spec) if spec else '-'} | "
+            f"| {name} | {geo} | {fmt(pd)} | {fmt(rows['ct']['rms_deg'])} | {specs} | "
             + " | ".join(cell(rows[b], pd) for b in bundles)
             + " |"
         )
@@ -381,19 +440,22 @@ def write(result: dict[str, Any], out: Path) -> None:
 
 def finetune_lines(curves: dict[str, Any]) -> list[str]:
     """Returns the fine-tuning section of generalist.md: per arm, the RMS of each joint against
-    training steps, fine-tuned from the generalist and from scratch."""
+    training steps, fine-tuned from the generalist and from scratch, then each best model on
+    the study's episodes beside the arm's specialist."""
     if not curves:
         return []
     lines = [
         "",
         "## Fine-tuning against training from scratch",
         "",
-        f"configs/ppo.yaml `{FINETUNE_ENTRY}` on the unseen arms where the generalist "
-        "zero-shot is worst against PD, one seed each: from the generalist's weights and "
-        "normalization statistics (fine-tuned), and the same entry from fresh weights "
-        "(scratch: residual on PD, so it starts at PD). RMS A / B (deg) of the training "
-        "evaluations (the entry's evaluation seeds); step 0: the generalist zero-shot and PD "
-        "on the same episodes.",
+        f"configs/ppo.yaml `{FINETUNE_ENTRY}` on the arms where the generalist zero-shot is "
+        "furthest from the arm's specialist (or, without one, from PD), one seed each, for a "
+        "quarter of the specialist's training steps where it has one: from the generalist's "
+        "weights and normalization statistics (fine-tuned), and the same entry from fresh "
+        "weights on the same env (scratch: residual on PD, so it starts at PD). RMS A / B "
+        "(deg) of the training evaluations (the entry's evaluation seeds); step 0: the "
+        "generalist zero-shot and PD on the same episodes. Then each run's best model on the "
+        "study's episodes, those the specialist was scored on.",
         "",
         "| arm | steps | fine-tuned | scratch |",
         "|---|---|---|---|",
@@ -409,4 +471,17 @@ def finetune_lines(curves: dict[str, Any]) -> list[str]:
             f"| {name} | wall time (s) | {row['fine-tuned']['wall_time_s']:.0f} | "
             f"{row['scratch']['wall_time_s']:.0f} |"
         )
+        if "final_rms_deg" in row["fine-tuned"]:
+            lines.append(
+                f"| {name} | best model, study's episodes | "
+                f"{joints(row['fine-tuned']['final_rms_deg'])} | "
+                f"{joints(row['scratch']['final_rms_deg'])} |"
+            )
+        if spec := row.get("specialist"):
+            verdict = lambda r: "<= specialist" if r["reaches_specialist"] else "**WORSE**"  # noqa: E731
+            lines.append(
+                f"| {name} | specialist {joints(spec['rms_deg'])} after {spec['steps']:,} "
+                f"steps; these runs: {row['steps']:,} | {verdict(row['fine-tuned'])} | "
+                f"{verdict(row['scratch'])} |"
+            )
     return lines
