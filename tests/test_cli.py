@@ -177,3 +177,20 @@ def test_benchmark_runs_a_model_in_the_action_mode_it_trained_in(tmp_path, monke
     monkeypatch.setattr(generalist_study, "bundled_model", lambda name: models[0])
     study_rows = generalist_study.evaluate_arm(env, ["trained"], [0])
     assert study_rows["trained"]["rms_deg"] == learned[0]["rms_deg"]
+
+
+def test_evaluate_runs_a_bundle_in_the_settings_it_trained_in(tmp_path):
+    """tendon2r-evaluate --bundle generalist on a user's arm (a tension-mode experiment file)
+    runs the model in its own action mode, as the benchmark does, and records it."""
+    from pathlib import Path
+
+    from tendon2r_gym.bundle import bundled_model
+    from tendon2r_gym.learned import model_settings
+
+    arm = Path(__file__).resolve().parents[1] / "configs" / "examples" / "course_arm.yaml"
+    out = tmp_path / "m.json"
+    evaluate_main(["--policy", "ppo", "--bundle", "generalist", "--env-config", str(arm),
+                   "--episodes", "1", "--episode-duration", "0.1", "--json", str(out)])  # fmt: skip
+    recorded = json.loads(out.read_text())["env_kwargs"]
+    mode = model_settings(bundled_model("generalist"))["action_mode"]
+    assert recorded.get("action_mode", "tension") == mode
