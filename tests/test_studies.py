@@ -2,6 +2,7 @@
 defaults follow their results."""
 
 import json
+import math
 from pathlib import Path
 
 from tendon2r_gym.mechanism import Mechanism
@@ -19,7 +20,10 @@ def test_bench_speed_writes_every_figure(tmp_path):
          "--out", str(tmp_path)]
     )  # fmt: skip
     saved = json.loads((tmp_path / "speed.json").read_text())
-    assert saved["overhead_ratio"] == result["overhead_ratio"] > 0
+    # A figure, not a timing check: with 200 steps on a loaded machine the difference of two
+    # timings may even come out negative.
+    assert saved["overhead_ratio"] == result["overhead_ratio"]
+    assert math.isfinite(saved["overhead_ratio"])
     for env_id in ("Tendon2R-v0", "Reacher-v5"):
         assert saved[env_id]["raw_physics_us"] > 0 and saved[env_id]["env_step_us"] > 0
     assert {f"{b}_{n}" for b in speed.BACKENDS for n in (1, 2)} - set(saved["vector"]) == {
