@@ -203,11 +203,8 @@ def fine_tune(hp: Hyperparams) -> Hyperparams:
     from tendon2r_gym.learned import fine_tune_env_kwargs
 
     if hp.init_from is None:
-        return hp
-    path = model_path(hp.init_from)
-    if not path.is_file():
-        raise invalid("init_from", hp.init_from, "a bundle name or an existing model .zip")
-    return hp.replace(env_kwargs=fine_tune_env_kwargs(path, hp.env_kwargs))
+        return hp  # (a missing source is refused by initial_model, naming init_from)
+    return hp.replace(env_kwargs=fine_tune_env_kwargs(model_path(hp.init_from), hp.env_kwargs))
 
 
 def _load_initial(hp: Hyperparams, venv: Any, seed: int, run: RunFolder) -> tuple[Any, Any]:
@@ -238,13 +235,14 @@ def train_run(
     progress_bar: bool = False,
 ) -> dict[str, Any]:
     """Trains one run; returns its summary.  Ctrl-C saves, writes the summary, re-raises.
-    A fine-tune (``init_from``) trains on :func:`fine_tune`'s env kwargs."""
+    A new fine-tune (``init_from``) trains on :func:`fine_tune`'s env kwargs."""
     import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import CallbackList
     from stable_baselines3.common.vec_env import VecNormalize
 
-    hp = fine_tune(hp)
+    if not resume:  # a resumed run keeps the env kwargs it recorded
+        hp = fine_tune(hp)
     env_config = EnvConfig.make(**hp.env_kwargs)
     previous = run.read_json(SUMMARY) if resume else None
     run.write_config(hp.to_dict())
