@@ -21,7 +21,12 @@ import numpy as np
 
 from tendon2r_gym.bundle import bundle_meta, bundle_names, bundled_model
 from tendon2r_gym.evaluation import BASELINE, evaluate, names
-from tendon2r_gym.learned import MODEL_SETTINGS, settings_on, trained_on_drawn_gains
+from tendon2r_gym.learned import (
+    MODEL_SETTINGS,
+    in_model_settings,
+    settings_on,
+    trained_on_drawn_gains,
+)
 from tendon2r_gym.metrics import beats, rms_ratio, worst_ratio
 from tendon2r_gym.plots import plot_trace
 from tendon2r_gym.presets import DATA_DIR
@@ -106,7 +111,7 @@ def not_covered(bundle: str, env_kwargs: dict[str, Any]) -> str | None:
     from tendon2r_gym.learned import trained_model
 
     model = bundled_model(bundle)
-    kwargs = {**env_kwargs, **settings_on(model, env_kwargs)}
+    kwargs = in_model_settings(model, env_kwargs)
     try:
         trained_model(model, gym.make("Tendon2R-v0", **kwargs), bundle)
     except ValueError as e:

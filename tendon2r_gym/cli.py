@@ -190,9 +190,9 @@ def evaluate_main(argv: list[str] | None = None) -> dict[str, Any]:
         env_kwargs["episode_duration"] = args.episode_duration
     model = resolve_model(args.policy, args.model, args.bundle, env_kwargs)
     if model is not None:  # a model runs in the settings it trained in (e.g. its action mode)
-        from tendon2r_gym.learned import settings_on
+        from tendon2r_gym.learned import in_model_settings
 
-        env_kwargs.update(settings_on(model, env_kwargs))
+        env_kwargs = in_model_settings(model, env_kwargs)
     seeds = list(range(args.seed, args.seed + args.episodes))
     metrics, traces = evaluate(args.policy, env_kwargs, seeds, model)
     metrics["env_kwargs"], metrics["model"] = env_kwargs, None if model is None else str(model)

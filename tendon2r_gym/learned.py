@@ -112,6 +112,12 @@ def settings_on(model_path: str | Path, env_kwargs: dict[str, Any]) -> dict[str,
     return {k: v for k, v in model_settings(model_path).items() if getattr(config, k) != v}
 
 
+def in_model_settings(model_path: str | Path, env_kwargs: dict[str, Any]) -> dict[str, Any]:
+    """Returns ``env_kwargs`` with the model's :func:`settings_on` added: the env of that arm
+    that the model runs in."""
+    return {**env_kwargs, **settings_on(model_path, env_kwargs)}
+
+
 def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
     """Raises if ``env`` differs from the env config a model was trained with in any field of
     MODEL_ENV_FIELDS.  The recorded config is read back through the same constructors, so a
@@ -198,7 +204,7 @@ def fine_tune_env_kwargs(model_path: str | Path, env_kwargs: dict[str, Any]) -> 
     timing), and, if it observed its arm, the arm slice over the model's ranges
     (``observe_arm``, ``arm_feature_ranges``), so that the run's every env, its record and
     its deployment see the arm as the model did."""
-    out = {**env_kwargs, **settings_on(model_path, env_kwargs)}
+    out = in_model_settings(model_path, env_kwargs)
     recorded = (training_record(model_path) or {}).get("env_config", {})
     if observes_arm(recorded):
         out.update(observe_arm=True, arm_feature_ranges=feature_ranges(recorded).to_dict())

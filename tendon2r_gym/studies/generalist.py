@@ -36,13 +36,7 @@ from tendon2r_gym.arms import GEOMETRY, draw_arms
 from tendon2r_gym.benchmark import GENERALISTS, LEARNED
 from tendon2r_gym.bundle import bundle_names, bundled_model
 from tendon2r_gym.evaluation import evaluate
-from tendon2r_gym.learned import (
-    feature_ranges,
-    model_settings,
-    observes_arm,
-    recorded_settings,
-    settings_on,
-)
+from tendon2r_gym.learned import feature_ranges, in_model_settings, model_settings, observes_arm
 from tendon2r_gym.metrics import beats, rms_ratio, worst_ratio
 from tendon2r_gym.observation import layout_mask
 from tendon2r_gym.presets import load_yaml, preset_path
@@ -96,7 +90,7 @@ def evaluate_arm(
         rows[name], _ = evaluate(name, env_kwargs, seeds)
     for bundle in bundles:
         model = bundled_model(bundle)
-        kwargs = {**env_kwargs, **settings_on(model, env_kwargs)}  # as the benchmark runs it
+        kwargs = in_model_settings(model, env_kwargs)  # as the benchmark runs it
         try:
             rows[bundle], _ = evaluate("ppo", kwargs, seeds, model)
         except ValueError as e:  # outside the generalist's ranges
@@ -129,9 +123,9 @@ def action_mode_of(bundle: str) -> str:
     return model_settings(bundled_model(bundle))["action_mode"]
 
 
-def specialist_rms(arm: dict[str, Any], bundle: str) -> list[float] | None:
-    """Returns the RMS (deg) of the arm's specialist in ``bundle``'s action mode, if any."""
-    return (arm.get("specialist_rms_deg") or {}).get(action_mode_of(bundle))
+def specialist_rms(arm: dict[str, Any], mode: str) -> list[float] | None:
+    """Returns the RMS (deg) of the arm's specialist in action mode ``mode``, if any."""
+    return (arm.get("specialist_rms_deg") or {}).get(mode)
 
 
 def summarize(arms: dict[str, Any], bundles: list[str]) -> dict[str, Any]:
@@ -149,10 +143,11 @@ def summarize(arms: dict[str, Any], bundles: list[str]) -> dict[str, Any]:
             [rms_ratio(a["rows"][b][key], a["rows"]["pd"][key]) for a in covered]
             for key in ("rms_tension_rate_N_per_s", "rms_tension_N")
         )
+        mode = action_mode_of(b)
         vs_spec = [
-            beats(a["rows"][b]["rms_deg"], specialist_rms(a, b))
+            beats(a["rows"][b]["rms_deg"], specialist_rms(a, mode))
             for a in arms.values()
-            if specialist_rms(a, b) and "rms_deg" in a["rows"].get(b, {})
+            if specialist_rms(a, mode) and "rms_deg" in a["rows"].get(b, {})
         ]
         out[b] = {
             "arms": len(covered),
@@ -181,9 +176,7 @@ def ablation(bundles: list[str]) -> dict[str, Any]:
                                           "wall_time_s", "best_tension_rate_N_per_s")}  # fmt: skip
         out[b]["reward"] = reward_of(model)
         out[b]["arm_seen_by"] = arm_seen_by(model)
-        out[b]["action_mode"] = recorded_settings(training_record(model)["env_config"])[
-            "action_mode"
-        ]
+        out[b]["action_mode"] = action_mode_of(b)
         net = RunFolder(stem_of(model).parent).read_config()["policy_kwargs"].get("net_arch")
         out[b]["network"] = " x ".join(map(str, net)) if net else "SB3 default"
     return out
@@ -227,10 +220,11 @@ def hardest_arms(arms: dict[str, Any], n: int, bundle: str = "generalist") -> li
     in its action mode where its zero-shot worst-joint ratio to that specialist is highest;
     without any, the unseen arms where its ratio to PD is."""
     covered = {k: a for k, a in arms.items() if "rms_deg" in a["rows"].get(bundle, {})}
+    mode = action_mode_of(bundle)
     ratio = {
-        k: worst_ratio(a["rows"][bundle]["rms_deg"], specialist_rms(a, bundle))
+        k: worst_ratio(a["rows"][bundle]["rms_deg"], specialist_rms(a, mode))
         for k, a in covered.items()
-        if specialist_rms(a, bundle)
+        if specialist_rms(a, mode)
     } or {
         k: worst_ratio(a["rows"][bundle]["rms_deg"], a["rows"]["pd"]["rms_deg"])
         for k, a in covered.items()
@@ -260,19 +254,19 @@ def finetune_curves(
     from tendon2r_gym.training import Experiment, Hyperparams, fine_tune
 
     out: dict[str, Any] = {}
+    specialist_steps = Hyperparams.from_entry(SPECIALIST_ENTRY).total_timesteps
     for name in names:
         folder = run_root / name
         folder.mkdir(parents=True, exist_ok=True)
         arm_file = folder / "arm.yaml"
         arm_file.write_text(yaml.safe_dump(arms[name]["env_kwargs"], sort_keys=False))
         hp = Hyperparams.from_entry(FINETUNE_ENTRY, PPO_CONFIG, str(arm_file))
-        specialist = specialist_rms(arms[name], hp.init_from)
-        specialist_steps = Hyperparams.from_entry(SPECIALIST_ENTRY).total_timesteps
+        specialist = specialist_rms(arms[name], action_mode_of(hp.init_from))
         budget = steps or (specialist_steps // 4 if specialist else None)
         if budget is not None:
             hp = hp.replace(total_timesteps=budget)
         source, kwargs = bundled_model(hp.init_from), arms[name]["env_kwargs"]
-        kwargs = {**kwargs, **settings_on(source, kwargs)}  # as the benchmark runs it
+        kwargs = in_model_settings(source, kwargs)  # as the benchmark runs it
         zero, _ = evaluate("ppo", kwargs, hp.eval_seeds, source)
         row: dict[str, Any] = {"zero_shot_rms_deg": zero["rms_deg"], "steps": hp.total_timesteps}
         if specialist:
