@@ -45,16 +45,17 @@ from tendon2r_gym.studies import joints, save_json
 from tendon2r_gym.task import REWARD_SCALES
 
 #: The generalist bundles (configs/ppo.yaml entries of the same names: the residual, plain PPO,
-#: the residual on pull-only cables), then the ablations of the residual generalist (what
-#: each changes is in its entry's comment; the ablation table reads its action mode, network,
-#: reward and arm features from its run record): the generalist blind to the arm; the
-#: previous generalist (tension mode, blind, 64 x 64) and it with the arm's features; the
-#: "log" reward at 3M steps, and on that reward and budget the arm's features seen by both
-#: networks, by the actor only, by the critic only (privileged); the multiscale reward at 3M
-#: steps with two weights of the action-rate term; the pull-only residual in tension mode
-#: with a 3x heavier action-rate term.
+#: the residual on pull-only cables), then the ablations (what each changes is in its entry's
+#: comment; the ablation table reads its action mode, network, reward, arm features and
+#: evaluation episodes from its run record): the plain generalist blind to the arm; the
+#: residual generalist blind to the arm; the previous generalist (tension mode, blind,
+#: 64 x 64) and it with the arm's features; the "log" reward at 3M steps, and on that reward
+#: and budget the arm's features seen by both networks, by the actor only, by the critic only
+#: (privileged); the multiscale reward at 3M steps with two weights of the action-rate term;
+#: the pull-only residual in tension mode with a 3x heavier action-rate term.
 BUNDLES = GENERALISTS
 ABLATIONS = (
+    "generalist_scratch_blind",
     "generalist_blind",
     "generalist_tension",
     "generalist_observe_arm",
@@ -177,8 +178,10 @@ def ablation(bundles: list[str]) -> dict[str, Any]:
         out[b]["reward"] = reward_of(model)
         out[b]["arm_seen_by"] = arm_seen_by(model)
         out[b]["action_mode"] = action_mode_of(b)
-        net = RunFolder(stem_of(model).parent).read_config()["policy_kwargs"].get("net_arch")
+        config = RunFolder(stem_of(model).parent).read_config()
+        net = config["policy_kwargs"].get("net_arch")
         out[b]["network"] = " x ".join(map(str, net)) if net else "SB3 default"
+        out[b]["eval_episodes"] = len(config["eval_seeds"])
     return out
 
 
@@ -321,7 +324,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         kwargs = {k: spec["env_config"][k] for k in ("mechanism", "reference")}
         arms[f"sweep_{name}"] = {"env_kwargs": kwargs, "specialist_rms_deg": spec["rms_deg"]}
     result: dict[str, Any] = {"command": command, "bundles": bundles, "seeds": seeds, "arms": {}}
-    compared = ("generalist", PULL_ONLY_PRESET, *ABLATIONS)  # each beside what it changes
+    compared = ("generalist", PULL_ONLY_PRESET, "generalist_scratch", *ABLATIONS)
     result["ablation"] = ablation([b for b in compared if b in bundle_names()])
     for name, arm in arms.items():
         arm["rows"] = evaluate_arm(arm["env_kwargs"], bundles, seeds)
@@ -359,15 +362,17 @@ def write(result: dict[str, Any], out: Path) -> None:
         "training never uses; sweep arms: results/arm_sweep.md, with their own specialist. "
         "generalist: residual on PD in joint-torque mode, seeing the arm's features; "
         "generalist_scratch: plain PPO (normalized joint torques through a 2 ms action "
-        "filter); generalist_pull_only: the residual on arms with three pull-only cables (its "
-        "preset's), in joint-torque mode, run on the unseen geometries with those cables "
-        "(unseen_<i>_pull_only); each bundle runs in the action mode it trained in, and one "
-        "that saw the arm's features sees each arm's. The other columns are ablations of the "
-        "residual (one seed each; configs/ppo.yaml's comment on each entry says what it "
-        "changes, and the ablation table below gives each one's action mode, network, reward, "
-        "arm features and training steps): generalist_blind, the generalist without the arm's "
-        "features; generalist_tension, the previous generalist (tension mode, blind, "
-        "64 x 64), and generalist_observe_arm, it with the arm's features; generalist_log and "
+        "filter), seeing the arm's features; generalist_pull_only: the residual on arms with "
+        "three pull-only cables (its preset's), in joint-torque mode, run on the unseen "
+        "geometries with those cables (unseen_<i>_pull_only); each bundle runs in the action "
+        "mode it trained in, and one that saw the arm's features sees each arm's. The other "
+        "columns are ablations (one seed each; configs/ppo.yaml's comment on each entry says "
+        "what it changes, and the ablation table below gives each one's action mode, network, "
+        "reward, arm features, evaluation episodes and training steps): "
+        "generalist_scratch_blind, the plain generalist without the arm's features; "
+        "generalist_blind, the residual generalist without them; generalist_tension, the "
+        "previous generalist (tension mode, blind, 64 x 64), and generalist_observe_arm, it "
+        "with the arm's features; generalist_log and "
         "on its reward and budget generalist_arm, generalist_actor_arm and "
         "generalist_privileged; generalist_multiscale and generalist_multiscale_smooth; "
         "generalist_pull_only_smooth.",
@@ -391,20 +396,21 @@ def write(result: dict[str, Any], out: Path) -> None:
             "",
             "## Ablations: the arm's features and the reward",
             "",
-            "Each residual's training evaluation (primary seed, best model: RMS on the entry's "
-            "evaluation seeds, random course arms and references, the same episodes for all, "
-            "with pull-only cables for the generalist_pull_only rows; PD on them). The summary "
-            "above gives each on the unseen arms, zero-shot.",
+            "Each generalist's training evaluation (primary seed, best model: RMS over the "
+            "entry's evaluation episodes, one random course arm and reference each, the same "
+            "first episodes for all, with pull-only cables for the generalist_pull_only rows; "
+            "PD on them). The summary above gives each on the unseen arms, zero-shot.",
             "",
-            "| residual | arm features seen by | action mode | network | reward (tracking form, "
-            "changed weights) | RMS A / B (deg) | PD A / B (deg) | RMS tension rate (N/s) | "
-            "steps | wall time (s) |",
-            "|---|---|---|---|---|---|---|---|---|---|",
+            "| generalist | arm features seen by | action mode | network | reward (tracking "
+            "form, changed weights) | evaluation episodes | RMS A / B (deg) | PD A / B (deg) | "
+            "RMS tension rate (N/s) | steps | wall time (s) |",
+            "|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for b, a in result["ablation"].items():
             lines.append(
                 f"| {b} | {a.get('arm_seen_by', '?')} | {a.get('action_mode', '?')} | "
                 f"{a.get('network', '?')} | {a.get('reward', '?')} | "
+                f"{a.get('eval_episodes', '?')} | "
                 f"{fmt(a['best_rms_deg'])} | {fmt(a['pd_eval_rms_deg'])} | "
                 f"{fmt(a['best_tension_rate_N_per_s'])} | {a['timesteps']:,} | "
                 f"{a['wall_time_s']:.0f} |"
