@@ -281,6 +281,32 @@ def test_fine_tuning_starts_from_a_generalists_weights_on_an_arm_inside_its_rang
         _train(config, tmp_path / "far", "--env-config", str(far), "--init-from", str(source))
 
 
+def test_a_fine_tune_starts_from_the_exploration_noise_it_asks_for(tmp_path):
+    """init_log_std: the fine-tune starts from the source's weights with its exploration noise
+    (the policy's log std) reset to that value; it needs init_from."""
+    import torch
+    from stable_baselines3 import PPO
+
+    config = _tiny(tmp_path)
+    _train(config, tmp_path / "source")
+    source = tmp_path / "source" / "seed_0" / "last_model.zip"
+    cfg = yaml.safe_load(config.read_text())
+    cfg["tiny"].update(init_from=str(source), init_log_std=-2.5, total_timesteps=64)
+    config.write_text(yaml.safe_dump(cfg))
+    _train(config, tmp_path / "tuned")
+    first = PPO.load(source, device="cpu").policy
+    tuned = PPO.load(tmp_path / "tuned" / "seed_0" / "last_model.zip", device="cpu").policy
+    assert torch.allclose(tuned.log_std, torch.full_like(first.log_std, -2.5), atol=0.01)
+    assert not torch.allclose(first.log_std, tuned.log_std, atol=0.1)
+    w = "mlp_extractor.policy_net.0.weight"
+    assert torch.allclose(tuned.state_dict()[w], first.state_dict()[w], atol=0.05)
+    hp = Hyperparams.from_dict(cfg["tiny"])
+    with pytest.raises(ValueError, match=r"init_log_std = -2.5 is invalid.*without init_from"):
+        hp.replace(init_from=None)
+    with pytest.raises(ValueError, match=r"init_log_std = 5"):
+        hp.replace(init_log_std=5)
+
+
 def test_a_residual_trained_on_tuned_gains_is_scored_and_loaded_with_them(tmp_path):
     """pd_gains of the training env are the residual's PD everywhere: the eval callback's
     score equals a fresh evaluation of the loaded best model on an env without pd_gains

@@ -275,7 +275,8 @@ def finetune_curves(
         if specialist:
             row["specialist"] = {"rms_deg": specialist, "steps": specialist_steps}
         tuned = fine_tune(hp)  # scratch: on the same env (action mode, arm slice)
-        for label, run_hp in (("fine-tuned", tuned), ("scratch", tuned.replace(init_from=None))):
+        scratch = tuned.replace(init_from=None, init_log_std=None)
+        for label, run_hp in (("fine-tuned", tuned), ("scratch", scratch)):
             exp = Experiment(run_hp, folder / label, [0], command)
             exp.train(resume=True)
             run = exp.run_folder(0)

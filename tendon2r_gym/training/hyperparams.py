@@ -54,6 +54,10 @@ class Hyperparams:
     # Start from a trained model's weights and VecNormalize statistics (fine-tuning): a bundle
     # name (e.g. generalist) or a model zip; it must cover the env (learned.check_model_env).
     init_from: str | None = None
+    # With init_from: the exploration noise the fine-tune starts from, SB3's log std of each
+    # action (the source's own shrank in its training; PPO's clipped steps scale with it, so
+    # a fine-tune on the source's stalls).  None keeps the source's.
+    init_log_std: float | None = None
     # The policy sees its last frame_stack observations, oldest first (rl_zoo3's frame_stack:
     # SB3's VecFrameStack after VecNormalize; zeros before an episode's first): a short history
     # from which to tell the arm's response, e.g. under per-episode randomization.
@@ -86,6 +90,10 @@ class Hyperparams:
             raise invalid("eval_seeds", self.eval_seeds, "one or more integer seeds")
         if self.init_from is not None and not isinstance(self.init_from, str):
             raise invalid("init_from", self.init_from, "None, a bundle name or a model .zip")
+        if self.init_log_std is not None:
+            if self.init_from is None:
+                raise invalid("init_log_std", self.init_log_std, "None without init_from")
+            set_("init_log_std", number("init_log_std", self.init_log_std, -20.0, 2.0))
         zero = tuple(self.zero_obs or ())
         check_keys("zero_obs", zero, observation.SLICES)
         set_("zero_obs", zero)

@@ -222,6 +222,11 @@ def _load_initial(hp: Hyperparams, venv: Any, seed: int, run: RunFolder) -> tupl
         custom_objects=hp.ppo_kwargs(), seed=seed, tensorboard_log=str(run.tensorboard),
     )  # fmt: skip
     model.num_timesteps = 0  # a fine-tune counts its own steps (the zip holds the source's)
+    if hp.init_log_std is not None:
+        import torch
+
+        with torch.no_grad():
+            model.policy.log_std.fill_(hp.init_log_std)
     print(f"initialized from {zip_path}", flush=True)
     return model, vecnorm
 
