@@ -300,11 +300,24 @@ def test_a_fine_tune_starts_from_the_exploration_noise_it_asks_for(tmp_path):
     assert not torch.allclose(first.log_std, tuned.log_std, atol=0.1)
     w = "mlp_extractor.policy_net.0.weight"
     assert torch.allclose(tuned.state_dict()[w], first.state_dict()[w], atol=0.05)
+    # one value per action
+    n = first.log_std.numel()
+    per_action = [-2.0 - 0.5 * i for i in range(n)]
+    cfg["tiny"]["init_log_std"] = per_action
+    config.write_text(yaml.safe_dump(cfg))
+    _train(config, tmp_path / "per_action")
+    tuned = PPO.load(tmp_path / "per_action" / "seed_0" / "last_model.zip", device="cpu").policy
+    assert torch.allclose(tuned.log_std, torch.tensor(per_action), atol=0.01)
+    cfg["tiny"]["init_log_std"] = per_action + [-2.0]
+    config.write_text(yaml.safe_dump(cfg))
+    with pytest.raises(ValueError, match=rf"init_log_std = .* or {n} \(the model's actions\)"):
+        _train(config, tmp_path / "too_many")
     hp = Hyperparams.from_dict(cfg["tiny"])
-    with pytest.raises(ValueError, match=r"init_log_std = -2.5 is invalid.*without init_from"):
+    with pytest.raises(ValueError, match=r"init_log_std = \[.*\] is invalid.*without init_from"):
         hp.replace(init_from=None)
-    with pytest.raises(ValueError, match=r"init_log_std = 5"):
-        hp.replace(init_log_std=5)
+    for bad in (5, [-2.0, "x"], []):
+        with pytest.raises(ValueError, match=r"init_log_std = "):
+            hp.replace(init_log_std=bad)
 
 
 def test_a_residual_trained_on_tuned_gains_is_scored_and_loaded_with_them(tmp_path):

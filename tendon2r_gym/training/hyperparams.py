@@ -54,10 +54,11 @@ class Hyperparams:
     # Start from a trained model's weights and VecNormalize statistics (fine-tuning): a bundle
     # name (e.g. generalist) or a model zip; it must cover the env (learned.check_model_env).
     init_from: str | None = None
-    # With init_from: the exploration noise the fine-tune starts from, SB3's log std of each
-    # action (the source's own shrank in its training; PPO's clipped steps scale with it, so
-    # a fine-tune on the source's stalls).  None keeps the source's.
-    init_log_std: float | None = None
+    # With init_from: the exploration noise the fine-tune starts from, SB3's log std of the
+    # actions: one number for all, or one per action (the source's own shrank in its training;
+    # PPO's clipped steps scale with it, so a fine-tune on the source's stalls).  None keeps
+    # the source's.
+    init_log_std: float | list[float] | None = None
     # The policy sees its last frame_stack observations, oldest first (rl_zoo3's frame_stack:
     # SB3's VecFrameStack after VecNormalize; zeros before an episode's first): a short history
     # from which to tell the arm's response, e.g. under per-episode randomization.
@@ -93,7 +94,13 @@ class Hyperparams:
         if self.init_log_std is not None:
             if self.init_from is None:
                 raise invalid("init_log_std", self.init_log_std, "None without init_from")
-            set_("init_log_std", number("init_log_std", self.init_log_std, -20.0, 2.0))
+            values = self.init_log_std
+            if isinstance(values, (list, tuple)):
+                if not values:
+                    raise invalid("init_log_std", values, "a number or a list of numbers")
+                set_("init_log_std", [number("init_log_std", v, -20.0, 2.0) for v in values])
+            else:
+                set_("init_log_std", number("init_log_std", values, -20.0, 2.0))
         zero = tuple(self.zero_obs or ())
         check_keys("zero_obs", zero, observation.SLICES)
         set_("zero_obs", zero)

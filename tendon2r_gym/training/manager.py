@@ -223,12 +223,22 @@ def _load_initial(hp: Hyperparams, venv: Any, seed: int, run: RunFolder) -> tupl
     )  # fmt: skip
     model.num_timesteps = 0  # a fine-tune counts its own steps (the zip holds the source's)
     if hp.init_log_std is not None:
-        import torch
-
-        with torch.no_grad():
-            model.policy.log_std.fill_(hp.init_log_std)
+        _reset_log_std(model.policy.log_std, hp.init_log_std)
     print(f"initialized from {zip_path}", flush=True)
     return model, vecnorm
+
+
+def _reset_log_std(log_std: Any, value: float | list[float]) -> None:
+    """Sets the policy's log std (``init_log_std``): one value for every action, or one per
+    action; raises naming the field if the list does not match the model's actions."""
+    import torch
+
+    n = log_std.numel()
+    if isinstance(value, list) and len(value) != n:
+        raise invalid("init_log_std", value, f"one number, or {n} (the model's actions)")
+    values = torch.as_tensor(value, dtype=log_std.dtype).expand(log_std.shape)
+    with torch.no_grad():
+        log_std.copy_(values)
 
 
 def train_run(
