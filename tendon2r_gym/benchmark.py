@@ -27,7 +27,7 @@ from tendon2r_gym.learned import (
     settings_on,
     trained_on_drawn_gains,
 )
-from tendon2r_gym.metrics import beats, rms_ratio, worst_ratio
+from tendon2r_gym.metrics import beats, smoothness_x_pd, worst_ratio
 from tendon2r_gym.plots import plot_trace
 from tendon2r_gym.presets import DATA_DIR
 from tendon2r_gym.runs import model_files, training_record, training_summary
@@ -230,10 +230,8 @@ def verdicts(rows: list[dict[str, Any]]) -> list[str]:
             )
             smooth = ""
             if "rms_tension_N" in r and "rms_tension_N" in by["pd"]:
-                smooth = (
-                    f"; tension {_ratio(r, by['pd'], 'rms_tension_N'):.1f}x PD's, tension rate "
-                    f"{_ratio(r, by['pd'], 'rms_tension_rate_N_per_s'):.1f}x PD's"
-                )
+                tension, rate = smoothness_x_pd(r, by["pd"])
+                smooth = f"; tension {tension:.1f}x PD's, tension rate {rate:.1f}x PD's"
             lines.append(
                 f"- {name}, {shown_policy(r)}: RMS {_fmt(r['rms_deg'])} vs PD {_fmt(pd)}"
                 f" deg: {'<= PD on both joints' if wins else 'WORSE than PD on at least one joint'}"
@@ -252,11 +250,6 @@ def shown_policy(row: dict[str, Any]) -> str:
         if k in row
     ]
     return row["policy"] + (f" ({', '.join(shown)})" if shown else "")
-
-
-def _ratio(row: dict[str, Any], pd: dict[str, Any], key: str) -> float:
-    """Returns a row's RMS over tendons of ``key`` divided by PD's."""
-    return rms_ratio(row[key], pd[key])
 
 
 def _beat(value: Any) -> str:
@@ -539,11 +532,7 @@ def realism_lines(rows: list[dict[str, Any]]) -> list[str]:
                 f"- {label}: <= {name} on both joints on {sum(v <= 1.0 for v in x)} of "
                 f"{len(rows)} arms; median worst-joint ratio {np.median(x):.2f}."
             )
-        effort = [rms_ratio(r[key]["rms_tension_N"], r["pd"]["rms_tension_N"]) for r in rows]
-        rate = [
-            rms_ratio(r[key]["rms_tension_rate_N_per_s"], r["pd"]["rms_tension_rate_N_per_s"])
-            for r in rows
-        ]
+        effort, rate = zip(*(smoothness_x_pd(r[key], r["pd"]) for r in rows), strict=True)
         lines.append(
             f"- {label}: RMS tension {np.median(effort):.2f}x PD's, RMS tension rate "
             f"{np.median(rate):.2f}x PD's (medians over the arms)."

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -26,6 +27,30 @@ def worst_ratio(rms_deg: Sequence[float], baseline_rms_deg: Sequence[float]) -> 
 def rms_ratio(values: Sequence[float], baseline: Sequence[float]) -> float:
     """Returns the RMS over entries (tendons) of ``values`` divided by the baseline's."""
     return float(np.sqrt(np.mean(np.square(values))) / np.sqrt(np.mean(np.square(baseline))))
+
+
+#: Smoothness limits of a learned policy against PD on the same episodes ("Learning that
+#: holds"): its RMS tension at most TENSION_LIMIT_X_PD times PD's, and its RMS tension rate at
+#: most RATE_LIMIT_X_PD times PD's, for a residual on PD and for plain PPO.
+TENSION_LIMIT_X_PD = 1.5
+RATE_LIMIT_X_PD = {"residual": 3.0, "plain": 10.0}
+
+
+def smoothness_x_pd(row: dict[str, Any], pd_row: dict[str, Any]) -> tuple[float, float]:
+    """Returns a policy's RMS tension and RMS tension rate as multiples of PD's (two
+    :func:`tracking_metrics` results on the same episodes)."""
+    return (
+        rms_ratio(row["rms_tension_N"], pd_row["rms_tension_N"]),
+        rms_ratio(row["rms_tension_rate_N_per_s"], pd_row["rms_tension_rate_N_per_s"]),
+    )
+
+
+def smooth_enough(row: dict[str, Any], pd_row: dict[str, Any], residual: bool) -> bool:
+    """Returns whether a policy keeps the smoothness limits against PD's (TENSION_LIMIT_X_PD,
+    RATE_LIMIT_X_PD of a residual on PD or of plain PPO)."""
+    tension, rate = smoothness_x_pd(row, pd_row)
+    limit = RATE_LIMIT_X_PD["residual" if residual else "plain"]
+    return tension <= TENSION_LIMIT_X_PD and rate <= limit
 
 
 def tracking_metrics(traces: Sequence[Trace]) -> dict[str, list[float] | float | int]:

@@ -5,6 +5,8 @@ import json
 import math
 from pathlib import Path
 
+import pytest
+
 from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.studies import learnability, speed
 
@@ -348,3 +350,39 @@ def test_generalist_is_compared_with_the_specialist_of_its_own_action_mode():
         arms[name]["specialist_rms_deg"] = {other: [0.01, 0.01]}
     assert generalist.summarize(arms, ["generalist"])["generalist"]["specialist_arms"] == 0
     assert generalist.hardest_arms(arms, 1) == ["unseen_0"]
+
+
+def test_generalist_summary_holds_every_arm_to_the_smoothness_limits():
+    """A median tension rate within the limit can hide arms over it: the summary counts the
+    arms where a bundle keeps the smoothness limits (a residual's rate limit for a residual,
+    plain PPO's for plain PPO, as its run recorded it) and those where it is also <= PD."""
+    from tendon2r_gym.metrics import RATE_LIMIT_X_PD, TENSION_LIMIT_X_PD
+    from tendon2r_gym.studies import generalist
+
+    assert generalist.is_residual("generalist")
+    assert not generalist.is_residual("generalist_scratch")
+
+    def row(rms: float, tension: float = 1.0, rate: float = 1.0) -> dict:
+        return {
+            "rms_deg": [rms, rms],
+            "rms_tension_N": [tension],
+            "rms_tension_rate_N_per_s": [rate],
+        }
+
+    over = 1.01 * RATE_LIMIT_X_PD["residual"]  # over the residual's limit, within plain PPO's
+    policies = [
+        row(0.5, rate=over),  # <= PD, too fast for a residual
+        row(2.0),  # smooth, worse than PD
+        row(0.5, tension=1.01 * TENSION_LIMIT_X_PD),  # <= PD, too much tension
+        row(0.5),  # <= PD and smooth
+    ]
+    arms = {
+        f"unseen_{i}": {"rows": {"pd": row(1.0), "generalist": p, "generalist_scratch": p}}
+        for i, p in enumerate(policies)
+    }
+    summary = generalist.summarize(arms, ["generalist", "generalist_scratch"])
+    residual, plain = summary["generalist"], summary["generalist_scratch"]
+    assert (residual["beats_pd"], residual["smooth"], residual["beats_pd_smooth"]) == (3, 2, 1)
+    assert residual["max_tension_rate_x_pd"] == pytest.approx(over)
+    assert residual["median_tension_rate_x_pd"] == pytest.approx(1.0)
+    assert (plain["smooth"], plain["beats_pd_smooth"]) == (3, 2)

@@ -22,7 +22,7 @@ import yaml
 from tendon2r_gym.arms import draw_arms
 from tendon2r_gym.benchmark import benchmark_own_arm
 from tendon2r_gym.env_config import ACTION_MODES
-from tendon2r_gym.metrics import beats, rms_ratio
+from tendon2r_gym.metrics import beats, smoothness_x_pd
 from tendon2r_gym.presets import load_yaml, preset_path
 from tendon2r_gym.runs import command_line
 from tendon2r_gym.studies import joints, save_json
@@ -57,18 +57,16 @@ def _verdict(rows: list[dict[str, Any]]) -> dict[str, Any]:
     out = {"pd": pd, "ct": by["ct"]["rms_deg"]}
     for label in ("ppo scratch", "ppo residual"):
         r = by.get(label)
-        out[label] = (
-            None
-            if r is None
-            else {
-                "rms_deg": r["rms_deg"],
-                "beats_pd": beats(r["rms_deg"], pd),
-                "tension_x_pd": rms_ratio(r["rms_tension_N"], by["pd"]["rms_tension_N"]),
-                "tension_rate_x_pd": rms_ratio(
-                    r["rms_tension_rate_N_per_s"], by["pd"]["rms_tension_rate_N_per_s"]
-                ),
-            }
-        )
+        if r is None:
+            out[label] = None
+            continue
+        tension, rate = smoothness_x_pd(r, by["pd"])
+        out[label] = {
+            "rms_deg": r["rms_deg"],
+            "beats_pd": beats(r["rms_deg"], pd),
+            "tension_x_pd": tension,
+            "tension_rate_x_pd": rate,
+        }
     return out
 
 

@@ -18,8 +18,9 @@ the specialist's training steps: does it reach the specialist's error within the
 
 Summary per learned policy: the fraction of arms where it is <= PD on both joints, the
 median worst-joint ratio of its RMS error to PD's, its RMS tension and tension rate as
-multiples of PD's, and the fraction of arms where it is <= the specialist of its own action
-mode.
+multiples of PD's (median and largest), the arms where it keeps the smoothness limits
+(tendon2r_gym.metrics) and where it is also <= PD, and the fraction of arms where it is <=
+the specialist of its own action mode.
 """
 
 from __future__ import annotations
@@ -37,7 +38,14 @@ from tendon2r_gym.benchmark import GENERALISTS, LEARNED
 from tendon2r_gym.bundle import bundle_names, bundled_model
 from tendon2r_gym.evaluation import evaluate
 from tendon2r_gym.learned import feature_ranges, in_model_settings, model_settings, observes_arm
-from tendon2r_gym.metrics import beats, rms_ratio, worst_ratio
+from tendon2r_gym.metrics import (
+    RATE_LIMIT_X_PD,
+    TENSION_LIMIT_X_PD,
+    beats,
+    smooth_enough,
+    smoothness_x_pd,
+    worst_ratio,
+)
 from tendon2r_gym.observation import layout_mask
 from tendon2r_gym.presets import load_yaml, preset_path
 from tendon2r_gym.runs import RunFolder, command_line, stem_of, training_record, training_summary
@@ -124,6 +132,11 @@ def action_mode_of(bundle: str) -> str:
     return model_settings(bundled_model(bundle))["action_mode"]
 
 
+def is_residual(bundle: str) -> bool:
+    """Returns whether a bundle is a residual on PD (else plain PPO), as its run recorded it."""
+    return (training_record(bundled_model(bundle)) or {}).get("residual_scale", 0.0) > 0
+
+
 def specialist_rms(arm: dict[str, Any], mode: str) -> list[float] | None:
     """Returns the RMS (deg) of the arm's specialist in action mode ``mode``, if any."""
     return (arm.get("specialist_rms_deg") or {}).get(mode)
@@ -131,8 +144,10 @@ def specialist_rms(arm: dict[str, Any], mode: str) -> list[float] | None:
 
 def summarize(arms: dict[str, Any], bundles: list[str]) -> dict[str, Any]:
     """Returns, per bundle, over the unseen arms it covers: <= PD fraction, median and worst
-    worst-joint ratio to PD, median RMS-tension and tension-rate ratios to PD; over the sweep
-    arms it covers: <= specialist fraction."""
+    worst-joint ratio to PD, median and largest RMS-tension and tension-rate ratios to PD, the
+    arms where it keeps the smoothness limits (tendon2r_gym.metrics: of a residual or of plain
+    PPO) and those where it is also <= PD; over the sweep arms it covers: <= specialist
+    fraction."""
     out = {}
     unseen = {k: a for k, a in arms.items() if k.startswith("unseen_")}
     for b in bundles:
@@ -140,10 +155,12 @@ def summarize(arms: dict[str, Any], bundles: list[str]) -> dict[str, Any]:
         if not covered:
             continue
         ratios = [worst_ratio(a["rows"][b]["rms_deg"], a["rows"]["pd"]["rms_deg"]) for a in covered]
-        rate, tension = (
-            [rms_ratio(a["rows"][b][key], a["rows"]["pd"][key]) for a in covered]
-            for key in ("rms_tension_rate_N_per_s", "rms_tension_N")
+        tension, rate = zip(
+            *(smoothness_x_pd(a["rows"][b], a["rows"]["pd"]) for a in covered), strict=True
         )
+        residual = is_residual(b)
+        wins = [beats(a["rows"][b]["rms_deg"], a["rows"]["pd"]["rms_deg"]) for a in covered]
+        smooth = [smooth_enough(a["rows"][b], a["rows"]["pd"], residual) for a in covered]
         mode = action_mode_of(b)
         vs_spec = [
             beats(a["rows"][b]["rms_deg"], specialist_rms(a, mode))
@@ -152,13 +169,16 @@ def summarize(arms: dict[str, Any], bundles: list[str]) -> dict[str, Any]:
         ]
         out[b] = {
             "arms": len(covered),
-            "beats_pd": sum(
-                beats(a["rows"][b]["rms_deg"], a["rows"]["pd"]["rms_deg"]) for a in covered
-            ),
+            "beats_pd": sum(wins),
             "median_worst_ratio_to_pd": float(np.median(ratios)),
             "max_worst_ratio_to_pd": float(np.max(ratios)),
             "median_tension_rate_x_pd": float(np.median(rate)),
             "median_tension_x_pd": float(np.median(tension)),
+            "max_tension_rate_x_pd": float(np.max(rate)),
+            "max_tension_x_pd": float(np.max(tension)),
+            "residual": residual,
+            "smooth": sum(smooth),
+            "beats_pd_smooth": sum(w and s for w, s in zip(wins, smooth, strict=True)),
             "specialist_arms": len(vs_spec),
             "beats_specialist": int(sum(vs_spec)),
         }
@@ -380,16 +400,25 @@ def write(result: dict[str, Any], out: Path) -> None:
         "",
         "## Summary",
         "",
+        "RMS tension and tension rate as multiples of PD's on the same episodes: the median "
+        "and the largest over the arms. Smoothness limits (per arm): RMS tension at most "
+        f"{TENSION_LIMIT_X_PD:g}x PD's, tension rate at most {RATE_LIMIT_X_PD['residual']:g}x "
+        f"PD's for a residual on PD, {RATE_LIMIT_X_PD['plain']:g}x for plain PPO.",
+        "",
         "| policy | unseen arms | <= PD on both joints | median worst-joint ratio to PD | worst | "
-        "median RMS tension (x PD) | median tension rate (x PD) | <= specialist of its action "
+        "RMS tension (x PD): median / largest | tension rate (x PD): median / largest | "
+        "within the smoothness limits | <= PD and within them | <= specialist of its action "
         "mode (sweep arms) |",
-        "|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for b, s in result.get("summary", {}).items():
+        kind = "residual" if s["residual"] else "plain"
         lines.append(
             f"| {b} | {s['arms']} | {s['beats_pd']} of {s['arms']} | "
             f"{s['median_worst_ratio_to_pd']:.3f} | {s['max_worst_ratio_to_pd']:.3f} | "
-            f"{s['median_tension_x_pd']:.2f} | {s['median_tension_rate_x_pd']:.2f} | "
+            f"{s['median_tension_x_pd']:.2f} / {s['max_tension_x_pd']:.2f} | "
+            f"{s['median_tension_rate_x_pd']:.2f} / {s['max_tension_rate_x_pd']:.2f} | "
+            f"{s['smooth']} of {s['arms']} ({kind}) | {s['beats_pd_smooth']} of {s['arms']} | "
             f"{s['beats_specialist']} of {s['specialist_arms']} |"
         )
     if result.get("ablation"):
