@@ -22,6 +22,8 @@ from tendon2r_gym.validation import check_keys, integer, invalid, mapping, numbe
 VEC_ENVS = ("native", "subproc", "dummy")
 MAX_FRAME_STACK = 64
 MAX_FRAME_STRIDE = 1000
+#: The range of init_log_std (SB3's log std of an action).
+LOG_STD_RANGE = (-20.0, 2.0)
 #: PPO settings that may be a schedule, as rl_zoo3 writes one: ``lin_<v>`` decays linearly from
 #: v at the start of training to 0 at its end (SB3's progress_remaining times v).
 SCHEDULES = ("learning_rate", "clip_range", "clip_range_vf")
@@ -94,13 +96,15 @@ class Hyperparams:
         if self.init_log_std is not None:
             if self.init_from is None:
                 raise invalid("init_log_std", self.init_log_std, "None without init_from")
-            values = self.init_log_std
+            values, (lo, hi) = self.init_log_std, LOG_STD_RANGE
             if isinstance(values, (list, tuple)):
                 if not values:
-                    raise invalid("init_log_std", values, "a number or a list of numbers")
-                set_("init_log_std", [number("init_log_std", v, -20.0, 2.0) for v in values])
+                    raise invalid(
+                        "init_log_std", values, f"a number in [{lo:g}, {hi:g}], or one per action"
+                    )
+                set_("init_log_std", [number("init_log_std", v, lo, hi) for v in values])
             else:
-                set_("init_log_std", number("init_log_std", values, -20.0, 2.0))
+                set_("init_log_std", number("init_log_std", values, lo, hi))
         zero = tuple(self.zero_obs or ())
         check_keys("zero_obs", zero, observation.SLICES)
         set_("zero_obs", zero)

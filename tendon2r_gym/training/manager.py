@@ -48,7 +48,7 @@ from tendon2r_gym.training.callbacks import (
     TrackingLogCallback,
     save_model,
 )
-from tendon2r_gym.training.hyperparams import Hyperparams
+from tendon2r_gym.training.hyperparams import LOG_STD_RANGE, Hyperparams
 from tendon2r_gym.validation import invalid
 
 
@@ -235,7 +235,10 @@ def _reset_log_std(log_std: Any, value: float | list[float]) -> None:
 
     n = log_std.numel()
     if isinstance(value, list) and len(value) != n:
-        raise invalid("init_log_std", value, f"one number, or {n} (the model's actions)")
+        lo, hi = LOG_STD_RANGE
+        raise invalid(
+            "init_log_std", value, f"one number in [{lo:g}, {hi:g}], or {n} (the model's actions)"
+        )
     values = torch.as_tensor(value, dtype=log_std.dtype).expand(log_std.shape)
     with torch.no_grad():
         log_std.copy_(values)
