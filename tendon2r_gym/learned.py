@@ -4,7 +4,9 @@ With ``residual_scale > 0`` the agent's action a in [-1, 1] is added to the PD c
 command = clip(PD(obs) + residual_scale * a, -1, 1).  The agent starts at PD's performance
 (SB3 initializes the policy mean near zero) and learns what PD lacks, such as acceleration
 feed-forward.  With ``residual_scale = 0`` the agent drives the motors directly ("from
-scratch").
+scratch").  With ``residual_filter_tau > 0`` the residual passes a first-order low-pass
+(:class:`ResidualFilter`) before it is added, and PD's own command does not: a filter on the
+whole command would put its lag inside PD's loop.
 
 A trained model only meets the env it was trained for: :meth:`PPOPolicy.load` compares the env
 config recorded in the run (``run.json``) with the env's and refuses another mechanism,
@@ -15,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -49,36 +52,89 @@ MODEL_ENV_FIELDS = (
 class ResidualPDWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """The agent's action is a residual on the PD command (see module docstring)."""
 
-    def __init__(self, env: gym.Env, residual_scale: float) -> None:
-        gym.utils.RecordConstructorArgs.__init__(self, residual_scale=residual_scale)
+    def __init__(
+        self, env: gym.Env, residual_scale: float, residual_filter_tau: float = 0.0
+    ) -> None:
+        gym.utils.RecordConstructorArgs.__init__(
+            self, residual_scale=residual_scale, residual_filter_tau=residual_filter_tau
+        )
         super().__init__(env)
         self.residual_scale = number("residual_scale", residual_scale, 0.0, 2.0, lo_open=True)
         self.pd = PDPolicy.from_env(env)
+        self.filter = ResidualFilter(residual_filter_tau, env.unwrapped.config.ctrl_dt)
         self._obs: np.ndarray | None = None
 
     def reset(self, **kwargs: Any):
         self._obs, info = self.env.reset(**kwargs)
         self.pd.reset(info)  # follows the episode's arm, if the env draws arms
+        self.filter.clear()
         return self._obs, info
 
     def step(self, action: np.ndarray):
         base, _ = self.pd.predict(self._obs)
-        command = residual_command(base, action, self.residual_scale)
+        command = residual_command(base, action, self.residual_scale, self.filter)
         self._obs, reward, terminated, truncated, info = self.env.step(command)
         return self._obs, reward, terminated, truncated, info
 
 
-def residual_command(base: np.ndarray, action: np.ndarray, scale: float) -> np.ndarray:
-    """Returns clip(base + scale * clip(action, -1, 1), -1, 1) for one observation: the PD
-    command ``base`` plus the agent's residual.  Training (ResidualPDWrapper) and deployment
-    (PPOPolicy) share it, and it refuses an action of the wrong shape or a non-finite one."""
+#: The largest residual_filter_tau (s).
+MAX_RESIDUAL_FILTER_TAU = 1.0
+
+
+class ResidualFilter:
+    """A first-order low-pass on the residual of one env or a batch of them: y <- y + alpha
+    (r - y), alpha = 1 - exp(-ctrl_dt / tau), y = 0 where an episode starts (the policy starts
+    at PD's command); ``tau = 0``: none (y = r).  Its state is not observed: the env observes
+    the command it applied, PD's plus y."""
+
+    def __init__(self, tau: float, ctrl_dt: float) -> None:
+        tau = number("residual_filter_tau", tau, 0.0, MAX_RESIDUAL_FILTER_TAU)
+        self.tau = tau
+        self.alpha = 1.0 if tau == 0.0 else -math.expm1(-ctrl_dt / tau)
+        self._y: np.ndarray | None = None
+
+    def clear(self) -> None:
+        """Starts every episode anew (the next residual is the first of its episode)."""
+        self._y = None
+
+    def __call__(self, residual: np.ndarray, start: Any = None) -> np.ndarray:
+        """Returns the filtered ``residual`` (shape (*batch, n)); where ``start`` (a bool per
+        batch row, as SB3's ``episode_start``) the filter restarts from 0 first."""
+        if self.alpha == 1.0:
+            return residual
+        if self._y is None or self._y.shape != np.shape(residual):
+            self._y = np.zeros(np.shape(residual))
+        elif start is not None:
+            self._y[np.broadcast_to(np.asarray(start, dtype=bool), self._y.shape[:-1])] = 0.0
+        self._y = self._y + self.alpha * (residual - self._y)
+        return self._y.copy()
+
+
+def residual_command(
+    base: np.ndarray,
+    action: np.ndarray,
+    scale: float,
+    filter_: ResidualFilter | None = None,
+    start: Any = None,
+) -> np.ndarray:
+    """Returns clip(base + r, -1, 1) with r = scale * clip(action, -1, 1) (through ``filter_``
+    if given; ``start`` as :meth:`ResidualFilter.__call__` takes it): the PD command ``base``
+    plus the agent's residual.  Training (ResidualPDWrapper, the native vector env) and
+    deployment (PPOPolicy) share it, and it refuses an action of the wrong shape or a
+    non-finite one."""
     shape = np.shape(base)
     a = real_array("action", action, shape, f"finite real numbers of shape {shape} in [-1, 1]")
-    return np.clip(base + scale * np.clip(a, -1.0, 1.0), -1.0, 1.0)
+    residual = scale * np.clip(a, -1.0, 1.0)
+    if filter_ is not None:
+        residual = filter_(residual, start)
+    return np.clip(base + residual, -1.0, 1.0)
 
 
 def make_training_env(
-    env_kwargs: dict[str, Any], residual_scale: float, zero_obs: tuple[str, ...] = ()
+    env_kwargs: dict[str, Any],
+    residual_scale: float,
+    zero_obs: tuple[str, ...] = (),
+    residual_filter_tau: float = 0.0,
 ) -> gym.Env:
     """Returns Tendon2R-v0 with the given kwargs, wrapped for residual learning if asked.
     ``zero_obs`` names observation entries (tendon2r_gym.observation) to blank out, for
@@ -87,7 +143,9 @@ def make_training_env(
     if zero_obs:
         keep = observation.mask(zero_obs, env.observation_space.shape[0])
         env = gym.wrappers.TransformObservation(env, lambda o: o * keep, env.observation_space)
-    return ResidualPDWrapper(env, residual_scale) if residual_scale > 0 else env
+    if residual_scale == 0:
+        return env
+    return ResidualPDWrapper(env, residual_scale, residual_filter_tau)
 
 
 def recorded_settings(recorded: dict[str, Any]) -> dict[str, Any]:
@@ -284,7 +342,8 @@ class PPOPolicy:
     acting on raw observations of the unwrapped env: normalizes them with VecNormalize's own
     ``normalize_obs``, and adds PD if it was residual: the PD of its training env's gains
     (``pd_gains``), whatever the env's are, except gains drawn in training, which are the
-    env's (:func:`deployed_gains`)."""
+    env's (:func:`deployed_gains`), and the residual through the filter it trained with
+    (``residual_filter_tau``)."""
 
     def __init__(
         self,
@@ -296,6 +355,7 @@ class PPOPolicy:
         arm: np.ndarray | None = None,
         frame_stack: int = 1,
         frame_stride: int = 1,
+        residual_filter_tau: float = 0.0,
     ) -> None:
         self.model = model
         self.vecnormalize = vecnormalize
@@ -310,9 +370,10 @@ class PPOPolicy:
             from tendon2r_gym.history import FrameHistory
 
             self._history = FrameHistory(frame_stack, frame_stride)
-        self.pd = None
+        self.pd, self.filter = None, None
         if residual_scale > 0 and env is not None:  # the PD it was trained on: its gains
             self.pd = PDPolicy.from_env(env, gains=gains_of(pd_gains))
+            self.filter = ResidualFilter(residual_filter_tau, env.unwrapped.config.ctrl_dt)
 
     @classmethod
     def load(cls, model_path: str | Path, env: gym.Env) -> PPOPolicy:
@@ -329,15 +390,18 @@ class PPOPolicy:
         vecnorm.training, vecnorm.norm_reward = False, False
         gains = deployed_gains(meta["env_config"], env)
         history = int(meta.get("frame_stack", 1)), int(meta.get("frame_stride", 1))
-        return cls(model, vecnorm, float(meta["residual_scale"]), env, gains, arm, *history)
+        tau = float(meta.get("residual_filter_tau", 0.0))
+        return cls(model, vecnorm, float(meta["residual_scale"]), env, gains, arm, *history, tau)
 
     def reset(self, info: dict[str, Any]) -> None:
         """Follows the episode's arm with the PD inside a residual policy (the rollouts call
-        it with each reset's info), and starts the stack of observations anew."""
+        it with each reset's info), and starts the stack of observations and the residual's
+        filter anew."""
         if self._history is not None:
             self._history.clear()
         if self.pd is not None:
             self.pd.reset(info)
+            self.filter.clear()
 
     def predict(
         self,
@@ -358,7 +422,8 @@ class PPOPolicy:
         if self.pd is None:
             return np.clip(action, -1.0, 1.0).astype(np.float32), state
         base, _ = self.pd.predict(obs)
-        return residual_command(base, action, self.residual_scale).astype(np.float32), state
+        command = residual_command(base, action, self.residual_scale, self.filter, episode_start)
+        return command.astype(np.float32), state
 
 
 def _with_arm(env: gym.Env, arm: np.ndarray) -> gym.Env:

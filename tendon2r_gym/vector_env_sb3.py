@@ -9,7 +9,7 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from tendon2r_gym import observation
 from tendon2r_gym.gains import gains_of
-from tendon2r_gym.learned import residual_command
+from tendon2r_gym.learned import ResidualFilter, residual_command
 from tendon2r_gym.policies import PDPolicy
 from tendon2r_gym.validation import invalid
 
@@ -18,10 +18,15 @@ class SB3VecEnv(VecEnv):
     """Stable-Baselines3's VecEnv API over the native vector env (tendon2r_gym.vector_env) in
     Gymnasium's SAME_STEP autoreset mode: ``terminal_observation`` and ``TimeLimit.truncated``
     go in each env's info, as SB3's own VecEnvs put them.  With ``residual_scale > 0`` it
-    also adds the agent's action to a batched PD command (one numpy call for all arms)."""
+    also adds the agent's action to a batched PD command (one numpy call for all arms),
+    through a filter of ``residual_filter_tau`` (tendon2r_gym.learned.ResidualFilter)."""
 
     def __init__(
-        self, venv: Any, residual_scale: float = 0.0, zero_obs: tuple[str, ...] = ()
+        self,
+        venv: Any,
+        residual_scale: float = 0.0,
+        zero_obs: tuple[str, ...] = (),
+        residual_filter_tau: float = 0.0,
     ) -> None:
         from gymnasium.vector import AutoresetMode
 
@@ -30,6 +35,8 @@ class SB3VecEnv(VecEnv):
         super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
         self.venv, self.residual_scale = venv, residual_scale
         self.pd = PDPolicy.from_env(venv) if residual_scale > 0 else None
+        self.filter = ResidualFilter(residual_filter_tau, venv.config.ctrl_dt)
+        self._starts = np.ones(venv.num_envs, dtype=bool)  # a slot's episode starts
         ranges = venv.config.mechanism_ranges
         self._random_arms = ranges is not None
         self._drawn_gains = ranges is not None and ranges.draws_gains
@@ -42,6 +49,7 @@ class SB3VecEnv(VecEnv):
         self._raw, _ = self.venv.reset(seed=seeds if any(s is not None for s in seeds) else None)
         self._reset_seeds()
         self._reset_options()
+        self._starts[:] = True
         return self._raw * self._mask
 
     def step_async(self, actions: np.ndarray) -> None:
@@ -57,7 +65,9 @@ class SB3VecEnv(VecEnv):
                     [a.mechanism for a in arms], [a.observation_delay for a in arms], gains
                 )
             base, _ = self.pd.predict(self._raw)
-            actions = residual_command(base, actions, self.residual_scale)
+            actions = residual_command(
+                base, actions, self.residual_scale, self.filter, self._starts
+            )
         obs, rewards, terminated, truncated, info = self.venv.step(actions)
         dones = terminated | truncated
         infos = [_arm_info(info, i) for i in range(self.num_envs)]
@@ -66,7 +76,7 @@ class SB3VecEnv(VecEnv):
         for i in np.flatnonzero(dones):  # the last step's info, then SB3's terminal observation
             infos[i].update(_arm_info(info["final_info"], i))
             infos[i]["terminal_observation"] = info["final_obs"][i] * self._mask
-        self._raw = obs
+        self._raw, self._starts = obs, dones
         return obs * self._mask, rewards.astype(np.float32), dones, infos
 
     def close(self) -> None:
@@ -91,15 +101,17 @@ def make_native(
     residual_scale: float = 0.0,
     zero_obs: tuple[str, ...] = (),
     seed: int | None = None,
+    residual_filter_tau: float = 0.0,
 ) -> VecEnv:
     """Returns the native vector env for SB3 training: N arms in one process with staggered
-    first episodes, batched PD for a residual, and SB3's VecMonitor."""
+    first episodes, batched PD for a residual (filtered by ``residual_filter_tau``), and
+    SB3's VecMonitor."""
     from stable_baselines3.common.vec_env import VecMonitor
 
     from tendon2r_gym.vector_env import Tendon2RVectorEnv
 
     native = Tendon2RVectorEnv(n_envs, autoreset_mode="SameStep", stagger=True, **env_kwargs)
-    venv = SB3VecEnv(native, residual_scale, zero_obs)
+    venv = SB3VecEnv(native, residual_scale, zero_obs, residual_filter_tau)
     venv.seed(seed)
     return VecMonitor(venv)
 

@@ -83,6 +83,31 @@ def test_residual_wrapper_in_joint_torque_mode_starts_at_pd():
         np.testing.assert_array_equal(obs, obs_ref)
 
 
+def test_residual_filter_low_passes_the_residual_and_not_pd():
+    """residual_filter_tau: the command is PD's, unfiltered, plus the residual through a
+    first-order low-pass with that time constant (a unit step reaches 1 - 1/e of the way
+    after tau / ctrl_dt steps), restarting from 0 with each episode."""
+    tau = 0.01
+    env = ResidualPDWrapper(gym.make("Tendon2R-v0"), 0.5, residual_filter_tau=tau)
+    ref = gym.make("Tendon2R-v0")
+    pd = PDPolicy.from_env(ref)
+    steps = round(tau / ref.unwrapped.config.ctrl_dt)
+    step = np.array([1.0, -1.0])
+    for seed in (3, 4):  # the second episode starts its filter anew
+        obs, _ = env.reset(seed=seed)
+        obs_ref, _ = ref.reset(seed=seed)
+        alpha, y = -np.expm1(-ref.unwrapped.config.ctrl_dt / tau), np.zeros(2)
+        for _ in range(steps):
+            y = y + alpha * (0.5 * step - y)
+            command = np.clip(pd.predict(obs_ref)[0] + y, -1.0, 1.0)
+            obs, *_ = env.step(step)
+            obs_ref, *_ = ref.step(command)
+            np.testing.assert_array_equal(obs, obs_ref)
+        np.testing.assert_allclose(y, 0.5 * step * (1 - np.exp(-1)), rtol=1e-9)
+    with pytest.raises(ValueError, match=r"residual_filter_tau = 2 .*\[0, 1\]"):
+        ResidualPDWrapper(gym.make("Tendon2R-v0"), 0.5, residual_filter_tau=2)
+
+
 def test_bad_action_mode_names_the_field():
     with pytest.raises(ValueError, match="action_mode"):
         gym.make("Tendon2R-v0", action_mode="torque")

@@ -281,6 +281,47 @@ def test_fine_tuning_starts_from_a_generalists_weights_on_an_arm_inside_its_rang
         _train(config, tmp_path / "far", "--env-config", str(far), "--init-from", str(source))
 
 
+def test_a_filtered_residual_trains_deploys_and_fine_tunes_with_its_filter(tmp_path):
+    """residual_filter_tau: run.json records it; PPOPolicy.load adds PD to the model's residual
+    through the same filter, restarted with each episode; the eval callback's score is the
+    loaded policy's; a fine-tune takes its source's filter; it needs a residual."""
+    from tendon2r_gym.evaluation import evaluate
+
+    tau = 0.005
+    _train(_tiny(tmp_path, residual_filter_tau=tau), tmp_path / "run")
+    run = RunFolder(tmp_path / "run" / "seed_0")
+    assert run.read_json("run.json")["residual_filter_tau"] == tau
+    kwargs = {"preset": "default", "episode_duration": 0.1}
+    model_path = run.best.with_suffix(".zip")
+    env = gym.make("Tendon2R-v0", **kwargs)
+    policy = PPOPolicy.load(model_path, env)
+    alpha = -np.expm1(-env.unwrapped.config.ctrl_dt / tau)
+    for seed in (1, 2):
+        obs, info = env.reset(seed=seed)
+        policy.reset(info)
+        y = np.zeros(2)
+        for _ in range(10):
+            raw, _ = policy.model.predict(
+                policy.vecnormalize.normalize_obs(obs), deterministic=True
+            )
+            y = y + alpha * (0.5 * np.clip(raw, -1, 1) - y)
+            action, _ = policy.predict(obs)
+            expected = np.clip(policy.pd.predict(obs)[0] + y, -1, 1).astype(np.float32)
+            np.testing.assert_allclose(action, expected, atol=1e-6)
+            obs = env.step(action)[0]
+    metrics, _ = evaluate("ppo", kwargs, [0], model_path)
+    assert metrics["rms_deg"] == run.read_json("best_metrics.json")["rms_deg"]
+    config = _tiny(tmp_path, steps=64, init_from=str(model_path))  # the entry's filter: none
+    _train(config, tmp_path / "tuned")
+    assert (
+        RunFolder(tmp_path / "tuned" / "seed_0").read_json("run.json")["residual_filter_tau"] == tau
+    )
+    with pytest.raises(ValueError, match=r"residual_filter_tau = 0.005 .*residual_scale 0"):
+        Hyperparams.from_dict(yaml.safe_load(config.read_text())["tiny"]).replace(
+            residual_scale=0.0, init_from=None, residual_filter_tau=tau
+        )
+
+
 def test_a_fine_tune_starts_from_the_exploration_noise_it_asks_for(tmp_path):
     """init_log_std: the fine-tune starts from the source's weights with its exploration noise
     (the policy's log std) reset to that value; it needs init_from."""

@@ -203,6 +203,34 @@ def test_sb3_adapter_steps_like_dummy_vec_env(kwargs):
             np.testing.assert_array_equal(a["tracking_error_deg"], b["tracking_error_deg"])
 
 
+def test_sb3_adapter_filters_the_residual_as_the_wrapper_does():
+    """residual_filter_tau: the native vector env's batched residual passes the same filter as
+    ResidualPDWrapper's, each slot's restarting with its episode (8-step episodes here)."""
+    from stable_baselines3.common.env_util import make_vec_env
+
+    from tendon2r_gym.learned import make_training_env
+    from tendon2r_gym.vector_env_sb3 import SB3VecEnv
+
+    kwargs = {"episode_duration": 0.008}
+    native = SB3VecEnv(Tendon2RVectorEnv(2, autoreset_mode="SameStep", **kwargs), 0.5, (), 0.004)
+    dummy = make_vec_env(make_training_env, n_envs=2, env_kwargs={
+        "env_kwargs": kwargs, "residual_scale": 0.5, "residual_filter_tau": 0.004})  # fmt: skip
+    plain = SB3VecEnv(Tendon2RVectorEnv(2, autoreset_mode="SameStep", **kwargs), 0.5)
+    for venv in (native, dummy, plain):
+        venv.seed(5)
+        venv.reset()
+    ends, differs = 0, False
+    for _ in range(20):
+        action = np.ones((2, *native.action_space.shape), dtype=np.float32)
+        o1, _, d1, _ = native.step(action)
+        o2, _, d2, _ = dummy.step(action)
+        o3, *_ = plain.step(action)
+        np.testing.assert_array_equal(o1, o2)
+        np.testing.assert_array_equal(d1, d2)
+        ends, differs = ends + int(d1.sum()), differs or not np.array_equal(o1, o3)
+    assert ends >= 4 and differs  # episodes restarted, and the filter changed the commands
+
+
 def test_training_staggers_the_first_episodes():
     envs = Tendon2RVectorEnv(4, stagger=True, episode_duration=0.008)
     envs.reset(seed=0)

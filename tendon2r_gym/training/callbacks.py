@@ -71,6 +71,7 @@ class TrackingEvalCallback(BaseCallback):
         residual_scale: float,
         frame_stack: int = 1,
         frame_stride: int = 1,
+        residual_filter_tau: float = 0.0,
         wall_offset_s: float = 0.0,
         verbose: int = 1,
     ) -> None:
@@ -78,6 +79,7 @@ class TrackingEvalCallback(BaseCallback):
         self.env_kwargs, self.seeds, self.eval_freq = env_kwargs, seeds, eval_freq
         self.run, self.residual_scale = run, residual_scale
         self.frame_stack, self.frame_stride = frame_stack, frame_stride  # as PPOPolicy takes them
+        self.residual_filter_tau = residual_filter_tau
         best = run.read_json(BEST_METRICS)
         self.best_rms = float(np.mean(best["rms_deg"])) if best else float("inf")
         self._last_eval = 0
@@ -116,6 +118,7 @@ class TrackingEvalCallback(BaseCallback):
             config.pd_gains,  # the PD the residual trains on
             frame_stack=self.frame_stack,
             frame_stride=self.frame_stride,
+            residual_filter_tau=self.residual_filter_tau,
         )
         metrics = tracking_metrics(rollouts(policy, self.env_kwargs, self.seeds))
         rms = float(np.mean(metrics["rms_deg"]))

@@ -16,6 +16,7 @@ from typing import Any
 
 from tendon2r_gym import observation
 from tendon2r_gym.env_config import EnvConfig
+from tendon2r_gym.learned import MAX_RESIDUAL_FILTER_TAU
 from tendon2r_gym.presets import PPO_CONFIG, load_yaml
 from tendon2r_gym.validation import check_keys, integer, invalid, mapping, number
 
@@ -41,6 +42,9 @@ class Hyperparams:
     eval_freq: int  # env steps between evaluations
     checkpoint_freq: int  # env steps between checkpoints
     residual_scale: float = 0.0  # > 0: residual on PD (command = PD + scale * action)
+    # With residual_scale > 0: the time constant (s) of a first-order low-pass on the residual
+    # alone, PD's command unfiltered (tendon2r_gym.learned.ResidualFilter).  0: none.
+    residual_filter_tau: float = 0.0
     vec_env: str = "subproc"  # native, subproc or dummy
     torch_threads: int = 1
     ppo: dict[str, Any] = field(default_factory=dict)  # SB3 PPO keyword arguments
@@ -80,6 +84,10 @@ class Hyperparams:
         if self.frame_stride > 1 and self.frame_stack == 1:
             raise invalid("frame_stride", self.frame_stride, "1 when frame_stack is 1")
         set_("residual_scale", number("residual_scale", self.residual_scale, 0.0, 2.0))
+        tau = number("residual_filter_tau", self.residual_filter_tau, 0.0, MAX_RESIDUAL_FILTER_TAU)
+        if tau > 0 and self.residual_scale == 0:
+            raise invalid("residual_filter_tau", tau, "0 without a residual (residual_scale 0)")
+        set_("residual_filter_tau", tau)
         integer("eval_freq", self.eval_freq, 1, 10**10)
         integer("checkpoint_freq", self.checkpoint_freq, 1, 10**10)
         set_(

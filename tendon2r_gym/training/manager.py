@@ -40,6 +40,7 @@ from tendon2r_gym.runs import (
     RunFolder,
     seed_dir,
     seed_dirs,
+    training_record,
 )
 from tendon2r_gym.training.callbacks import (
     StopOnSignal,
@@ -137,7 +138,9 @@ def make_vec_env(hp: Hyperparams, seed: int) -> Any:
     if hp.vec_env == "native":
         from tendon2r_gym.vector_env_sb3 import make_native
 
-        return make_native(hp.n_envs, hp.env_kwargs, hp.residual_scale, hp.zero_obs, seed)
+        return make_native(
+            hp.n_envs, hp.env_kwargs, hp.residual_scale, hp.zero_obs, seed, hp.residual_filter_tau
+        )
     subproc = hp.vec_env == "subproc" and hp.n_envs > 1
     return sb3_make_vec_env(
         make_training_env,
@@ -147,6 +150,7 @@ def make_vec_env(hp: Hyperparams, seed: int) -> Any:
             "env_kwargs": hp.env_kwargs,
             "residual_scale": hp.residual_scale,
             "zero_obs": hp.zero_obs,
+            "residual_filter_tau": hp.residual_filter_tau,
         },
         vec_env_cls=SubprocVecEnv if subproc else DummyVecEnv,
     )
@@ -196,15 +200,21 @@ def initial_model(hp: Hyperparams) -> tuple[Path, Path]:
 
 def fine_tune(hp: Hyperparams) -> Hyperparams:
     """Returns the hyperparameters of a run that starts from ``hp.init_from``: its env kwargs
-    take the source model's settings and arm slice (learned.fine_tune_env_kwargs), so that
-    every env of the run, its run.json and its deployment see what the model saw; ``hp``
-    itself without init_from."""
+    take the source model's settings and arm slice (learned.fine_tune_env_kwargs), and its
+    residual the source's filter (``residual_filter_tau``), so that every env of the run, its
+    run.json and its deployment see what the model saw and its actions mean what they meant;
+    ``hp`` itself without init_from."""
     from tendon2r_gym.bundle import model_path
     from tendon2r_gym.learned import fine_tune_env_kwargs
 
     if hp.init_from is None:
         return hp  # (a missing source is refused by initial_model, naming init_from)
-    return hp.replace(env_kwargs=fine_tune_env_kwargs(model_path(hp.init_from), hp.env_kwargs))
+    source = model_path(hp.init_from)
+    tau = float((training_record(source) or {}).get("residual_filter_tau", 0.0))
+    return hp.replace(
+        env_kwargs=fine_tune_env_kwargs(source, hp.env_kwargs),
+        residual_filter_tau=tau if hp.residual_scale > 0 else hp.residual_filter_tau,
+    )
 
 
 def _load_initial(hp: Hyperparams, venv: Any, seed: int, run: RunFolder) -> tuple[Any, Any]:
@@ -269,6 +279,7 @@ def train_run(
         RUN_META,
         {
             "residual_scale": hp.residual_scale,
+            "residual_filter_tau": hp.residual_filter_tau,
             "frame_stack": hp.frame_stack,
             "frame_stride": hp.frame_stride,
             "seed": seed,
@@ -308,6 +319,7 @@ def train_run(
             hp.residual_scale,
             hp.frame_stack,
             hp.frame_stride,
+            hp.residual_filter_tau,
             wall_offset_s=previous["wall_time_s"] if previous else 0.0,
         ),
         TimedCheckpointCallback(

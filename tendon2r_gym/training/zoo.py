@@ -50,7 +50,10 @@ def zoo_entry(hp: Hyperparams) -> dict[str, Any]:
     if hp.frame_stack > 1:
         entry["frame_stack"] = hp.frame_stack
     if hp.residual_scale > 0:
-        entry["env_wrapper"] = [{WRAPPER: {"residual_scale": hp.residual_scale}}]
+        kwargs = {"residual_scale": hp.residual_scale}
+        if hp.residual_filter_tau > 0:
+            kwargs["residual_filter_tau"] = hp.residual_filter_tau
+        entry["env_wrapper"] = [{WRAPPER: kwargs}]
     return entry
 
 
