@@ -303,8 +303,8 @@ def test_generalist_ablation_reads_who_saw_the_arm_from_each_run():
 
 
 def test_generalist_ablation_reads_action_mode_and_network_from_each_run():
-    """The ablation table's action mode, network and evaluation episodes come from each
-    bundle's run record: what its configs/ppo.yaml entry trained it with."""
+    """The ablation table's action mode, residual filter, network and evaluation episodes come
+    from each bundle's run record: what its configs/ppo.yaml entry trained it with."""
     from tendon2r_gym.bundle import bundle_names
     from tendon2r_gym.studies import generalist
     from tendon2r_gym.training import Hyperparams
@@ -319,7 +319,9 @@ def test_generalist_ablation_reads_action_mode_and_network_from_each_run():
         net = hp.policy_kwargs.get("net_arch")
         assert table[name]["network"] == " x ".join(map(str, net)), name
         assert table[name]["eval_episodes"] == len(hp.eval_seeds), name
-    assert len({table[n]["eval_episodes"] for n in shown}) > 1, "the table tells them apart"
+        assert table[name]["residual_filter_tau"] == hp.residual_filter_tau, name
+    for key in ("eval_episodes", "residual_filter_tau"):
+        assert len({table[n][key] for n in shown}) > 1, f"the table tells {key} apart"
 
 
 def test_generalist_is_compared_with_the_specialist_of_its_own_action_mode():

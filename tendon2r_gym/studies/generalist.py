@@ -55,14 +55,16 @@ from tendon2r_gym.task import REWARD_SCALES
 #: The generalist bundles (configs/ppo.yaml entries of the same names: the residual, plain PPO,
 #: the residual on pull-only cables), then the ablations (what each changes is in its entry's
 #: comment; the ablation table reads its action mode, network, reward, arm features and
-#: evaluation episodes from its run record): the plain generalist blind to the arm; the
-#: residual generalist blind to the arm; the previous generalist (tension mode, blind,
-#: 64 x 64) and it with the arm's features; the "log" reward at 3M steps, and on that reward
+#: evaluation episodes from its run record): the residual generalist without its residual
+#: filter; the plain generalist blind to the arm; the unfiltered residual generalist blind to
+#: the arm; the previous generalist (tension mode, blind, 64 x 64) and it with the arm's
+#: features; the "log" reward at 3M steps, and on that reward
 #: and budget the arm's features seen by both networks, by the actor only, by the critic only
 #: (privileged); the multiscale reward at 3M steps with two weights of the action-rate term;
 #: the pull-only residual in tension mode with a 3x heavier action-rate term.
 BUNDLES = GENERALISTS
 ABLATIONS = (
+    "generalist_unfiltered",
     "generalist_scratch_blind",
     "generalist_blind",
     "generalist_tension",
@@ -198,6 +200,7 @@ def ablation(bundles: list[str]) -> dict[str, Any]:
         out[b]["reward"] = reward_of(model)
         out[b]["arm_seen_by"] = arm_seen_by(model)
         out[b]["action_mode"] = action_mode_of(b)
+        out[b]["residual_filter_tau"] = training_record(model).get("residual_filter_tau", 0.0)
         config = RunFolder(stem_of(model).parent).read_config()
         net = config["policy_kwargs"].get("net_arch")
         out[b]["network"] = " x ".join(map(str, net)) if net else "SB3 default"
@@ -381,7 +384,9 @@ def write(result: dict[str, Any], out: Path) -> None:
         f"evaluation seeds {result['seeds']}; for a generalist, (its worst joint's RMS as a "
         "multiple of PD's). Unseen arms: drawn by tendon2r_gym.arms.draw_arms with a seed that "
         "training never uses; sweep arms: results/arm_sweep.md, with their own specialist. "
-        "generalist: residual on PD in joint-torque mode, seeing the arm's features; "
+        "generalist: residual on PD in joint-torque mode, its residual through a first-order "
+        "low-pass (PD's command unfiltered; the ablation table gives the time constant), "
+        "seeing the arm's features; "
         "generalist_scratch: plain PPO (normalized joint torques through a 2 ms action "
         "filter), seeing the arm's features; generalist_pull_only: the residual on arms with "
         "three pull-only cables (its preset's), in joint-torque mode, run on the unseen "
@@ -390,8 +395,9 @@ def write(result: dict[str, Any], out: Path) -> None:
         "columns are ablations (one seed each; configs/ppo.yaml's comment on each entry says "
         "what it changes, and the ablation table below gives each one's action mode, network, "
         "reward, arm features, evaluation episodes and training steps): "
+        "generalist_unfiltered, the generalist without its residual filter; "
         "generalist_scratch_blind, the plain generalist without the arm's features; "
-        "generalist_blind, the residual generalist without them; generalist_tension, the "
+        "generalist_blind, generalist_unfiltered without them; generalist_tension, the "
         "previous generalist (tension mode, blind, 64 x 64), and generalist_observe_arm, it "
         "with the arm's features; generalist_log and "
         "on its reward and budget generalist_arm, generalist_actor_arm and "
@@ -431,15 +437,16 @@ def write(result: dict[str, Any], out: Path) -> None:
             "first episodes for all, with pull-only cables for the generalist_pull_only rows; "
             "PD on them). The summary above gives each on the unseen arms, zero-shot.",
             "",
-            "| generalist | arm features seen by | action mode | network | reward (tracking "
-            "form, changed weights) | evaluation episodes | RMS A / B (deg) | PD A / B (deg) | "
-            "RMS tension rate (N/s) | steps | wall time (s) |",
-            "|---|---|---|---|---|---|---|---|---|---|---|",
+            "| generalist | arm features seen by | action mode | residual filter | network | "
+            "reward (tracking form, changed weights) | evaluation episodes | RMS A / B (deg) | "
+            "PD A / B (deg) | RMS tension rate (N/s) | steps | wall time (s) |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for b, a in result["ablation"].items():
             lines.append(
                 f"| {b} | {a.get('arm_seen_by', '?')} | {a.get('action_mode', '?')} | "
-                f"{a.get('network', '?')} | {a.get('reward', '?')} | "
+                f"{_filter(a.get('residual_filter_tau', 0.0))} | {a.get('network', '?')} | "
+                f"{a.get('reward', '?')} | "
                 f"{a.get('eval_episodes', '?')} | "
                 f"{fmt(a['best_rms_deg'])} | {fmt(a['pd_eval_rms_deg'])} | "
                 f"{fmt(a['best_tension_rate_N_per_s'])} | {a['timesteps']:,} | "
@@ -466,6 +473,11 @@ def write(result: dict[str, Any], out: Path) -> None:
             + " |"
         )
     (out / "generalist.md").write_text("\n".join(lines) + "\n")
+
+
+def _filter(tau: float) -> str:
+    """Returns a residual filter's time constant as the ablation table shows it."""
+    return f"{1000 * tau:g} ms" if tau else "none"
 
 
 def finetune_lines(curves: dict[str, Any]) -> list[str]:
