@@ -413,8 +413,7 @@ class EnvConfig:
     def action_filter_alpha(self) -> float:
         """Returns the weight of a new action in the applied command, 1 - exp(-ctrl_dt / tau)
         (1: no filter)."""
-        tau = self.action_filter_tau
-        return 1.0 if tau == 0.0 else -math.expm1(-self.ctrl_dt / tau)
+        return low_pass_alpha(self.action_filter_tau, self.ctrl_dt)
 
     @property
     def max_episode_steps(self) -> int:
@@ -488,3 +487,11 @@ def force_need(
             tau.append(data.qfrc_inverse.copy())
     tensions = distribute(np.array(J), np.array(tau), pull_only, pretension)  # one batch
     return float(np.max(np.abs(tensions)))
+
+
+def low_pass_alpha(tau: float, dt: float) -> float:
+    """Returns the weight of a new input to a first-order low-pass of time constant ``tau``
+    sampled every ``dt``, y <- y + alpha (x - y): alpha = 1 - exp(-dt / tau), 1 for ``tau =
+    0`` (no filter).  The env's action filter and a residual's filter (learned.ResidualFilter)
+    both use it."""
+    return 1.0 if tau == 0.0 else -math.expm1(-dt / tau)

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +25,7 @@ import numpy as np
 
 from tendon2r_gym import observation
 from tendon2r_gym.arms import CONTROLLER, MechanismRanges, gain_field, reference_ranges
-from tendon2r_gym.env_config import EnvConfig
+from tendon2r_gym.env_config import EnvConfig, low_pass_alpha
 from tendon2r_gym.gains import Gains, gains_of
 from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.policies import PDPolicy
@@ -90,7 +89,7 @@ class ResidualFilter:
     def __init__(self, tau: float, ctrl_dt: float) -> None:
         tau = number("residual_filter_tau", tau, 0.0, MAX_RESIDUAL_FILTER_TAU)
         self.tau = tau
-        self.alpha = 1.0 if tau == 0.0 else -math.expm1(-ctrl_dt / tau)
+        self.alpha = low_pass_alpha(tau, ctrl_dt)
         self._y: np.ndarray | None = None
 
     def clear(self) -> None:
