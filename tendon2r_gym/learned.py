@@ -88,7 +88,6 @@ class ResidualFilter:
 
     def __init__(self, tau: float, ctrl_dt: float) -> None:
         tau = number("residual_filter_tau", tau, 0.0, MAX_RESIDUAL_FILTER_TAU)
-        self.tau = tau
         self.alpha = low_pass_alpha(tau, ctrl_dt)
         self._y: np.ndarray | None = None
 
@@ -107,6 +106,12 @@ class ResidualFilter:
             self._y[np.broadcast_to(np.asarray(start, dtype=bool), self._y.shape[:-1])] = 0.0
         self._y = self._y + self.alpha * (residual - self._y)
         return self._y.copy()
+
+
+def recorded_filter_tau(record: dict[str, Any] | None) -> float:
+    """Returns the residual_filter_tau a model's run record (its run.json) gives: 0 for a run
+    recorded before the filter existed, or without a record."""
+    return float((record or {}).get("residual_filter_tau", 0.0))
 
 
 def residual_command(
@@ -389,7 +394,7 @@ class PPOPolicy:
         vecnorm.training, vecnorm.norm_reward = False, False
         gains = deployed_gains(meta["env_config"], env)
         history = int(meta.get("frame_stack", 1)), int(meta.get("frame_stride", 1))
-        tau = float(meta.get("residual_filter_tau", 0.0))
+        tau = recorded_filter_tau(meta)
         return cls(model, vecnorm, float(meta["residual_scale"]), env, gains, arm, *history, tau)
 
     def reset(self, info: dict[str, Any]) -> None:

@@ -37,7 +37,13 @@ from tendon2r_gym.arms import GEOMETRY, draw_arms
 from tendon2r_gym.benchmark import GENERALISTS, LEARNED
 from tendon2r_gym.bundle import bundle_names, bundled_model
 from tendon2r_gym.evaluation import evaluate
-from tendon2r_gym.learned import feature_ranges, in_model_settings, model_settings, observes_arm
+from tendon2r_gym.learned import (
+    feature_ranges,
+    in_model_settings,
+    model_settings,
+    observes_arm,
+    recorded_filter_tau,
+)
 from tendon2r_gym.metrics import (
     RATE_LIMIT_X_PD,
     TENSION_LIMIT_X_PD,
@@ -200,7 +206,7 @@ def ablation(bundles: list[str]) -> dict[str, Any]:
         out[b]["reward"] = reward_of(model)
         out[b]["arm_seen_by"] = arm_seen_by(model)
         out[b]["action_mode"] = action_mode_of(b)
-        out[b]["residual_filter_tau"] = training_record(model).get("residual_filter_tau", 0.0)
+        out[b]["residual_filter_tau"] = recorded_filter_tau(training_record(model))
         config = RunFolder(stem_of(model).parent).read_config()
         net = config["policy_kwargs"].get("net_arch")
         out[b]["network"] = " x ".join(map(str, net)) if net else "SB3 default"

@@ -205,12 +205,12 @@ def fine_tune(hp: Hyperparams) -> Hyperparams:
     run.json and its deployment see what the model saw and its actions mean what they meant;
     ``hp`` itself without init_from."""
     from tendon2r_gym.bundle import model_path
-    from tendon2r_gym.learned import fine_tune_env_kwargs
+    from tendon2r_gym.learned import fine_tune_env_kwargs, recorded_filter_tau
 
     if hp.init_from is None:
         return hp  # (a missing source is refused by initial_model, naming init_from)
     source = model_path(hp.init_from)
-    tau = float((training_record(source) or {}).get("residual_filter_tau", 0.0))
+    tau = recorded_filter_tau(training_record(source))
     return hp.replace(
         env_kwargs=fine_tune_env_kwargs(source, hp.env_kwargs),
         residual_filter_tau=tau if hp.residual_scale > 0 else hp.residual_filter_tau,
