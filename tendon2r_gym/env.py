@@ -130,6 +130,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     | `reset_noise_scale` | `0.001` | initial-state noise (rad, rad/s) |
     | `preview_steps` | `3` | number of future reference samples observed |
     | `preview_dt` | `0.01` | spacing of the future reference samples (s) |
+    | `observe_error_rate` | `False` | observe the tracking error's rate, log-scaled (``error_rate_log``) |
     | `observation_noise` | `(0.0, 0.0)` | std of the measured angles (rad) and speeds (rad/s) |
     | `observation_delay` | `0.0` | age of the measurements (s), a multiple of ctrl_dt |
     | `pd_gains` | `None` | PD / CT gains on this arm (tendon2r_gym.gains; None: data/pd.yaml) |
@@ -422,11 +423,15 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     def _true_entries(self, parts: list[float], state: list[float]) -> list[float]:
         """Returns the observation's entries of the true ``state`` (:meth:`_state`): ``parts``
         (the entries of the sensors' observation of this step) with the entries the joint
-        state sets rewritten (Task.state_entries)."""
+        state sets rewritten (Task.state_entries, and Task.error_rate_entries if observed)."""
         qd1, qd2 = parts[obs_layout.Q_DES]
         joints, rest = self.task.state_entries(SCALAR, *state, qd1, qd2, self._arm)
         head, tail = obs_layout.STATE
-        return joints + parts[head.stop : tail.start] + rest + parts[tail.stop :]
+        out = joints + parts[head.stop : tail.start] + rest + parts[tail.stop :]
+        if self.config.observe_error_rate:
+            where = obs_layout.error_rate_slice(self.preview_steps, self._n)
+            out[where] = self.task.error_rate_entries(SCALAR, *state[2:], *parts[obs_layout.DQ_DES])
+        return out
 
     def _get_rew(
         self, entries: list[float], action: list[float], last: list[float], diverged: bool

@@ -83,6 +83,8 @@ class EnvConfig:
     reset_noise_scale: float = 0.001
     preview_steps: int = 3
     preview_dt: float = 0.01
+    #: Observe the tracking error's rate, log-scaled (``error_rate_log``, after last_action).
+    observe_error_rate: bool = False
     #: What the controller measures (tendon2r_gym.realism.Sensors): Gaussian noise (std, rad
     #: and rad/s) on each joint's angle and speed, and their age (s, whole control steps).
     observation_noise: tuple[float, float] = (0.0, 0.0)
@@ -186,6 +188,7 @@ class EnvConfig:
             if abs(round(value / self.ctrl_dt) * self.ctrl_dt - value) > 1e-6 * self.ctrl_dt:
                 raise invalid(name, value, f"a multiple of ctrl_dt = {self.ctrl_dt} s")
         set_("observe_arm", boolean("observe_arm", self.observe_arm))
+        set_("observe_error_rate", boolean("observe_error_rate", self.observe_error_rate))
         if self.observe_arm and self.feature_ranges is None:
             raise invalid(
                 "observe_arm", True, "False without mechanism_ranges or arm_feature_ranges"
@@ -331,11 +334,15 @@ class EnvConfig:
     @property
     def observation_size(self) -> int:
         """Returns the observation's length (tendon2r_gym.observation.size)."""
-        return observation.size(self.preview_steps, self.n_actions, self.n_arm_features)
+        return observation.size(
+            self.preview_steps, self.n_actions, self.n_arm_features, self.observe_error_rate
+        )
 
     def observation_layout(self) -> list[list]:
         """Returns the observation's named layout (tendon2r_gym.observation.layout)."""
-        return observation.layout(self.preview_steps, self.n_actions, self.n_arm_features)
+        return observation.layout(
+            self.preview_steps, self.n_actions, self.n_arm_features, self.observe_error_rate
+        )
 
     @property
     def feature_ranges(self) -> MechanismRanges | None:

@@ -34,8 +34,16 @@ from tendon2r_gym.runs import RUN_META, model_files, stem_of, training_record
 from tendon2r_gym.validation import number, real_array
 
 #: Env config settings a trained model depends on, compared as recorded (a setting recorded
-#: before it existed takes its EnvConfig default): what its actions mean and its timing.
-MODEL_SETTINGS = ("action_mode", "action_filter_tau", "ctrl_dt", "preview_steps", "preview_dt")
+#: before it existed takes its EnvConfig default): what its actions mean, its timing and the
+#: optional entries it observes (an arm's env takes them from the model, as a user would).
+MODEL_SETTINGS = (
+    "action_mode",
+    "action_filter_tau",
+    "ctrl_dt",
+    "preview_steps",
+    "preview_dt",
+    "observe_error_rate",
+)
 #: Env config fields a trained model depends on: what it observes, what its actions mean and
 #: what it must track.
 MODEL_ENV_FIELDS = (

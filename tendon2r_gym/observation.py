@@ -3,9 +3,10 @@
 The env writes the observation in this order, and policies, info and tests read it by name.
 The fixed entries come first, so their slices do not depend on ``preview_steps``; then the
 preview of the reference, then the last action (one value per action dimension), which makes
-the action-rate reward term a function of the observed state.  With ``observe_arm`` (random
-arms, ``mechanism_ranges``), the arm's drawn fields close it, normalized over their ranges
-(``arm_feature_ranges`` if given: one fixed arm, seen as a generalist saw it).
+the action-rate reward term a function of the observed state.  With ``observe_error_rate``,
+the log-scaled rate of the tracking error follows (``error_rate_log``).  With ``observe_arm``
+(random arms, ``mechanism_ranges``), the arm's drawn fields close it, normalized over their
+ranges (``arm_feature_ranges`` if given: one fixed arm, seen as a generalist saw it).
 """
 
 from __future__ import annotations
@@ -32,6 +33,15 @@ FIXED: tuple[tuple[str, int, str], ...] = (
 #: normalizers (VecNormalize) keep running statistics from the start of training, when errors
 #: are large; a raw error would then stay a tiny input long after the policy tracks to 0.1 deg.
 ERROR_LOG_SCALE = 1e-4
+
+#: The optional entry of ``observe_error_rate`` (name, size, unit): sign(de) log(1 + |de| /
+#: ERROR_RATE_LOG_SCALE) of the error's rate de = dq_des - dq, joint A then B.  The policy sees
+#: dq and dq_des, but each normalized over speeds of rad/s: their difference near 0, a PD's
+#: derivative term, is then a tiny input, as the raw error is.
+ERROR_RATE = ("error_rate_log", 2, "1")
+#: The error rate below which ``error_rate_log`` is linear (rad/s): ERROR_LOG_SCALE's error
+#: oscillating at the references' 0.5-4 Hz changes at about 3e-4 to 3e-3 rad/s.
+ERROR_RATE_LOG_SCALE = 1e-3
 
 
 def _slices() -> dict[str, slice]:
@@ -67,23 +77,34 @@ def last_action_slice(preview_steps: int, n_actions: int) -> slice:
     return slice(start, start + n_actions)
 
 
-def arm_slice(preview_steps: int, n_actions: int, n_arm: int) -> slice:
-    """Returns the slice of the arm's features (observe_arm): each drawn Mechanism field,
-    normalized over its range to [-1, 1], in the order of the ranges (EnvConfig.feature_ranges)."""
+def error_rate_slice(preview_steps: int, n_actions: int) -> slice:
+    """Returns the slice of ``error_rate_log`` (observe_error_rate), after the last action."""
     start = N_FIXED + 2 * preview_steps + n_actions
+    return slice(start, start + ERROR_RATE[1])
+
+
+def arm_slice(preview_steps: int, n_actions: int, n_arm: int, error_rate: bool = False) -> slice:
+    """Returns the slice of the arm's features (observe_arm): each drawn Mechanism field,
+    normalized over its range to [-1, 1], in the order of the ranges (EnvConfig.feature_ranges).
+    ``error_rate``: the observation holds ``error_rate_log`` (observe_error_rate)."""
+    start = N_FIXED + 2 * preview_steps + n_actions + (ERROR_RATE[1] if error_rate else 0)
     return slice(start, start + n_arm)
 
 
-def size(preview_steps: int, n_actions: int, n_arm: int = 0) -> int:
+def size(preview_steps: int, n_actions: int, n_arm: int = 0, error_rate: bool = False) -> int:
     """Returns the length of the observation."""
-    return N_FIXED + 2 * preview_steps + n_actions + n_arm
+    return arm_slice(preview_steps, n_actions, n_arm, error_rate).stop
 
 
-def layout(preview_steps: int, n_actions: int, n_arm: int = 0) -> list[list]:
+def layout(
+    preview_steps: int, n_actions: int, n_arm: int = 0, error_rate: bool = False
+) -> list[list]:
     """Returns the layout as [[name, size], ...] in order (run.json records it, so that a
     trained model meets only the observation it was trained on)."""
-    fixed = [[name, n] for name, n, _ in FIXED]
-    out = [*fixed, ["preview", 2 * preview_steps], ["last_action", n_actions]]
+    out = [[name, n] for name, n, _ in FIXED]
+    out += [["preview", 2 * preview_steps], ["last_action", n_actions]]
+    if error_rate:
+        out.append([ERROR_RATE[0], ERROR_RATE[1]])
     return out + [["arm", n_arm]] if n_arm else out
 
 
@@ -107,8 +128,13 @@ def table(preview_steps_name: str = "P") -> str:
         "k = 1..P, A then B | rad |"
     )
     rows.append(
-        f"| {N_FIXED} + 2{preview_steps_name} to the end | the last applied command (the rest "
-        "command after a reset), one per action dimension | 1 |"
+        f"| {N_FIXED} + 2{preview_steps_name}, n_actions entries | the last applied command "
+        "(the rest command after a reset), one per action dimension | 1 |"
+    )
+    rows.append(
+        "| (observe_error_rate only) the next 2 | the tracking error's rate dq_des - dq, "
+        f"log-scaled as error_log (``{ERROR_RATE[0]}``, linear below "
+        f"{ERROR_RATE_LOG_SCALE:g} rad/s) | {ERROR_RATE[2]} |"
     )
     rows.append(
         "| (observe_arm only) the last entries | the arm's drawn fields, normalized over "

@@ -243,18 +243,21 @@ class Task:
     ) -> list[Any]:
         """Returns the observation's entries in the order of tendon2r_gym.observation (q, dq,
         q_des, dq_des, error, error_log, effector_pos, effector_vel, preview, last action,
-        arm), from the joint angles and speeds, the time, :func:`reference_params`,
-        :func:`arm_params` and the last clipped action (one value, or one column of N values,
-        per action dimension)."""
+        error_rate_log if observed, arm), from the joint angles and speeds, the time,
+        :func:`reference_params`, :func:`arm_params` and the last clipped action (one value,
+        or one column of N values, per action dimension)."""
         amp1, amp2, om1, om2, ph1, ph2, bias1, bias2 = ref
         sin, cos = ops.sin, ops.cos
         arg1, arg2 = om1 * t + ph1, om2 * t + ph2
         qd1, qd2 = amp1 * sin(arg1) + bias1, amp2 * sin(arg2) + bias2
         joints, rest = self.state_entries(ops, q1, q2, w1, w2, qd1, qd2, arm)
-        joints += [qd1, qd2, amp1 * om1 * cos(arg1), amp2 * om2 * cos(arg2), *rest]
+        dqd1, dqd2 = amp1 * om1 * cos(arg1), amp2 * om2 * cos(arg2)
+        joints += [qd1, qd2, dqd1, dqd2, *rest]
         for dt in self.offsets:
             joints += [amp1 * sin(arg1 + om1 * dt) + bias1, amp2 * sin(arg2 + om2 * dt) + bias2]
         joints += last_action
+        if self.config.observe_error_rate:
+            joints += self.error_rate_entries(ops, w1, w2, dqd1, dqd2)
         if len(arm) > 3:
             joints += arm[3:]
         return joints
@@ -283,6 +286,13 @@ class Task:
             -c * s1 * w1 - b * s12 * w12, c * c1 * w1 + b * c12 * w12,  # effector velocity
         ]  # fmt: skip
         return [q1, q2, w1, w2], rest
+
+    def error_rate_entries(self, ops: Ops, w1: Any, w2: Any, dqd1: Any, dqd2: Any) -> list[Any]:
+        """Returns ``error_rate_log`` (observe_error_rate) from the joint speeds and the
+        reference's: sign(de) log(1 + |de| / ERROR_RATE_LOG_SCALE), de = dq_des - dq."""
+        de1, de2 = dqd1 - w1, dqd2 - w2
+        scale, copysign, log1p = L.ERROR_RATE_LOG_SCALE, ops.copysign, ops.log1p
+        return [copysign(log1p(abs(de1) / scale), de1), copysign(log1p(abs(de2) / scale), de2)]
 
     # -- action ----------------------------------------------------------------------------------
     def rest_command(self, arm: EnvConfig) -> list[float]:

@@ -380,7 +380,8 @@ class Tendon2RVectorEnv(VectorEnv):
 
     def _true_obs(self, measured: np.ndarray) -> np.ndarray:
         """Returns the observations of the true state: ``measured`` (the sensors' observations
-        of this step) with the entries the joint state sets rewritten (Task.state_entries)."""
+        of this step) with the entries the joint state sets rewritten (Task.state_entries, and
+        Task.error_rate_entries if observed)."""
         truth = measured.copy()
         q, w, q_des = self._qpos, self._qvel, measured[:, obs_layout.Q_DES]
         joints, rest = self.task.state_entries(
@@ -388,6 +389,11 @@ class Tendon2RVectorEnv(VectorEnv):
         )
         head, tail = obs_layout.STATE
         truth[:, head], truth[:, tail] = np.stack(joints, axis=1), np.stack(rest, axis=1)
+        if self.config.observe_error_rate:
+            cfg, dq_des = self.config, measured[:, obs_layout.DQ_DES]
+            where = obs_layout.error_rate_slice(cfg.preview_steps, cfg.n_actions)
+            rate = self.task.error_rate_entries(BATCH, w[:, 0], w[:, 1], dq_des[:, 0], dq_des[:, 1])
+            truth[:, where] = np.stack(rate, axis=1)
         return truth
 
     def _rewards(

@@ -123,6 +123,41 @@ def test_observation_entries_match_the_physics():
     assert env.unwrapped.tendon_tensions() == pytest.approx(-np.array([0.3, -0.2]) * limit)
 
 
+def test_error_rate_entry_is_the_log_scaled_rate_of_the_error():
+    """observe_error_rate adds error_rate_log after the last action: sign(de) log(1 + |de| / s),
+    de = dq_des - dq; every other entry is as without it, and without it (the default) the
+    observation is the registered one."""
+    plain, env = Tendon2REnv(), Tendon2REnv(observe_error_rate=True)
+    assert [n for n, _ in plain.config.observation_layout()][-1] == "last_action"
+    assert plain.observation_space.shape == (L.size(3, 2),)
+    assert env.config.observation_layout()[-1] == ["error_rate_log", 2]
+    assert env.observation_space.shape == (L.size(3, 2, error_rate=True),) == (L.size(3, 2) + 2,)
+    plain.reset(seed=0)
+    env.reset(seed=0)
+    for a in ([0.3, -0.2], [-0.1, 0.5]):
+        obs, plain_obs = env.step(np.array(a))[0], plain.step(np.array(a))[0]
+    where = L.error_rate_slice(3, 2)
+    np.testing.assert_array_equal(np.delete(obs, np.r_[where]), plain_obs)
+    de = env.reference.qdot(env.data.time) - obs[L.DQ]
+    assert np.all(np.abs(de) > 10 * L.ERROR_RATE_LOG_SCALE)  # the log branch is exercised
+    expected = np.sign(de) * np.log1p(np.abs(de) / L.ERROR_RATE_LOG_SCALE)
+    np.testing.assert_allclose(obs[where], expected, rtol=1e-12)
+    with pytest.raises(ValueError, match="observe_error_rate = 'yes'"):
+        gym.make("Tendon2R-v0", observe_error_rate="yes")
+
+
+def test_the_true_observation_under_sensor_noise_is_that_of_the_true_state():
+    """With sensors, reward and info read the measured observation with every state-set entry
+    rewritten from the true state: the result equals the observation of the true state."""
+    for kwargs in ({}, {"observe_error_rate": True}):
+        env = Tendon2REnv(observation_noise=[1e-3, 0.1], **kwargs)
+        env.reset(seed=0)
+        obs = env.step(np.array([0.3, -0.2]))[0]
+        truth = env._true_entries(obs.tolist(), env._state())
+        assert not np.allclose(obs, truth)
+        np.testing.assert_allclose(truth, env._get_obs(measured=False), rtol=1e-12, atol=1e-15)
+
+
 def test_same_seed_same_episode_bit_for_bit():
     a, b = Tendon2REnv(), Tendon2REnv()
     np.testing.assert_array_equal(_rollout(a, 7), _rollout(b, 7))
