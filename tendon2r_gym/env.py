@@ -78,7 +78,8 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     it pulls) for every routing and mode.
 
     ## Observation Space
-    ``Box(-inf, inf, (16 + 2 * preview_steps + n_actions,), float64)``, named slices in
+    ``Box(-inf, inf, (16 + 2 * preview_steps + n_actions,), float64)`` (2 more with
+    ``observe_error_rate``, one per drawn field with ``observe_arm``), named slices in
     ``tendon2r_gym.observation``:
 
     {obs_table}
@@ -188,6 +189,8 @@ class Tendon2REnv(MujocoEnv, EzPickle):
       - the "multiscale" tracking reward (was "log") and the action-rate weight 0.1 (was
         0.01): plain and residual PPO both beat PD on it, with smooth tensions (README, One
         reward); "log" and "quadratic" stay options.
+      - the optional ``observe_error_rate`` (off by default: the registered observation and
+        results are unchanged).
     """  # noqa: E501
 
     metadata = {"render_modes": ["human", "rgb_array", "depth_array"]}
