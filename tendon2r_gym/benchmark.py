@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +33,7 @@ from tendon2r_gym.plots import plot_trace
 from tendon2r_gym.presets import DATA_DIR
 from tendon2r_gym.runs import model_files, training_record, training_summary
 from tendon2r_gym.tuning import tune_pd
+from tendon2r_gym.validation import invalid
 
 #: Learned variants: label -> (bundle suffix, hyperparameter entry used to train on your arm).
 LEARNED = {
@@ -570,9 +572,11 @@ def benchmark_own_arm(
     out: Path,
     run_dir: Path,
     command: str,
+    labels: Sequence[str] | None = None,
 ) -> dict[str, Any]:
     """Trains both PPO variants on ``env_config`` (one run per seed), then compares PD, CT and
-    them on the same evaluation seeds -> out/benchmark.md, .json, plots/."""
+    them on the same evaluation seeds -> out/benchmark.md, .json, plots/.  ``labels``: train
+    only these learned rows (of LEARNED and FINETUNED; None: every one)."""
     from tqdm.auto import tqdm
 
     from tendon2r_gym.env_config import EnvConfig
@@ -581,9 +585,13 @@ def benchmark_own_arm(
     env_kwargs = {"preset": env_config}
     config = EnvConfig.make(env_config)  # every error before any training
     entries = {label: entry for label, (_, entry) in LEARNED.items()} | FINETUNED
+    if labels is not None:
+        if unknown := set(labels) - set(entries):
+            raise invalid("labels", sorted(unknown), f"some of {list(entries)}")
+        entries = {k: v for k, v in entries.items() if k in labels}
     cfgs = {k: Hyperparams.from_entry(e, env_config=env_config) for k, e in entries.items()}
     uncovered = {}
-    for label in FINETUNED:  # only where the generalist covers the arm
+    for label in [k for k in FINETUNED if k in cfgs]:  # only where the generalist covers the arm
         source = cfgs[label].init_from
         if source not in bundle_names():
             uncovered[label] = f"bundle {source} is not installed"

@@ -120,6 +120,37 @@ def test_arm_sweep_summary_counts_push_pull_arms_in_tension_mode(tmp_path):
     assert "**WORSE**; tension 1.0x, rate 2.0x PD" in md
 
 
+def test_arm_sweep_only_retrains_one_row_and_keeps_the_others(tmp_path):
+    """--only scratch trains plain PPO alone; residual PPO's cells and command stay those of
+    the earlier sweep, which must hold the same arm (checked before any training)."""
+    from tendon2r_gym.env_config import EnvConfig
+    from tendon2r_gym.studies import arm_sweep
+
+    runs, out = tmp_path / "runs", tmp_path / "out"
+    path = arm_sweep.arm_files(runs / "arms", 0, 2027)["default", "tension"]
+    config = json.loads(json.dumps(EnvConfig.make(str(path)).to_dict()))
+    cell = {"rms_deg": [9.0, 9.0], "beats_pd": False, "tension_x_pd": 1.0, "tension_rate_x_pd": 1}
+    arm = {"arm": "default", "action_mode": "tension", "env_config": config, "pd": [1, 1],
+           "ct": [0, 0], "ppo scratch": cell, "ppo residual": cell}  # fmt: skip
+    earlier = {"command": "the old sweep", "modes": ["tension"], "arms": {"default_tension": arm}}
+    out.mkdir()
+    (out / "arm_sweep.json").write_text(json.dumps(earlier))
+    argv = ["--arms", "default", "--action-modes", "tension", "--n-random", "0", "--train-steps",
+            "2048", "--episodes", "1", "--out", str(out), "--run-dir", str(runs)]  # fmt: skip
+    result = arm_sweep.main([*argv, "--only", "scratch"])
+    new = result["arms"]["default_tension"]
+    assert new["ppo residual"] == cell and new["ppo scratch"]["rms_deg"] != cell["rms_deg"]
+    assert result["commands"]["ppo residual"] == "the old sweep"
+    assert result["commands"]["ppo scratch"].endswith("--only scratch")
+    assert sorted(p.name for p in (runs / "default_tension").iterdir()) == ["ppo_scratch"]
+    assert "residual PPO by `the old sweep`" in (out / "arm_sweep.md").read_text()
+    arm["env_config"] = {**config, "ctrl_dt": 0.002}  # another config of the arm
+    (out / "arm_sweep.json").write_text(json.dumps(earlier))
+    with pytest.raises(ValueError, match="arm 'default_tension'"):
+        arm_sweep.main([*argv, "--only", "residual", "--run-dir", str(tmp_path / "r2")])
+    assert not (tmp_path / "r2" / "default_tension").exists()
+
+
 def test_sensitivity_variants_change_one_knob():
     from tendon2r_gym.studies.sensitivity import variant
     from tendon2r_gym.training.hyperparams import scaled_schedule

@@ -9,11 +9,16 @@ arm is written as an experiment file and run through the same code path as
 ``tendon2r-benchmark --env-config ARM.yaml``: plain and residual PPO trained with the shipped
 hyperparameters (one seed, no per-arm tuning), then PD, CT and both on the same episodes.
 Every arm runs in each ``--action-modes`` (the experiment file's ``action_mode``).
+
+``--only scratch`` (or ``residual``) trains and measures only that PPO row, after its entry
+changed; the other row's cells stay those of ``--out``'s arm_sweep.json (the same arms, its
+command kept beside them).  Training is deterministic, so rerunning them would repeat them.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 from typing import Any
 
@@ -21,13 +26,16 @@ import yaml
 
 from tendon2r_gym.arms import draw_arms
 from tendon2r_gym.benchmark import benchmark_own_arm
-from tendon2r_gym.env_config import ACTION_MODES
+from tendon2r_gym.env_config import ACTION_MODES, EnvConfig
 from tendon2r_gym.metrics import beats, smoothness_x_pd
 from tendon2r_gym.presets import load_yaml, preset_path
 from tendon2r_gym.runs import command_line
 from tendon2r_gym.studies import joints, save_json
+from tendon2r_gym.validation import invalid
 
 PRESETS = ("default", "report_002", "pull_only")
+#: The sweep's learned rows (tendon2r_gym.benchmark.LEARNED labels), by --only's names.
+ROWS = {"scratch": "ppo scratch", "residual": "ppo residual"}
 EXAMPLE = Path(__file__).resolve().parents[2] / "configs" / "examples" / "my_arm.yaml"
 
 
@@ -82,27 +90,76 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     )
     p.add_argument("--out", default="results")
     p.add_argument("--run-dir", default="runs/arm_sweep")
+    p.add_argument(
+        "--only", choices=list(ROWS), default=None,
+        help="train only this PPO row; the other's cells come from --out's arm_sweep.json",
+    )  # fmt: skip
     args = p.parse_args(argv)
     command = command_line(argv, "python scripts/arm_sweep.py")
     out, runs = Path(args.out), Path(args.run_dir)
+    earlier = _earlier(out, args.only)
     paths = arm_files(runs / "arms", args.n_random, args.arm_seed, tuple(args.action_modes))
     if args.arms:
         paths = {k: v for k, v in paths.items() if k[0] in args.arms}
-    result: dict[str, Any] = {"command": command, "modes": args.action_modes, "arms": {}}
+    commands = {label: command for label in ROWS.values()}
+    if earlier is not None:
+        commands |= {k: v for k, v in earlier["commands"].items() if k != ROWS[args.only]}
+    result: dict[str, Any] = {
+        "command": command, "commands": commands, "modes": args.action_modes, "arms": {},
+    }  # fmt: skip
+    labels, kept = None, {}
+    if earlier is not None:  # every arm checked before any training
+        labels = [ROWS[args.only]]
+        kept = {
+            f"{name}_{mode}": _kept(earlier, f"{name}_{mode}", path, labels[0])
+            for (name, mode), path in paths.items()
+        }
     for (name, mode), path in paths.items():
         key = f"{name}_{mode}"
         bench = benchmark_own_arm(
             str(path), args.train_steps, [0], args.episodes, runs / "reports" / key,
-            runs / key, command,
+            runs / key, command, labels,
         )  # fmt: skip
-        result["arms"][key] = {
-            "arm": name,
-            "action_mode": mode,
-            "env_config": bench["env_config"],
-            **_verdict(bench["rows"]),
-        }
+        arm = {"arm": name, "action_mode": mode, "env_config": bench["env_config"]}
+        result["arms"][key] = arm | _verdict(bench["rows"]) | kept.get(key, {})
         write(result, out)
     return result
+
+
+def _earlier(out: Path, only: str | None) -> dict[str, Any] | None:
+    """Returns the earlier sweep that ``--only`` keeps the other rows of (None without --only),
+    with the command of each row (a sweep from before per-row commands: its one command)."""
+    if only is None:
+        return None
+    path = out / "arm_sweep.json"
+    if not path.is_file():
+        raise invalid("--only", only, f"no --only without an earlier sweep at {path}")
+    earlier = json.loads(path.read_text())
+    earlier.setdefault("commands", {label: earlier["command"] for label in ROWS.values()})
+    return earlier
+
+
+def _kept(earlier: dict[str, Any], key: str, path: Path, retrained: str) -> dict[str, Any]:
+    """Returns the earlier sweep's cells of arm ``key`` (experiment file ``path``) for every
+    learned row but ``retrained``; raises if that sweep lacks the arm or ran another config."""
+    arm = earlier["arms"].get(key)  # its config read back: a field added since, its default
+    if arm is None or EnvConfig.from_kwargs(arm["env_config"]) != EnvConfig.make(str(path)):
+        found = None if arm is None else "another config of it"
+        raise invalid(f"earlier arm_sweep.json arm {key!r}", found, "the same arm as this sweep")
+    return {label: arm[label] for label in ROWS.values() if label != retrained}
+
+
+def _produced_by(result: dict[str, Any]) -> list[str]:
+    """Returns the lines that name the command of each row (one command, or one per row)."""
+    commands = result.get("commands", {})
+    if len(set(commands.values())) <= 1:
+        return [f"Produced by `{result['command']}`."]
+    shown = {"ppo scratch": "plain PPO", "ppo residual": "residual PPO"}
+    rows = "; ".join(f"{shown[k]} by `{v}`" for k, v in commands.items())
+    return [
+        f"Produced by `{result['command']}`, each learned row by its latest run: {rows} (a row "
+        "whose entry did not change is kept from its run; training is deterministic)."
+    ]
 
 
 def write(result: dict[str, Any], out: Path) -> None:
@@ -123,7 +180,8 @@ def write(result: dict[str, Any], out: Path) -> None:
     lines = [
         "# Arm sweep: PD, CT, plain and residual PPO on every arm",
         "",
-        f"Produced by `{result['command']}`. One training seed per arm, the shipped "
+        *_produced_by(result),
+        "One training seed per arm, the shipped "
         "hyperparameters (configs/ppo.yaml `default_scratch` and `default`), no per-arm tuning;",
         "RMS tracking error (deg, joint A / B) on evaluation seeds 0-2; `tension` and `rate`: the",
         "RMS tendon tension and its RMS rate of change, over the tendons, as multiples of PD's (in",
