@@ -48,9 +48,14 @@ def smoothness_x_pd(row: dict[str, Any], pd_row: dict[str, Any]) -> tuple[float,
 def smooth_enough(row: dict[str, Any], pd_row: dict[str, Any], residual: bool) -> bool:
     """Returns whether a policy keeps the smoothness limits against PD's (TENSION_LIMIT_X_PD,
     RATE_LIMIT_X_PD of a residual on PD or of plain PPO)."""
-    tension, rate = smoothness_x_pd(row, pd_row)
+    return within_limits(*smoothness_x_pd(row, pd_row), residual)
+
+
+def within_limits(tension_x_pd: float, rate_x_pd: float, residual: bool) -> bool:
+    """Returns whether RMS tension and tension rate, as multiples of PD's, keep the limits
+    (TENSION_LIMIT_X_PD, RATE_LIMIT_X_PD of a residual on PD or of plain PPO)."""
     limit = RATE_LIMIT_X_PD["residual" if residual else "plain"]
-    return tension <= TENSION_LIMIT_X_PD and rate <= limit
+    return tension_x_pd <= TENSION_LIMIT_X_PD and rate_x_pd <= limit
 
 
 def tracking_metrics(traces: Sequence[Trace]) -> dict[str, list[float] | float | int]:

@@ -95,8 +95,13 @@ def test_arm_sweep_summary_counts_push_pull_arms_in_tension_mode(tmp_path):
     push and pull, and never a pull-only arm or the joint-torque mode."""
     from tendon2r_gym.studies import arm_sweep
 
-    def arm(name, mode, pull_only, wins):
-        v = {"rms_deg": [0.1, 0.1], "beats_pd": wins, "tension_x_pd": 1.0, "tension_rate_x_pd": 2}
+    def arm(name, mode, pull_only, wins, rate=2):
+        v = {
+            "rms_deg": [0.1, 0.1],
+            "beats_pd": wins,
+            "tension_x_pd": 1.0,
+            "tension_rate_x_pd": rate,
+        }
         return {
             "arm": name, "action_mode": mode, "pd": [0.2, 0.2], "ct": [0.0, 0.0],
             "env_config": {"mechanism": {"pull_only": pull_only}},
@@ -107,7 +112,7 @@ def test_arm_sweep_summary_counts_push_pull_arms_in_tension_mode(tmp_path):
         arm("a", "tension", False, False),
         arm("a", "joint_torque", False, True),
         arm("b", "tension", True, True),
-        arm("c", "tension", False, True),
+        arm("c", "tension", False, True, rate=12),
     ]
     result = {"command": "x", "modes": ["tension", "joint_torque"]}
     arm_sweep.write(
@@ -116,8 +121,10 @@ def test_arm_sweep_summary_counts_push_pull_arms_in_tension_mode(tmp_path):
     md = (tmp_path / "arm_sweep.md").read_text()
     assert "tension mode, push-pull arms: <= PD on 1 of 2." in md
     assert "at least one action mode on 3 of 3 arms" in md
-    assert "ppo scratch, tension: <= PD on both joints on 2 of 3 arms" in md
-    assert "**WORSE**; tension 1.0x, rate 2.0x PD" in md
+    assert "ppo scratch, tension: <= PD on both joints on 2 of 3 arms; <= PD within" in md
+    assert "the smoothness limits on 1." in md  # arm c: 12x PD's rate, over plain PPO's 10x
+    assert "**WORSE**; tension 1.0x, rate 2.0x PD)" in md
+    assert "rate 12.0x PD, **over the limits**)" in md
 
 
 def test_arm_sweep_only_retrains_one_row_and_keeps_the_others(tmp_path):
@@ -143,7 +150,7 @@ def test_arm_sweep_only_retrains_one_row_and_keeps_the_others(tmp_path):
     assert result["commands"]["ppo residual"] == "the old sweep"
     assert result["commands"]["ppo scratch"].endswith("--only scratch")
     assert sorted(p.name for p in (runs / "default_tension").iterdir()) == ["ppo_scratch"]
-    assert "residual PPO by `the old sweep`" in (out / "arm_sweep.md").read_text()
+    assert "residual PPO cells are kept from `the old sweep`" in (out / "arm_sweep.md").read_text()
     arm["env_config"] = {**config, "ctrl_dt": 0.002}  # another config of the arm
     (out / "arm_sweep.json").write_text(json.dumps(earlier))
     with pytest.raises(ValueError, match="arm 'default_tension'"):

@@ -27,7 +27,13 @@ import yaml
 from tendon2r_gym.arms import draw_arms
 from tendon2r_gym.benchmark import benchmark_own_arm
 from tendon2r_gym.env_config import ACTION_MODES, EnvConfig
-from tendon2r_gym.metrics import beats, smoothness_x_pd
+from tendon2r_gym.metrics import (
+    RATE_LIMIT_X_PD,
+    TENSION_LIMIT_X_PD,
+    beats,
+    smoothness_x_pd,
+    within_limits,
+)
 from tendon2r_gym.presets import load_yaml, preset_path
 from tendon2r_gym.runs import command_line
 from tendon2r_gym.studies import joints, save_json
@@ -149,17 +155,23 @@ def _kept(earlier: dict[str, Any], key: str, path: Path, retrained: str) -> dict
     return {label: arm[label] for label in ROWS.values() if label != retrained}
 
 
+def _smooth(cell: dict[str, Any], label: str) -> bool:
+    """Returns whether a learned row's cell keeps the smoothness limits (metrics)."""
+    return within_limits(cell["tension_x_pd"], cell["tension_rate_x_pd"], label == "ppo residual")
+
+
 def _produced_by(result: dict[str, Any]) -> list[str]:
-    """Returns the lines that name the command of each row (one command, or one per row)."""
-    commands = result.get("commands", {})
-    if len(set(commands.values())) <= 1:
-        return [f"Produced by `{result['command']}`."]
+    """Returns the line that names the command of each learned row (--only keeps the other
+    row from an earlier sweep)."""
     shown = {"ppo scratch": "plain PPO", "ppo residual": "residual PPO"}
-    rows = "; ".join(f"{shown[k]} by `{v}`" for k, v in commands.items())
-    return [
-        f"Produced by `{result['command']}`, each learned row by its latest run: {rows} (a row "
-        "whose entry did not change is kept from its run; training is deterministic)."
-    ]
+    kept = {k: v for k, v in result.get("commands", {}).items() if v != result["command"]}
+    line = f"Produced by `{result['command']}`"
+    for label, command in kept.items():
+        line += (
+            f"; the {shown[label]} cells are kept from `{command}` (its entry did not change, "
+            "and training is deterministic)"
+        )
+    return [line + "."]
 
 
 def write(result: dict[str, Any], out: Path) -> None:
@@ -167,13 +179,14 @@ def write(result: dict[str, Any], out: Path) -> None:
     save_json(out, "arm_sweep", result)
     fmt = joints
 
-    def cell(v: dict[str, Any] | None) -> str:
+    def cell(v: dict[str, Any] | None, label: str) -> str:
         if v is None:
             return "-"
         mark = "<= PD" if v["beats_pd"] else "**WORSE**"
+        over = "" if _smooth(v, label) else ", **over the limits**"
         return (
             f"{fmt(v['rms_deg'])} ({mark}; tension {v['tension_x_pd']:.1f}x, "
-            f"rate {v['tension_rate_x_pd']:.1f}x PD)"
+            f"rate {v['tension_rate_x_pd']:.1f}x PD{over})"
         )
 
     arms = result["arms"]
@@ -185,13 +198,14 @@ def write(result: dict[str, Any], out: Path) -> None:
         "hyperparameters (configs/ppo.yaml `default_scratch` and `default`), no per-arm tuning;",
         "RMS tracking error (deg, joint A / B) on evaluation seeds 0-2; `tension` and `rate`: the",
         "RMS tendon tension and its RMS rate of change, over the tendons, as multiples of PD's (in",
-        "the same action mode).",
+        f"the same action mode); the limits: tension {TENSION_LIMIT_X_PD:g}x, rate "
+        f"{RATE_LIMIT_X_PD['plain']:g}x (plain) and {RATE_LIMIT_X_PD['residual']:g}x (residual).",
         "",
         "| arm | action mode | PD | CT | plain PPO | residual PPO |",
         "|---|---|---|---|---|---|",
         *(
             f"| {a['arm']} | {a['action_mode']} | {fmt(a['pd'])} | {fmt(a['ct'])} | "
-            f"{cell(a['ppo scratch'])} | {cell(a['ppo residual'])} |"
+            f"{cell(a['ppo scratch'], 'ppo scratch')} | {cell(a['ppo residual'], 'ppo residual')} |"
             for a in arms.values()
         ),
         "",
@@ -202,7 +216,11 @@ def write(result: dict[str, Any], out: Path) -> None:
                 a[label] for a in arms.values() if a[label] is not None and a["action_mode"] == mode
             ]
             wins = sum(v["beats_pd"] for v in done)
-            lines.append(f"- {label}, {mode}: <= PD on both joints on {wins} of {len(done)} arms.")
+            smooth = sum(v["beats_pd"] and _smooth(v, label) for v in done)
+            lines.append(
+                f"- {label}, {mode}: <= PD on both joints on {wins} of {len(done)} arms; "
+                f"<= PD within the smoothness limits on {smooth}."
+            )
     names = {a["arm"] for a in arms.values()}
     either = sum(
         any(
