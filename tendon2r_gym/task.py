@@ -125,6 +125,12 @@ def rewards_table() -> str:
     return "\n".join(f"- ``{k}`` (weight {w:g}): {doc}." for k, (w, doc) in TERMS.items())
 
 
+def signed_log(ops: Ops, x: Any, scale: float) -> Any:
+    """Returns sign(x) log(1 + |x| / scale): linear below ``scale``, logarithmic above (the
+    observation's ``error_log`` and ``error_rate_log``)."""
+    return ops.copysign(ops.log1p(abs(x) / scale), x)
+
+
 class Task:
     """Every formula of the task, for one EnvConfig (see the module docstring)."""
 
@@ -271,7 +277,7 @@ class Task:
         gives their slices).  With sensors, the envs rewrite these of the measured observation
         with the true state for the reward and info."""
         a, b, c = arm[0], arm[1], arm[2]
-        sin, cos, copysign, log1p = ops.sin, ops.cos, ops.copysign, ops.log1p
+        sin, cos = ops.sin, ops.cos
         c1, s1 = cos(q1), sin(q1)
         q12 = q1 + q2
         c12, s12 = cos(q12), sin(q12)
@@ -280,8 +286,8 @@ class Task:
         scale = L.ERROR_LOG_SCALE
         rest = [
             e1, e2,
-            copysign(log1p(abs(e1) / scale), e1),
-            copysign(log1p(abs(e2) / scale), e2),
+            signed_log(ops, e1, scale),
+            signed_log(ops, e2, scale),
             a + c * c1 + b * c12, c * s1 + b * s12,  # effector x, z
             -c * s1 * w1 - b * s12 * w12, c * c1 * w1 + b * c12 * w12,  # effector velocity
         ]  # fmt: skip
@@ -290,9 +296,8 @@ class Task:
     def error_rate_entries(self, ops: Ops, w1: Any, w2: Any, dqd1: Any, dqd2: Any) -> list[Any]:
         """Returns ``error_rate_log`` (observe_error_rate) from the joint speeds and the
         reference's: sign(de) log(1 + |de| / ERROR_RATE_LOG_SCALE), de = dq_des - dq."""
-        de1, de2 = dqd1 - w1, dqd2 - w2
-        scale, copysign, log1p = L.ERROR_RATE_LOG_SCALE, ops.copysign, ops.log1p
-        return [copysign(log1p(abs(de1) / scale), de1), copysign(log1p(abs(de2) / scale), de2)]
+        scale = L.ERROR_RATE_LOG_SCALE
+        return [signed_log(ops, dqd1 - w1, scale), signed_log(ops, dqd2 - w2, scale)]
 
     # -- action ----------------------------------------------------------------------------------
     def rest_command(self, arm: EnvConfig) -> list[float]:
