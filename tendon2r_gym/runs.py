@@ -5,10 +5,12 @@ A training run writes, in ``runs/<name>/seed_<n>/``::
     run.json                     env config (the exact env kwargs), residual scale, seed
     config.yaml                  the resolved hyperparameters
     command.txt                  the original command, then one line per resume
-    best_model.zip               best checkpoint by tracking RMS on the eval seeds
+    best_model.zip               best evaluation on the eval seeds: the lowest tracking RMS
+                                 among those <= PD within the smoothness limits, else overall
     best_model_vecnormalize.pkl  its VecNormalize statistics
     best_metrics.json            its tracking metrics
-    evaluations.json             every evaluation: steps, wall time, RMS
+    evaluations.json             every evaluation: steps, wall time, RMS, smoothness x PD
+    pd_eval.json                 PD's tracking metrics on the eval seeds
     last_model.zip (+ pkl)       the state at the end, or at Ctrl-C
     checkpoints/                 periodic checkpoints (by steps and by time)
     summary.json                 steps and wall time summed over all segments
@@ -164,6 +166,12 @@ class RunFolder:
     def train_command(self) -> str:
         """Returns the command that started the run (the first line of command.txt)."""
         return self.file(COMMAND).read_text().splitlines()[0]
+
+    def pd_eval_rms(self) -> list[float] | None:
+        """PD's RMS error (deg) on the eval seeds: pd_eval.json holds PD's tracking metrics
+        (in older runs, its RMS alone)."""
+        pd = self.read_json(PD_EVAL)
+        return pd["rms_deg"] if isinstance(pd, dict) else pd
 
     def append_evaluation(self, row: dict[str, Any]) -> None:
         rows = self.read_json(EVALUATIONS) or []

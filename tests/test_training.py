@@ -17,6 +17,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 from tendon2r_gym.bundle import bundle_meta, bundle_runs, bundled_model
 from tendon2r_gym.cli import TrainArgs, experiment, parse, train_main
 from tendon2r_gym.learned import PPOPolicy, residual_command
+from tendon2r_gym.metrics import beats, selection_rank, within_limits
 from tendon2r_gym.presets import PPO_CONFIG
 from tendon2r_gym.runs import RunFolder
 from tendon2r_gym.training import Hyperparams
@@ -46,6 +47,45 @@ def _train(config, run, *more):
     )
 
 
+def assert_best_is_the_best_ranked_evaluation(folder: RunFolder) -> None:
+    """best_model is the evaluation with the lowest RMS among those <= PD within the smoothness
+    limits, else the lowest overall (resumed segments included), and pd_eval.json holds PD's
+    tracking metrics on the same seeds."""
+    pd = folder.read_json("pd_eval.json")
+    assert {"rms_deg", "rms_tension_N", "rms_tension_rate_N_per_s"} <= set(pd)
+    rows = folder.read_json("evaluations.json")
+    for row in rows:
+        assert row["beats_pd"] == beats(row["rms_deg"], pd["rms_deg"])
+        assert row["within_limits"] == within_limits(
+            row["tension_x_pd"], row["tension_rate_x_pd"], residual=True
+        )
+    key = [(not (r["beats_pd"] and r["within_limits"]), np.mean(r["rms_deg"])) for r in rows]
+    best = rows[min(range(len(rows)), key=lambda i: key[i])]  # the first of equals, as saved
+    assert folder.read_json("best_metrics.json")["rms_deg"] == best["rms_deg"]
+
+
+def test_the_best_model_is_the_most_precise_one_that_beats_pd_within_the_limits():
+    pd = {"rms_deg": [0.1, 0.1], "rms_tension_N": [1.0, 1.0], "rms_tension_rate_N_per_s": [1.0]}
+
+    def row(rms: float, tension: float, rate: float) -> dict:
+        return {"rms_deg": [rms, rms], "rms_tension_N": [tension] * 2,
+                "rms_tension_rate_N_per_s": [rate]}  # fmt: skip
+
+    precise_chatter, smooth = row(0.01, 1.0, 12.0), row(0.02, 1.0, 9.0)
+    # Plain PPO (rate limit 10x PD's): the smooth one wins; a residual (3x): neither keeps the
+    # limits, so the more precise one does.
+    assert selection_rank(smooth, pd, False) < selection_rank(precise_chatter, pd, False)
+    assert selection_rank(precise_chatter, pd, True) < selection_rank(smooth, pd, True)
+    # A smooth policy that loses to PD never outranks one that beats it.
+    assert selection_rank(precise_chatter, pd, False) < selection_rank(
+        row(0.2, 1.0, 0.0), pd, False
+    )
+    # Too much tension counts as out of the limits too.
+    assert selection_rank(row(0.03, 1.4, 1.0), pd, False) < selection_rank(
+        row(0.02, 1.6, 1.0), pd, False
+    )
+
+
 def test_smoke_train_then_resume(tmp_path):
     config, run = _tiny(tmp_path), tmp_path / "run"
     first = _train(config, run)["runs"][0]
@@ -56,7 +96,7 @@ def test_smoke_train_then_resume(tmp_path):
         assert folder.file(name).is_file(), name
     meta = folder.read_json("run.json")
     assert meta["env_config"]["mechanism"]["R1"] == 0.014 and meta["residual_scale"] == 0.5
-    best_before = np.mean(folder.read_json("best_metrics.json")["rms_deg"])
+    assert_best_is_the_best_ranked_evaluation(folder)
     # The same command again, without --resume, would start over on top of the run: refused,
     # the run untouched.
     saved = {p: p.read_bytes() for p in (run / "seed_0").iterdir() if p.is_file()}
@@ -69,7 +109,7 @@ def test_smoke_train_then_resume(tmp_path):
     assert len(resumed["segments"]) == 2, "summary.json adds up every segment"
     lines = folder.file("command.txt").read_text().splitlines()
     assert "--resume" not in lines[0] and "--resume" in lines[1], lines
-    assert np.mean(folder.read_json("best_metrics.json")["rms_deg"]) <= best_before
+    assert_best_is_the_best_ranked_evaluation(folder)
     # A crash that never wrote last_model, and a corrupt newest checkpoint: resume falls back.
     for f in run.glob("seed_0/last_model*"):
         f.unlink()

@@ -14,7 +14,13 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 
 from tendon2r_gym.learned import PPOPolicy
-from tendon2r_gym.metrics import beats, tracking_metrics
+from tendon2r_gym.metrics import (
+    beats,
+    selection_rank,
+    smoothness_x_pd,
+    tracking_metrics,
+    within_limits,
+)
 from tendon2r_gym.policies import PDPolicy
 from tendon2r_gym.rollout import rollouts
 from tendon2r_gym.runs import BEST_METRICS, CHECKPOINT_PREFIX, PD_EVAL, RunFolder, model_files
@@ -54,13 +60,15 @@ class TimedCheckpointCallback(CheckpointCallback):
 
 class TrackingEvalCallback(BaseCallback):
     """Every ``eval_freq`` env steps, rolls the deterministic policy out on fixed seeds and keeps
-    the model with the lowest mean tracking RMS (over joints) as ``best_model``.  Each
-    evaluation is appended to evaluations.json with the cumulative wall time, and the first
-    one that beats PD on both joints is noted.
+    the best model by :func:`~tendon2r_gym.metrics.selection_rank`: the lowest mean tracking
+    RMS (over joints) among the evaluations <= PD on both joints within the smoothness limits
+    (RMS tension and tension rate as multiples of PD's on the same seeds), else the lowest
+    overall.  Each evaluation is appended to evaluations.json with the cumulative wall time,
+    its smoothness against PD's and whether it beats PD on both joints.
 
     SB3's EvalCallback ranks by mean episode reward, which mixes in the control cost, and does
     not save the VecNormalize statistics with the best model; this one ranks by the benchmark's
-    own metric and saves both."""
+    own metrics and saves both."""
 
     def __init__(
         self,
@@ -80,20 +88,24 @@ class TrackingEvalCallback(BaseCallback):
         self.run, self.residual_scale = run, residual_scale
         self.frame_stack, self.frame_stride = frame_stack, frame_stride  # as PPOPolicy takes them
         self.residual_filter_tau = residual_filter_tau
-        best = run.read_json(BEST_METRICS)
-        self.best_rms = float(np.mean(best["rms_deg"])) if best else float("inf")
         self._last_eval = 0
         self._start = time.perf_counter() - wall_offset_s
         # One env, built once: its mechanism and control period define the PD baseline and
         # the PD inside a residual policy (the rollouts run on the vector env).
         self._env = gym.make("Tendon2R-v0", **self.env_kwargs)
-        self.pd_rms = run.read_json(PD_EVAL)
-        if self.pd_rms is None:
-            pd_metrics = tracking_metrics(
+        self.pd = run.read_json(PD_EVAL)
+        if not isinstance(self.pd, dict):  # none yet, or PD's RMS alone (an older run)
+            self.pd = tracking_metrics(
                 rollouts(PDPolicy.from_env(self._env), self.env_kwargs, seeds)
             )
-            self.pd_rms = pd_metrics["rms_deg"]
-            run.write_json(PD_EVAL, self.pd_rms)
+            run.write_json(PD_EVAL, self.pd)
+        self.pd_rms = self.pd["rms_deg"]
+        best = run.read_json(BEST_METRICS)
+        self.best_rank = self.rank(best) if best else (2, float("inf"))
+
+    def rank(self, metrics: dict[str, Any]) -> tuple[int, float]:
+        """The best-model rank of an evaluation's metrics (lower is better)."""
+        return selection_rank(metrics, self.pd, self.residual_scale > 0)
 
     def _on_training_start(self) -> None:
         self._last_eval = self.num_timesteps
@@ -121,28 +133,34 @@ class TrackingEvalCallback(BaseCallback):
             residual_filter_tau=self.residual_filter_tau,
         )
         metrics = tracking_metrics(rollouts(policy, self.env_kwargs, self.seeds))
-        rms = float(np.mean(metrics["rms_deg"]))
+        rank = self.rank(metrics)
+        tension_x_pd, rate_x_pd = smoothness_x_pd(metrics, self.pd)
         self.logger.record("eval/rms_deg_A", metrics["rms_deg"][0])
         self.logger.record("eval/rms_deg_B", metrics["rms_deg"][1])
-        self.logger.record("eval/rms_deg_mean", rms)
+        self.logger.record("eval/rms_deg_mean", rank[1])
+        self.logger.record("eval/tension_rate_x_pd", rate_x_pd)
         wall = round(time.perf_counter() - self._start, 1)
-        beats_pd = beats(metrics["rms_deg"], self.pd_rms)
         self.run.append_evaluation(
             {
                 "timesteps": self.num_timesteps,
                 "wall_time_s": wall,
                 "rms_deg": metrics["rms_deg"],
-                "beats_pd": beats_pd,
+                "beats_pd": beats(metrics["rms_deg"], self.pd_rms),
+                "tension_x_pd": tension_x_pd,
+                "tension_rate_x_pd": rate_x_pd,
+                "within_limits": within_limits(tension_x_pd, rate_x_pd, self.residual_scale > 0),
             }
         )
-        if rms < self.best_rms:
-            self.best_rms = rms
+        if rank < self.best_rank:
+            self.best_rank = rank
             save_model(self.model, self.run.best)
             self.run.write_json(BEST_METRICS, {"timesteps": self.num_timesteps, **metrics})
         if self.verbose:
+            smooth = "" if self.best_rank[0] == 0 else ", none yet <= PD within the limits"
             print(
                 f"[eval] {self.num_timesteps} steps, {wall} s: RMS {_fmt(metrics['rms_deg'])} "
-                f"deg (PD {_fmt(self.pd_rms)}; best mean {self.best_rms:.4f})",
+                f"deg, tension rate {rate_x_pd:.1f}x PD's (PD {_fmt(self.pd_rms)}; best mean "
+                f"{self.best_rank[1]:.4f}{smooth})",
                 flush=True,
             )
         return metrics

@@ -33,7 +33,6 @@ from tendon2r_gym.runs import (
     BEST_METRICS,
     CONFIG,
     EVALUATIONS,
-    PD_EVAL,
     RUN_META,
     SEEDS_SUMMARY,
     SUMMARY,
@@ -400,7 +399,7 @@ def _write_summary(
         "best_rms_deg": best.get("rms_deg"),
         "best_timesteps": best.get("timesteps"),
         "best_tension_rate_N_per_s": best.get("rms_tension_rate_N_per_s"),
-        "pd_eval_rms_deg": run.read_json(PD_EVAL),
+        "pd_eval_rms_deg": run.pd_eval_rms(),
         "first_beat_pd": first_beat_pd(run),
         "segments": segments,
     }
