@@ -12,7 +12,8 @@ Every arm runs in each ``--action-modes`` (the experiment file's ``action_mode``
 
 ``--only scratch`` (or ``residual``) trains and measures only that PPO row, after its entry
 changed; the other row's cells stay those of ``--out``'s arm_sweep.json (the same arms, its
-command kept beside them).  Training is deterministic, so rerunning them would repeat them.
+command kept beside them).  Training is deterministic, so rerunning that row with the same
+entry and code would repeat it.
 """
 
 from __future__ import annotations
@@ -167,10 +168,7 @@ def _produced_by(result: dict[str, Any]) -> list[str]:
     kept = {k: v for k, v in result.get("commands", {}).items() if v != result["command"]}
     line = f"Produced by `{result['command']}`"
     for label, command in kept.items():
-        line += (
-            f"; the {shown[label]} cells are kept from `{command}` (its entry did not change, "
-            "and training is deterministic)"
-        )
+        line += f"; the {shown[label]} cells are kept from `{command}`"
     return [line + "."]
 
 
