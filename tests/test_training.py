@@ -54,10 +54,11 @@ def assert_best_is_the_best_ranked_evaluation(folder: RunFolder) -> None:
     pd = folder.read_json("pd_eval.json")
     assert {"rms_deg", "rms_tension_N", "rms_tension_rate_N_per_s"} <= set(pd)
     rows = folder.read_json("evaluations.json")
+    residual = folder.read_json("run.json")["residual_scale"] > 0
     for row in rows:
         assert row["beats_pd"] == beats(row["rms_deg"], pd["rms_deg"])
         assert row["within_limits"] == within_limits(
-            row["tension_x_pd"], row["tension_rate_x_pd"], residual=True
+            row["tension_x_pd"], row["tension_rate_x_pd"], residual
         )
     key = [(not (r["beats_pd"] and r["within_limits"]), np.mean(r["rms_deg"])) for r in rows]
     best = rows[min(range(len(rows)), key=lambda i: key[i])]  # the first of equals, as saved
@@ -103,8 +104,12 @@ def test_smoke_train_then_resume(tmp_path):
     with pytest.raises(ValueError, match=r"run_dir = .*--resume continues them"):
         _train(config, run)
     assert {p: p.read_bytes() for p in (run / "seed_0").iterdir() if p.is_file()} == saved
+    # A run from before pd_eval.json kept PD's full metrics (its RMS alone) resumes: PD's
+    # metrics are measured again for the smoothness-aware ranking.
+    folder.write_json("pd_eval.json", folder.read_json("pd_eval.json")["rms_deg"])
     resumed = _train(config, run, "--total-timesteps", "512", "--resume")["runs"][0]
     assert resumed["timesteps"] >= 512
+    assert resumed["pd_eval_rms_deg"] == folder.read_json("pd_eval.json")["rms_deg"]
     assert folder.read_json("summary.json")["wall_time_s"] >= first["wall_time_s"]
     assert len(resumed["segments"]) == 2, "summary.json adds up every segment"
     lines = folder.file("command.txt").read_text().splitlines()
@@ -148,7 +153,9 @@ def test_from_scratch_smoke_train(tmp_path):
     config = _tiny(tmp_path, residual=0.0)
     out = _train(config, tmp_path / "run")
     assert out["finished"] == [0]
-    assert RunFolder(tmp_path / "run" / "seed_0").read_json("run.json")["residual_scale"] == 0
+    folder = RunFolder(tmp_path / "run" / "seed_0")
+    assert folder.read_json("run.json")["residual_scale"] == 0
+    assert_best_is_the_best_ranked_evaluation(folder)  # plain PPO's limits
 
 
 def test_train_on_an_experiment_file(tmp_path):
