@@ -58,17 +58,13 @@ def within_limits(tension_x_pd: float, rate_x_pd: float, residual: bool) -> bool
     return tension_x_pd <= TENSION_LIMIT_X_PD and rate_x_pd <= limit
 
 
-def selection_rank(
-    metrics: dict[str, Any], pd_metrics: dict[str, Any], residual: bool
-) -> tuple[int, float]:
-    """Ranks a training evaluation for the best model (lower is better): first the evaluations
-    <= PD on both joints within the smoothness limits (:func:`smooth_enough`), then the rest;
-    within each, by mean RMS error over the joints.  A policy whose tensions chatter at the
-    control rate is kept only while no smooth one beats PD."""
-    ok = beats(metrics["rms_deg"], pd_metrics["rms_deg"]) and smooth_enough(
-        metrics, pd_metrics, residual
-    )
-    return (0 if ok else 1, float(np.mean(metrics["rms_deg"])))
+def selection_rank(evaluation: dict[str, Any]) -> tuple[int, float]:
+    """Ranks a training evaluation (an evaluations.json row: ``rms_deg``, ``beats_pd``,
+    ``within_limits``) for the best model, lower first: the evaluations <= PD on both joints
+    within the smoothness limits, then the rest; within each, by mean RMS error over the
+    joints.  A policy whose tensions chatter is kept only while no smooth one beats PD."""
+    ok = evaluation["beats_pd"] and evaluation.get("within_limits", False)
+    return (0 if ok else 1, float(np.mean(evaluation["rms_deg"])))
 
 
 def tracking_metrics(traces: Sequence[Trace]) -> dict[str, list[float] | float | int]:
