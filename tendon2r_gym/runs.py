@@ -10,7 +10,8 @@ A training run writes, in ``runs/<name>/seed_<n>/``::
     best_model_vecnormalize.pkl  its VecNormalize statistics
     best_metrics.json            its tracking metrics
     evaluations.json             every evaluation: steps, wall time, RMS, smoothness x PD
-    pd_eval.json                 PD's tracking metrics on the eval seeds
+    pd_eval.json                 PD's tracking metrics on the eval seeds (and on_reference:
+                                 on them started on the reference, where smoothness is judged)
     last_model.zip (+ pkl)       the state at the end, or at Ctrl-C
     checkpoints/                 periodic checkpoints (by steps and by time)
     summary.json                 steps and wall time summed over all segments
@@ -169,7 +170,7 @@ class RunFolder:
 
     def pd_eval_rms(self) -> list[float] | None:
         """PD's RMS error (deg) on the eval seeds: pd_eval.json holds PD's tracking metrics
-        (in older runs, its RMS alone)."""
+        (in older runs, its RMS error alone)."""
         pd = self.read_json(PD_EVAL)
         return pd["rms_deg"] if isinstance(pd, dict) else pd
 
