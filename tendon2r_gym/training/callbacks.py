@@ -114,13 +114,15 @@ class TrackingEvalCallback(BaseCallback):
             self.pd = self.measure(PDPolicy.from_env(self._env))
             run.write_json(PD_EVAL, self.pd)
         self.pd_rms = self.pd["rms_deg"]
+        # On resume, the saved best model's rank.  An evaluation recorded before evaluations
+        # kept their smoothness (no within_limits) ranks after any that beats PD within them.
         rows = {r["timesteps"]: r for r in run.read_json(EVALUATIONS) or []}
         best = run.read_json(BEST_METRICS)
-        best_row = rows.get(best["timesteps"]) if best else None
-        # A best model saved before evaluations recorded their smoothness ranks after any
-        # evaluation that beats PD within the limits.
-        self.best_rank = selection_rank(best_row) if best_row else (2, float("inf"))
-        if best and not best_row:
+        if best is None:
+            self.best_rank = (2, float("inf"))
+        elif best["timesteps"] in rows:
+            self.best_rank = selection_rank(rows[best["timesteps"]])
+        else:
             self.best_rank = (1, float(np.mean(best["rms_deg"])))
 
     def measure(self, policy: Any) -> dict[str, Any]:
