@@ -174,6 +174,15 @@ class RunFolder:
         pd = self.read_json(PD_EVAL)
         return pd["rms_deg"] if isinstance(pd, dict) else pd
 
+    def best_evaluation(self) -> dict[str, Any] | None:
+        """Returns the evaluations.json row of the best model (the last row at its steps), or
+        None: no best model yet, or one saved before evaluations.json recorded it."""
+        best = self.read_json(BEST_METRICS)
+        if best is None:
+            return None
+        rows = [r for r in self.read_json(EVALUATIONS) or [] if r["timesteps"] == best["timesteps"]]
+        return rows[-1] if rows else None
+
     def append_evaluation(self, row: dict[str, Any]) -> None:
         rows = self.read_json(EVALUATIONS) or []
         self.write_json(EVALUATIONS, [*rows, row])

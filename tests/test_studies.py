@@ -185,6 +185,17 @@ def test_sensitivity_rerun_reuses_a_finished_variant(tmp_path):
     assert again["timesteps"] == first["timesteps"] >= 2048
     assert again["best_rms_deg"] == first["best_rms_deg"]
     assert best.stat().st_mtime_ns == stamp
+    # its smoothness is that of the evaluation that saved the best model
+    run = tmp_path / "gamma_0.95" / "seed_0"
+    saved = json.loads((run / "best_metrics.json").read_text())
+    row = [r for r in json.loads((run / "evaluations.json").read_text())
+           if r["timesteps"] == saved["timesteps"]][-1]  # fmt: skip
+    assert row["rms_deg"] == first["best_rms_deg"]
+    assert (
+        again["best_on_reference"]
+        == first["best_on_reference"]
+        == {k: row[k] for k in ("tension_x_pd", "tension_rate_x_pd", "within_limits")}
+    )
 
 
 def test_sensitivity_reports_the_tension_rate_against_pd(tmp_path):
@@ -192,9 +203,12 @@ def test_sensitivity_reports_the_tension_rate_against_pd(tmp_path):
     episodes; the pass count excludes the shipped entry's own row."""
     from tendon2r_gym.studies import sensitivity
 
-    def run(name, rms, rate):
+    def run(name, rms, rate, rate_x_pd=1.5):
+        on_ref = {"tension_x_pd": 1.0, "tension_rate_x_pd": rate_x_pd,
+                  "within_limits": rate_x_pd <= 10}  # fmt: skip
         return {"variant": name, "best_rms_deg": rms, "pd_eval_rms_deg": [0.1, 0.1],
-                "best_tension_rate_N_per_s": rate, "timesteps": 10, "wall_time_s": 1.0}  # fmt: skip
+                "best_tension_rate_N_per_s": rate, "timesteps": 10, "wall_time_s": 1.0,
+                "best_on_reference": on_ref}  # fmt: skip
 
     result = {
         "command": "x",
@@ -202,15 +216,18 @@ def test_sensitivity_reports_the_tension_rate_against_pd(tmp_path):
         "runs": [
             run("defaults", [0.01, 0.01], [2.0, 2.0]),
             run("gamma_0.95", [0.2, 0.01], [6.0, 6.0]),
+            run("lr_x3", [0.01, 0.01], [2.0, 2.0], rate_x_pd=12.0),
+            run("epochs_5", [0.01, 0.01], [2.0, 2.0]),
         ],
         "same_as_shipped": [],
         "pd_tension_rate_N_per_s": [2.0, 2.0],
     }
     sensitivity.write(result, tmp_path)
     md = (tmp_path / "sensitivity.md").read_text()
-    assert "| yes | 2.00 / 2.00 (1.0x) |" in md
-    assert "| **no** | 6.00 / 6.00 (3.0x) |" in md
-    assert "**0 of 1**" in md
+    assert "| yes | 2.00 / 2.00 (1.0x) | 1.0x / 1.5x (within) |" in md
+    assert "| **no** | 6.00 / 6.00 (3.0x) | 1.0x / 1.5x (within) |" in md
+    assert "| yes | 2.00 / 2.00 (1.0x) | 1.0x / 12.0x (**over**) |" in md
+    assert "**2 of 3**" in md and "within the smoothness limits too: 1 of 3" in md
 
 
 def test_generalist_study_end_to_end(tmp_path):

@@ -26,7 +26,6 @@ from tendon2r_gym.rollout import rollouts
 from tendon2r_gym.runs import (
     BEST_METRICS,
     CHECKPOINT_PREFIX,
-    EVALUATIONS,
     PD_EVAL,
     RunFolder,
     model_files,
@@ -116,12 +115,11 @@ class TrackingEvalCallback(BaseCallback):
         self.pd_rms = self.pd["rms_deg"]
         # On resume, the saved best model's rank.  An evaluation recorded before evaluations
         # kept their smoothness (no within_limits) ranks after any that beats PD within them.
-        rows = {r["timesteps"]: r for r in run.read_json(EVALUATIONS) or []}
-        best = run.read_json(BEST_METRICS)
+        best, row = run.read_json(BEST_METRICS), run.best_evaluation()
         if best is None:
             self.best_rank = (2, float("inf"))
-        elif best["timesteps"] in rows:
-            self.best_rank = selection_rank(rows[best["timesteps"]])
+        elif row is not None:
+            self.best_rank = selection_rank(row)
         else:
             self.best_rank = (1, float(np.mean(best["rms_deg"])))
 
