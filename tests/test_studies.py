@@ -200,7 +200,8 @@ def test_sensitivity_rerun_reuses_a_finished_variant(tmp_path):
 
 def test_sensitivity_reports_the_tension_rate_against_pd(tmp_path):
     """Each row gives the best model's tension rate and its multiple of PD's on the same
-    episodes; the pass count excludes the shipped entry's own row."""
+    episodes, and its smoothness on the reference against the limits; both counts exclude the
+    shipped entry's own row."""
     from tendon2r_gym.studies import sensitivity
 
     def run(name, rms, rate, rate_x_pd=1.5):

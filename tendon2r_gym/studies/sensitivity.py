@@ -149,7 +149,7 @@ def pd_tension_rate() -> list[float]:
 
 def write(result: dict[str, Any], out: Path) -> None:
     """Writes sensitivity.json and sensitivity.md."""
-    from tendon2r_gym.metrics import beats, rms_ratio
+    from tendon2r_gym.metrics import RATE_LIMIT_X_PD, TENSION_LIMIT_X_PD, beats, rms_ratio
 
     save_json(out, "sensitivity", result)
     fmt = joints
@@ -185,7 +185,8 @@ def write(result: dict[str, Any], out: Path) -> None:
         "rate there (N/s per tendon; x PD's on the same episodes, "
         f"{fmt(pd_rate, 2)} N/s). On the reference: the best model's RMS tension and "
         "tension rate as multiples of PD's on the same seeds started on the reference, where "
-        "training judges smoothness (limits: 1.5x and 10x for plain PPO).",
+        f"training judges smoothness (plain PPO's limits: {TENSION_LIMIT_X_PD:g}x and "
+        f"{RATE_LIMIT_X_PD['plain']:g}x).",
         "",
         "| variant | change | best RMS A / B (deg) | PD (deg) | beats PD | tension rate (N/s) | "
         "on the reference: tension / rate x PD | steps | wall (s) |",
