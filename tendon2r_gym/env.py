@@ -79,7 +79,8 @@ class Tendon2REnv(MujocoEnv, EzPickle):
 
     ## Observation Space
     ``Box(-inf, inf, (16 + 2 * preview_steps + n_actions,), float64)`` (2 more with
-    ``observe_error_rate``, one per drawn field with ``observe_arm``), named slices in
+    ``observe_error_rate``, 1 with ``observe_force_limit``, one per drawn field with
+    ``observe_arm``), named slices in
     ``tendon2r_gym.observation``:
 
     {obs_table}
@@ -132,6 +133,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     | `preview_steps` | `3` | number of future reference samples observed |
     | `preview_dt` | `0.01` | spacing of the future reference samples (s) |
     | `observe_error_rate` | `False` | observe the tracking error's rate, log-scaled (``error_rate_log``) |
+    | `observe_force_limit` | `False` | observe ln of the arm's force limit, the actions' scale (``force_limit_log``) |
     | `observation_noise` | `(0.0, 0.0)` | std of the measured angles (rad) and speeds (rad/s) |
     | `observation_delay` | `0.0` | age of the measurements (s), a multiple of ctrl_dt |
     | `pd_gains` | `None` | PD / CT gains on this arm (tendon2r_gym.gains; None: data/pd.yaml) |
@@ -189,8 +191,8 @@ class Tendon2REnv(MujocoEnv, EzPickle):
       - the "multiscale" tracking reward (was "log") and the action-rate weight 0.1 (was
         0.01): plain and residual PPO both beat PD on it, with smooth tensions (README, One
         reward); "log" and "quadratic" stay options.
-      - the optional ``observe_error_rate`` (off by default: the registered observation and
-        results are unchanged).
+      - the optional ``observe_error_rate`` and ``observe_force_limit`` (off by default: the
+        registered observation and results are unchanged).
     """  # noqa: E501
 
     metadata = {"render_modes": ["human", "rgb_array", "depth_array"]}

@@ -85,6 +85,9 @@ class EnvConfig:
     preview_dt: float = 0.01
     #: Observe the tracking error's rate, log-scaled (``error_rate_log``, after last_action).
     observe_error_rate: bool = False
+    #: Observe ln of the force limit max_tendon_force (``force_limit_log``, after
+    #: error_rate_log): a normalized action's scale, which ``auto`` sizes per arm.
+    observe_force_limit: bool = False
     #: What the controller measures (tendon2r_gym.realism.Sensors): Gaussian noise (std, rad
     #: and rad/s) on each joint's angle and speed, and their age (s, whole control steps).
     observation_noise: tuple[float, float] = (0.0, 0.0)
@@ -189,6 +192,7 @@ class EnvConfig:
                 raise invalid(name, value, f"a multiple of ctrl_dt = {self.ctrl_dt} s")
         set_("observe_arm", boolean("observe_arm", self.observe_arm))
         set_("observe_error_rate", boolean("observe_error_rate", self.observe_error_rate))
+        set_("observe_force_limit", boolean("observe_force_limit", self.observe_force_limit))
         if self.observe_arm and self.feature_ranges is None:
             raise invalid(
                 "observe_arm", True, "False without mechanism_ranges or arm_feature_ranges"
@@ -335,14 +339,20 @@ class EnvConfig:
     def observation_size(self) -> int:
         """Returns the observation's length (tendon2r_gym.observation.size)."""
         return observation.size(
-            self.preview_steps, self.n_actions, self.n_arm_features, self.observe_error_rate
+            self.preview_steps, self.n_actions, self.n_arm_features, self.optional_entries
         )
 
     def observation_layout(self) -> list[list]:
         """Returns the observation's named layout (tendon2r_gym.observation.layout)."""
         return observation.layout(
-            self.preview_steps, self.n_actions, self.n_arm_features, self.observe_error_rate
+            self.preview_steps, self.n_actions, self.n_arm_features, self.optional_entries
         )
+
+    @property
+    def optional_entries(self) -> tuple[str, ...]:
+        """Returns the optional entries the observation holds (tendon2r_gym.observation
+        .OPTIONAL names whose flag, observe_error_rate or observe_force_limit, is set)."""
+        return tuple(n for n, flag in observation.FLAGS.items() if getattr(self, flag))
 
     @property
     def feature_ranges(self) -> MechanismRanges | None:

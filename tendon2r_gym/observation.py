@@ -4,9 +4,10 @@ The env writes the observation in this order, and policies, info and tests read 
 The fixed entries come first, so their slices do not depend on ``preview_steps``; then the
 preview of the reference, then the last action (one value per action dimension), which makes
 the action-rate reward term a function of the observed state.  With ``observe_error_rate``,
-the log-scaled rate of the tracking error follows (``error_rate_log``).  With ``observe_arm``
-(random arms, ``mechanism_ranges``), the arm's drawn fields close it, normalized over their
-ranges (``arm_feature_ranges`` if given: one fixed arm, seen as a generalist saw it).
+the log-scaled rate of the tracking error follows (``error_rate_log``); with
+``observe_force_limit``, the log of the arm's force limit (``force_limit_log``).  With
+``observe_arm`` (random arms, ``mechanism_ranges``), the arm's drawn fields close it, normalized
+over their ranges (``arm_feature_ranges`` if given: one fixed arm, seen as a generalist saw it).
 """
 
 from __future__ import annotations
@@ -44,6 +45,16 @@ ERROR_RATE = ("error_rate_log", 2, "1")
 #: PPO tracked as precisely, but its tensions chattered at the control rate.
 ERROR_RATE_LOG_SCALE = 0.1
 
+#: The optional entry of ``observe_force_limit`` (name, size, unit): ln(F / 1 N) of the arm's
+#: force limit F = max_tendon_force (``auto``: sized per arm and reference, the reset info's
+#: ``max_tendon_force_N``).  A normalized action is a fraction of F (tension) or of a torque
+#: proportional to F (joint torque): a policy that does not see F cannot keep its gain in
+#: newtons when F changes from arm to arm.
+FORCE_LIMIT = ("force_limit_log", 1, "ln N")
+#: The optional entries, in their order after the last action, and the EnvConfig flag of each.
+OPTIONAL: tuple[tuple[str, int, str], ...] = (ERROR_RATE, FORCE_LIMIT)
+FLAGS = {ERROR_RATE[0]: "observe_error_rate", FORCE_LIMIT[0]: "observe_force_limit"}
+
 
 def _slices() -> dict[str, slice]:
     out, start = {}, 0
@@ -78,34 +89,48 @@ def last_action_slice(preview_steps: int, n_actions: int) -> slice:
     return slice(start, start + n_actions)
 
 
+def optional_slice(name: str, preview_steps: int, n_actions: int, observed: Iterable[str]) -> slice:
+    """Returns the slice of the optional entry ``name`` (one of OPTIONAL) in an observation
+    that holds the optional entries ``observed``: after the last action, in OPTIONAL's order."""
+    observed, start = set(observed), N_FIXED + 2 * preview_steps + n_actions
+    for entry, n, _ in OPTIONAL:
+        if entry == name:
+            return slice(start, start + n)
+        start += n if entry in observed else 0
+    raise ValueError(f"optional entry {name!r} is invalid; allowed: {[e for e, *_ in OPTIONAL]}")
+
+
 def error_rate_slice(preview_steps: int, n_actions: int) -> slice:
     """Returns the slice of ``error_rate_log`` (observe_error_rate), after the last action."""
-    start = N_FIXED + 2 * preview_steps + n_actions
-    return slice(start, start + ERROR_RATE[1])
+    return optional_slice(ERROR_RATE[0], preview_steps, n_actions, ())
 
 
-def arm_slice(preview_steps: int, n_actions: int, n_arm: int, error_rate: bool = False) -> slice:
+def arm_slice(
+    preview_steps: int, n_actions: int, n_arm: int, observed: Iterable[str] = ()
+) -> slice:
     """Returns the slice of the arm's features (observe_arm): each drawn Mechanism field,
     normalized over its range to [-1, 1], in the order of the ranges (EnvConfig.feature_ranges).
-    ``error_rate``: the observation holds ``error_rate_log`` (observe_error_rate)."""
-    start = N_FIXED + 2 * preview_steps + n_actions + (ERROR_RATE[1] if error_rate else 0)
+    ``observed``: the optional entries the observation holds (names of OPTIONAL)."""
+    observed = set(observed)
+    start = N_FIXED + 2 * preview_steps + n_actions
+    start += sum(n for name, n, _ in OPTIONAL if name in observed)
     return slice(start, start + n_arm)
 
 
-def size(preview_steps: int, n_actions: int, n_arm: int = 0, error_rate: bool = False) -> int:
+def size(preview_steps: int, n_actions: int, n_arm: int = 0, observed: Iterable[str] = ()) -> int:
     """Returns the length of the observation."""
-    return arm_slice(preview_steps, n_actions, n_arm, error_rate).stop
+    return arm_slice(preview_steps, n_actions, n_arm, observed).stop
 
 
 def layout(
-    preview_steps: int, n_actions: int, n_arm: int = 0, error_rate: bool = False
+    preview_steps: int, n_actions: int, n_arm: int = 0, observed: Iterable[str] = ()
 ) -> list[list]:
     """Returns the layout as [[name, size], ...] in order (run.json records it, so that a
     trained model meets only the observation it was trained on)."""
+    observed = set(observed)
     out = [[name, n] for name, n, _ in FIXED]
     out += [["preview", 2 * preview_steps], ["last_action", n_actions]]
-    if error_rate:
-        out.append([ERROR_RATE[0], ERROR_RATE[1]])
+    out += [[name, n] for name, n, _ in OPTIONAL if name in observed]
     return out + [["arm", n_arm]] if n_arm else out
 
 
@@ -136,6 +161,10 @@ def table(preview_steps_name: str = "P") -> str:
         "| (observe_error_rate only) the next 2 | the tracking error's rate dq_des - dq, "
         f"log-scaled as error_log (``{ERROR_RATE[0]}``, linear below "
         f"{ERROR_RATE_LOG_SCALE:g} rad/s) | {ERROR_RATE[2]} |"
+    )
+    rows.append(
+        f"| (observe_force_limit only) the next 1 | ln of the arm's force limit "
+        f"max_tendon_force / 1 N (``{FORCE_LIMIT[0]}``) | {FORCE_LIMIT[2]} |"
     )
     rows.append(
         "| (observe_arm only) the last entries | the arm's drawn fields, normalized over "

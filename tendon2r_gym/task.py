@@ -113,11 +113,13 @@ def reference_params(ref: Reference) -> tuple[float, ...]:
 
 def arm_params(arm: EnvConfig, observed: EnvConfig) -> tuple[float, ...]:
     """Returns the per-arm numbers :meth:`Task.observation` reads: the link lengths (a, b, c)
-    of the episode's arm config ``arm``, then its features over the ranges of the env's
-    config ``observed`` if that observes the arm."""
+    of the episode's arm config ``arm``, then the observation's last per-arm entries if the
+    env's config ``observed`` holds them: ``force_limit_log``, ln of the arm's force limit
+    (N), and the arm's features over its ranges."""
     mech = arm.mechanism
+    force = [math.log(mech.max_tendon_force)] if observed.observe_force_limit else []
     features = observed.feature_ranges.features(arm) if observed.observe_arm else []
-    return (mech.a, mech.b, mech.c, *features)
+    return (mech.a, mech.b, mech.c, *force, *features)
 
 
 def rewards_table() -> str:
@@ -248,10 +250,10 @@ class Task:
         last_action: Sequence[Any],
     ) -> list[Any]:
         """Returns the observation's entries in the order of tendon2r_gym.observation (q, dq,
-        q_des, dq_des, error, error_log, effector_pos, effector_vel, preview, last action,
-        error_rate_log if observed, arm), from the joint angles and speeds, the time,
-        :func:`reference_params`, :func:`arm_params` and the last clipped action (one value,
-        or one column of N values, per action dimension)."""
+        q_des, dq_des, error, error_log, effector_pos, effector_vel, preview, last action, then
+        error_rate_log, force_limit_log and arm if observed), from the joint angles and speeds,
+        the time, :func:`reference_params`, :func:`arm_params` and the last clipped action (one
+        value, or one column of N values, per action dimension)."""
         amp1, amp2, om1, om2, ph1, ph2, bias1, bias2 = ref
         sin, cos = ops.sin, ops.cos
         arg1, arg2 = om1 * t + ph1, om2 * t + ph2
@@ -264,7 +266,7 @@ class Task:
         joints += last_action
         if self.config.observe_error_rate:
             joints += self.error_rate_entries(ops, w1, w2, dqd1, dqd2)
-        if len(arm) > 3:
+        if len(arm) > 3:  # force_limit_log and arm, if observed
             joints += arm[3:]
         return joints
 

@@ -131,7 +131,8 @@ def test_error_rate_entry_is_the_log_scaled_rate_of_the_error():
     assert [n for n, _ in plain.config.observation_layout()][-1] == "last_action"
     assert plain.observation_space.shape == (L.size(3, 2),)
     assert env.config.observation_layout()[-1] == ["error_rate_log", 2]
-    assert env.observation_space.shape == (L.size(3, 2, error_rate=True),) == (L.size(3, 2) + 2,)
+    with_rate = L.size(3, 2, observed=[L.ERROR_RATE[0]])
+    assert env.observation_space.shape == (with_rate,) == (L.size(3, 2) + 2,)
     plain.reset(seed=0)
     env.reset(seed=0)
     for a in ([0.3, -0.2], [-0.1, 0.5]):
@@ -146,10 +147,38 @@ def test_error_rate_entry_is_the_log_scaled_rate_of_the_error():
         gym.make("Tendon2R-v0", observe_error_rate="yes")
 
 
+def test_force_limit_entry_is_the_log_of_each_episodes_force_limit():
+    """observe_force_limit adds force_limit_log = ln(max_tendon_force / 1 N) after
+    error_rate_log and before the arm slice; on random arms it follows each episode's auto
+    force limit (the reset info's), and every other entry is as without it."""
+    kw = {"preset": "generalist", "observe_arm": True, "observe_error_rate": True}
+    plain, env = Tendon2REnv(**kw), Tendon2REnv(**kw, observe_force_limit=True)
+    names = [n for n, _ in env.config.observation_layout()]
+    assert names[-3:] == ["error_rate_log", "force_limit_log", "arm"]
+    cfg = env.config
+    where = L.optional_slice(L.FORCE_LIMIT[0], 3, 2, cfg.optional_entries)
+    assert where == slice(L.error_rate_slice(3, 2).stop, L.error_rate_slice(3, 2).stop + 1)
+    arm = L.arm_slice(3, 2, cfg.n_arm_features, cfg.optional_entries)
+    assert arm.start == where.stop and arm.stop == env.observation_space.shape[0]
+    limits = set()
+    for seed in (0, 1):
+        obs, info = env.reset(seed=seed)
+        plain_obs, plain_info = plain.reset(seed=seed)
+        assert info["max_tendon_force_N"] == plain_info["max_tendon_force_N"]
+        limits.add(info["max_tendon_force_N"])
+        assert obs[where] == pytest.approx([np.log(info["max_tendon_force_N"])], rel=1e-12)
+        np.testing.assert_array_equal(np.delete(obs, np.r_[where]), plain_obs)
+        obs = env.step(np.array([0.3, -0.2]))[0]
+        assert obs[where] == pytest.approx([np.log(info["max_tendon_force_N"])], rel=1e-12)
+    assert len(limits) == 2  # a new arm, a new force limit
+    with pytest.raises(ValueError, match="observe_force_limit = 1.5"):
+        gym.make("Tendon2R-v0", observe_force_limit=1.5)
+
+
 def test_the_true_observation_under_sensor_noise_is_that_of_the_true_state():
     """With sensors, reward and info read the measured observation with every state-set entry
     rewritten from the true state: the result equals the observation of the true state."""
-    for kwargs in ({}, {"observe_error_rate": True}):
+    for kwargs in ({}, {"observe_error_rate": True, "observe_force_limit": True}):
         env = Tendon2REnv(observation_noise=[1e-3, 0.1], **kwargs)
         env.reset(seed=0)
         obs = env.step(np.array([0.3, -0.2]))[0]

@@ -43,6 +43,8 @@ def _native(n, **kw):
      (4, 2, {"observation_noise": [0, 0.1], "mechanism": REAL, "preset": "pull_only"}),
      (3, 1, {"preset": "generalist", "observe_arm": True}),
      (3, 1, {"preset": "generalist", "observe_arm": True, "observe_error_rate": True}),
+     (3, 1, {"preset": "generalist", "observe_arm": True, "observe_force_limit": True,
+             "action_mode": "joint_torque"}),
      (3, 1, {"preset": "generalist", "action_mode": "joint_torque"}),
      (3, 1, {"preset": "pull_only", "mechanism": REAL, "mechanism_ranges": ARMS}),
      (4, 1, {"preset": "real_arm", "mechanism_ranges": "real_arm", "observe_arm": True}),
