@@ -510,16 +510,21 @@ def test_one_drawn_field_hidden_from_the_actor():
         hp.replace(hide_from_actor=["arm.motor_tau"])
 
 
-def test_a_model_that_observed_its_arm_runs_on_one_fixed_arm(tmp_path):
+@pytest.mark.parametrize("force_limit", [False, True])
+def test_a_model_that_observed_its_arm_runs_on_one_fixed_arm(tmp_path, force_limit):
     """observe_arm on random arms, deployed on an env of one arm inside the ranges (no arm
     slice of its own): PPOPolicy appends the arm's fields normalized over the training ranges,
-    the very features the training env would compute for that arm, and acts on them."""
+    the very features the training env would compute for that arm, and acts on them.  A model
+    that observed the force limit runs on the arm's env with the model's settings
+    (in_model_settings, as the benchmark makes it), which observes that arm's own limit."""
     from tendon2r_gym.arms import MechanismRanges
     from tendon2r_gym.evaluation import evaluate
+    from tendon2r_gym.learned import in_model_settings
 
     config = _tiny(tmp_path)
     cfg = yaml.safe_load(config.read_text())
     cfg["tiny"]["env_kwargs"] = {"preset": "generalist", "observe_arm": True,
+                                 "observe_force_limit": force_limit,
                                  "episode_duration": 0.1}  # fmt: skip
     config.write_text(yaml.safe_dump(cfg))
     _train(config, tmp_path / "run")
@@ -527,11 +532,18 @@ def test_a_model_that_observed_its_arm_runs_on_one_fixed_arm(tmp_path):
     arm = {"mechanism": {"R1": 0.02, "R2": 0.03, "a": 0.06, "b": 0.06, "c": 0.09},
            "reference": {"amp_deg": [10, 10], "freq_hz": [1, 1], "bias_deg": [0, 0]},
            "episode_duration": 0.1}  # fmt: skip
+    if force_limit:
+        with pytest.raises(ValueError, match="force_limit_log"):
+            PPOPolicy.load(best, gym.make("Tendon2R-v0", **arm))
+        arm = in_model_settings(best, arm)
+        assert arm["observe_force_limit"] is True
     env = gym.make("Tendon2R-v0", **arm)
     policy = PPOPolicy.load(best, env)
     expected = MechanismRanges.from_value("course").features(env.unwrapped.config)
     np.testing.assert_array_equal(policy.arm, expected)
     obs, _ = env.reset(seed=0)
+    limit = np.log(env.unwrapped.config.mechanism.max_tendon_force)
+    assert (obs[-1] == pytest.approx(limit, rel=1e-12)) == force_limit
     seen = policy.vecnormalize.normalize_obs(np.concatenate([obs, expected]))
     raw, _ = policy.model.predict(seen, deterministic=True)
     base, _ = policy.pd.predict(obs)
