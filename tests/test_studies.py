@@ -359,9 +359,11 @@ def test_generalist_ablation_reads_who_saw_the_arm_from_each_run():
 
 
 def test_generalist_ablation_reads_action_mode_and_network_from_each_run():
-    """The ablation table's action mode, residual filter, network and evaluation episodes come
-    from each bundle's run record: what its configs/ppo.yaml entry trained it with."""
+    """The ablation table's action mode, residual filter, network, evaluation episodes and
+    optional observation entries come from each bundle's run record: what its
+    configs/ppo.yaml entry trained it with."""
     from tendon2r_gym.bundle import bundle_names
+    from tendon2r_gym.observation import FLAGS
     from tendon2r_gym.studies import generalist
     from tendon2r_gym.training import Hyperparams
 
@@ -376,7 +378,9 @@ def test_generalist_ablation_reads_action_mode_and_network_from_each_run():
         assert table[name]["network"] == " x ".join(map(str, net)), name
         assert table[name]["eval_episodes"] == len(hp.eval_seeds), name
         assert table[name]["residual_filter_tau"] == hp.residual_filter_tau, name
-    for key in ("eval_episodes", "residual_filter_tau"):
+        flags = [n for n, flag in FLAGS.items() if hp.env_kwargs.get(flag)]
+        assert table[name]["observes"] == (", ".join(flags) or "none"), name
+    for key in ("eval_episodes", "residual_filter_tau", "observes"):
         assert len({table[n][key] for n in shown}) > 1, f"the table tells {key} apart"
 
 

@@ -52,7 +52,7 @@ from tendon2r_gym.metrics import (
     smoothness_x_pd,
     worst_ratio,
 )
-from tendon2r_gym.observation import layout_mask
+from tendon2r_gym.observation import OPTIONAL, layout_mask
 from tendon2r_gym.presets import load_yaml, preset_path
 from tendon2r_gym.runs import RunFolder, command_line, stem_of, training_record, training_summary
 from tendon2r_gym.studies import joints, save_json
@@ -64,7 +64,8 @@ from tendon2r_gym.task import REWARD_SCALES
 #: evaluation episodes from its run record): the residual generalist without its residual
 #: filter; the plain generalist blind to the arm; the unfiltered residual generalist blind to
 #: the arm; the previous generalist (tension mode, blind, 64 x 64) and it with the arm's
-#: features; the "log" reward at 3M steps, and on that reward
+#: features; the plain generalist blind to its force limit; the "log" reward at 3M steps, and
+#: on that reward
 #: and budget the arm's features seen by both networks, by the actor only, by the critic only
 #: (privileged); the multiscale reward at 3M steps with two weights of the action-rate term;
 #: the pull-only residual in tension mode with a 3x heavier action-rate term.
@@ -72,6 +73,7 @@ BUNDLES = GENERALISTS
 ABLATIONS = (
     "generalist_unfiltered",
     "generalist_scratch_blind",
+    "generalist_scratch_unscaled",
     "generalist_blind",
     "generalist_tension",
     "generalist_observe_arm",
@@ -205,6 +207,7 @@ def ablation(bundles: list[str]) -> dict[str, Any]:
                                           "wall_time_s", "best_tension_rate_N_per_s")}  # fmt: skip
         out[b]["reward"] = reward_of(model)
         out[b]["arm_seen_by"] = arm_seen_by(model)
+        out[b]["observes"] = optional_entries(model)
         out[b]["action_mode"] = action_mode_of(b)
         out[b]["residual_filter_tau"] = recorded_filter_tau(training_record(model))
         config = RunFolder(stem_of(model).parent).read_config()
@@ -232,6 +235,13 @@ def arm_seen_by(model_path: Path) -> str:
     )
     return {(True, True): "actor and critic", (True, False): "actor only",
             (False, True): "critic only"}.get((actor, critic), "nobody (hidden)")  # fmt: skip
+
+
+def optional_entries(model_path: Path) -> str:
+    """Returns the optional observation entries (tendon2r_gym.observation.OPTIONAL) a bundled
+    model observed, as its run recorded its layout ("none" without any)."""
+    names = {name for name, _ in training_record(model_path)["env_config"]["observation"]}
+    return ", ".join(n for n, *_ in OPTIONAL if n in names) or "none"
 
 
 def reward_of(model_path: Path) -> str:
@@ -394,7 +404,7 @@ def write(result: dict[str, Any], out: Path) -> None:
         "low-pass (PD's command unfiltered; the ablation table gives the time constant), "
         "seeing the arm's features; "
         "generalist_scratch: plain PPO (normalized joint torques through a 2 ms action "
-        "filter), seeing the arm's features and the tracking error's rate; "
+        "filter), seeing the arm's features, the tracking error's rate and its force limit; "
         "generalist_pull_only: the residual on arms with "
         "three pull-only cables (its preset's), in joint-torque mode, run on the unseen "
         "geometries with those cables (unseen_<i>_pull_only); each bundle runs in the action "
@@ -403,7 +413,8 @@ def write(result: dict[str, Any], out: Path) -> None:
         "what it changes, and the ablation table below gives each one's action mode, network, "
         "reward, arm features, evaluation episodes and training steps): "
         "generalist_unfiltered, the generalist without its residual filter; "
-        "generalist_scratch_blind, the plain generalist without the arm's features; "
+        "generalist_scratch_blind, the plain generalist without the arm's features, and "
+        "generalist_scratch_unscaled, it without its force limit; "
         "generalist_blind, generalist_unfiltered without them; generalist_tension, the "
         "previous generalist (tension mode, blind, 64 x 64), and generalist_observe_arm, it "
         "with the arm's features; generalist_log and "
@@ -444,14 +455,15 @@ def write(result: dict[str, Any], out: Path) -> None:
             "first episodes for all, with pull-only cables for the generalist_pull_only rows; "
             "PD on them). The summary above gives each on the unseen arms, zero-shot.",
             "",
-            "| generalist | arm features seen by | action mode | residual filter | network | "
-            "reward (tracking form, changed weights) | evaluation episodes | RMS A / B (deg) | "
-            "PD A / B (deg) | RMS tension rate (N/s) | steps | wall time (s) |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|",
+            "| generalist | arm features seen by | also observes | action mode | residual filter "
+            "| network | reward (tracking form, changed weights) | evaluation episodes | "
+            "RMS A / B (deg) | PD A / B (deg) | RMS tension rate (N/s) | steps | wall time (s) |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for b, a in result["ablation"].items():
             lines.append(
-                f"| {b} | {a.get('arm_seen_by', '?')} | {a.get('action_mode', '?')} | "
+                f"| {b} | {a.get('arm_seen_by', '?')} | {a.get('observes', '?')} | "
+                f"{a.get('action_mode', '?')} | "
                 f"{_filter(a.get('residual_filter_tau', 0.0))} | {a.get('network', '?')} | "
                 f"{a.get('reward', '?')} | "
                 f"{a.get('eval_episodes', '?')} | "
