@@ -352,7 +352,7 @@ class EnvConfig:
     def optional_entries(self) -> tuple[str, ...]:
         """Returns the optional entries the observation holds (tendon2r_gym.observation
         .OPTIONAL names whose flag, observe_error_rate or observe_force_limit, is set)."""
-        return tuple(n for n, flag in observation.FLAGS.items() if getattr(self, flag))
+        return tuple(e[0] for e, flag in observation.OPTIONAL.items() if getattr(self, flag))
 
     @property
     def feature_ranges(self) -> MechanismRanges | None:

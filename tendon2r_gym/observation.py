@@ -51,9 +51,12 @@ ERROR_RATE_LOG_SCALE = 0.1
 #: proportional to F (joint torque): a policy that does not see F cannot keep its gain in
 #: newtons when F changes from arm to arm.
 FORCE_LIMIT = ("force_limit_log", 1, "ln N")
-#: The optional entries, in their order after the last action, and the EnvConfig flag of each.
-OPTIONAL: tuple[tuple[str, int, str], ...] = (ERROR_RATE, FORCE_LIMIT)
-FLAGS = {ERROR_RATE[0]: "observe_error_rate", FORCE_LIMIT[0]: "observe_force_limit"}
+#: The optional entries (name, size, unit), in their order after the last action, each with
+#: the EnvConfig flag that adds it.
+OPTIONAL: dict[tuple[str, int, str], str] = {
+    ERROR_RATE: "observe_error_rate",
+    FORCE_LIMIT: "observe_force_limit",
+}
 
 
 def _slices() -> dict[str, slice]:

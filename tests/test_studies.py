@@ -363,7 +363,7 @@ def test_generalist_ablation_reads_action_mode_and_network_from_each_run():
     optional observation entries come from each bundle's run record: what its
     configs/ppo.yaml entry trained it with."""
     from tendon2r_gym.bundle import bundle_names
-    from tendon2r_gym.observation import FLAGS
+    from tendon2r_gym.observation import OPTIONAL
     from tendon2r_gym.studies import generalist
     from tendon2r_gym.training import Hyperparams
 
@@ -378,7 +378,7 @@ def test_generalist_ablation_reads_action_mode_and_network_from_each_run():
         assert table[name]["network"] == " x ".join(map(str, net)), name
         assert table[name]["eval_episodes"] == len(hp.eval_seeds), name
         assert table[name]["residual_filter_tau"] == hp.residual_filter_tau, name
-        flags = [n for n, flag in FLAGS.items() if hp.env_kwargs.get(flag)]
+        flags = [e[0] for e, flag in OPTIONAL.items() if hp.env_kwargs.get(flag)]
         assert table[name]["observes"] == (", ".join(flags) or "none"), name
     for key in ("eval_episodes", "residual_filter_tau", "observes"):
         assert len({table[n][key] for n in shown}) > 1, f"the table tells {key} apart"
