@@ -88,14 +88,14 @@ def preview_slice(preview_steps: int) -> slice:
 def last_action_slice(preview_steps: int, n_actions: int) -> slice:
     """Returns the slice of the last command the env applied (the clipped action, through the
     env's action filter if it has one; the rest command after a reset)."""
-    start = N_FIXED + 2 * preview_steps
+    start = preview_slice(preview_steps).stop
     return slice(start, start + n_actions)
 
 
 def optional_slice(name: str, preview_steps: int, n_actions: int, observed: Iterable[str]) -> slice:
     """Returns the slice of the optional entry ``name`` (one of OPTIONAL) in an observation
     that holds the optional entries ``observed``: after the last action, in OPTIONAL's order."""
-    observed, start = set(observed), N_FIXED + 2 * preview_steps + n_actions
+    observed, start = set(observed), last_action_slice(preview_steps, n_actions).stop
     for entry, n, _ in OPTIONAL:
         if entry == name:
             return slice(start, start + n)
@@ -115,7 +115,7 @@ def arm_slice(
     normalized over its range to [-1, 1], in the order of the ranges (EnvConfig.feature_ranges).
     ``observed``: the optional entries the observation holds (names of OPTIONAL)."""
     observed = set(observed)
-    start = N_FIXED + 2 * preview_steps + n_actions
+    start = last_action_slice(preview_steps, n_actions).stop
     start += sum(n for name, n, _ in OPTIONAL if name in observed)
     return slice(start, start + n_arm)
 
