@@ -17,7 +17,7 @@ venv: $(BIN)/activate
 
 test: venv
 	$(BIN)/ruff check tendon2r_gym scripts tests
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto
 	$(MAKE) wheel-smoke
 
 lint: venv
