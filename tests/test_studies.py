@@ -329,19 +329,21 @@ def test_realism_ablation_scores_runs_on_the_realism_arms(tmp_path, monkeypatch)
 
 def test_generalist_ablation_names_each_bundles_reward_as_its_entry_sets_it():
     """The reward column reads the bundle's recorded env config: its entry's tracking form
-    (the registered one if the entry sets none) and each weight the entry changes."""
+    (the registered one if the entry sets none), its sigma if the entry changes it, and each
+    weight the entry changes."""
     from tendon2r_gym.bundle import bundle_names, bundled_model
     from tendon2r_gym.env_config import EnvConfig
     from tendon2r_gym.studies import generalist
     from tendon2r_gym.training import Hyperparams
 
-    registered = EnvConfig.make().tracking_form
+    registered, sigma = EnvConfig.make().tracking_form, EnvConfig.make().tracking_sigma_deg
     shown = [n for n in ("generalist", *generalist.ABLATIONS) if n in bundle_names()]
     assert {"generalist", "generalist_log", "generalist_multiscale"} <= set(shown)
     for name in shown:
         env = Hyperparams.from_entry(name).env_kwargs
         weights = [f"{k} {w:g}" for k, w in env.get("reward_scales", {}).items()]
-        expected = ", ".join([env.get("tracking_form", registered), *weights])
+        sigmas = [f"sigma {s:g} deg" for s in [env.get("tracking_sigma_deg", sigma)] if s != sigma]
+        expected = ", ".join([env.get("tracking_form", registered), *sigmas, *weights])
         assert generalist.reward_of(bundled_model(name)) == expected, name
 
 

@@ -36,6 +36,7 @@ import yaml
 from tendon2r_gym.arms import GEOMETRY, draw_arms
 from tendon2r_gym.benchmark import GENERALISTS, LEARNED
 from tendon2r_gym.bundle import bundle_names, bundled_model
+from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.evaluation import evaluate
 from tendon2r_gym.learned import (
     feature_ranges,
@@ -61,16 +62,19 @@ from tendon2r_gym.task import REWARD_SCALES
 #: The generalist bundles (configs/ppo.yaml entries of the same names: the residual, plain PPO,
 #: the residual on pull-only cables), then the ablations (what each changes is in its entry's
 #: comment; the ablation table reads its action mode, network, reward, arm features and
-#: evaluation episodes from its run record): the residual generalist without its residual
-#: filter; the plain generalist blind to the arm; the unfiltered residual generalist blind to
-#: the arm; the previous generalist (tension mode, blind, 64 x 64) and it with the arm's
-#: features; the plain generalist blind to its force limit; the "log" reward at 3M steps, and
-#: on that reward
-#: and budget the arm's features seen by both networks, by the actor only, by the critic only
+#: evaluation episodes from its run record): the residual generalist on the registered
+#: reward's sigma (1 deg), and that without its error rate and force limit; that without its
+#: residual filter; the plain generalist blind to the arm; the unfiltered residual generalist
+#: blind to the arm; the previous generalist (tension mode, blind, 64 x 64) and it with the
+#: arm's features; the plain generalist blind to its force limit; the "log" reward at 3M steps,
+#: and on that reward and budget the arm's features seen by both networks, by the actor only,
+#: by the critic only
 #: (privileged); the multiscale reward at 3M steps with two weights of the action-rate term;
 #: the pull-only residual in tension mode with a 3x heavier action-rate term.
 BUNDLES = GENERALISTS
 ABLATIONS = (
+    "generalist_coarse",
+    "generalist_unscaled",
     "generalist_unfiltered",
     "generalist_scratch_blind",
     "generalist_scratch_unscaled",
@@ -246,10 +250,15 @@ def optional_entries(model_path: Path) -> str:
 
 def reward_of(model_path: Path) -> str:
     """Returns the reward a bundled model trained on, as its env config records it: the
-    tracking form and any weight that differs from the registered env's."""
+    tracking form, its sigma where it differs from the registered env's, and any weight that
+    differs from the registered env's."""
     recorded = training_record(model_path)["env_config"]
+    sigma = recorded.get("tracking_sigma_deg", EnvConfig.tracking_sigma_deg)
+    form = [recorded["tracking_form"]]
+    if sigma != EnvConfig.tracking_sigma_deg:
+        form.append(f"sigma {sigma:g} deg")
     changed = [f"{k} {w:g}" for k, w in recorded["reward_scales"].items() if w != REWARD_SCALES[k]]
-    return ", ".join([recorded["tracking_form"], *changed])
+    return ", ".join([*form, *changed])
 
 
 #: The fine-tuning curve's configs/ppo.yaml entry: the generalist residual's hyperparameters,
@@ -402,7 +411,8 @@ def write(result: dict[str, Any], out: Path) -> None:
         "training never uses; sweep arms: results/arm_sweep.md, with their own specialist. "
         "generalist: residual on PD in joint-torque mode, its residual through a first-order "
         "low-pass (PD's command unfiltered; the ablation table gives the time constant), "
-        "seeing the arm's features; "
+        "seeing the arm's features, the tracking error's rate and its force limit, trained "
+        "on the multiscale reward at sigma 0.1 deg; "
         "generalist_scratch: plain PPO (normalized joint torques through a 2 ms action "
         "filter), seeing the arm's features, the tracking error's rate and its force limit; "
         "generalist_pull_only: the residual on arms with "
@@ -412,7 +422,9 @@ def write(result: dict[str, Any], out: Path) -> None:
         "columns are ablations (one seed each; configs/ppo.yaml's comment on each entry says "
         "what it changes, and the ablation table below gives each one's action mode, network, "
         "reward, arm features, evaluation episodes and training steps): "
-        "generalist_unfiltered, the generalist without its residual filter; "
+        "generalist_coarse, the generalist on the registered sigma (1 deg), and "
+        "generalist_unscaled, that without the error's rate and the force limit (the previous "
+        "generalist); generalist_unfiltered, generalist_unscaled without its residual filter; "
         "generalist_scratch_blind, the plain generalist without the arm's features, and "
         "generalist_scratch_unscaled, it without its force limit; "
         "generalist_blind, generalist_unfiltered without them; generalist_tension, the "
