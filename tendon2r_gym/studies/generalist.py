@@ -62,17 +62,18 @@ from tendon2r_gym.task import REWARD_SCALES
 #: The generalist bundles (configs/ppo.yaml entries of the same names: the residual, plain PPO,
 #: the residual on pull-only cables), then the ablations (what each changes is in its entry's
 #: comment; the ablation table reads its action mode, network, reward, arm features and
-#: evaluation episodes from its run record): the residual generalist on the registered
-#: reward's sigma (1 deg), and that without its error rate and force limit; that without its
-#: residual filter; the plain generalist blind to the arm; the unfiltered residual generalist
-#: blind to the arm; the previous generalist (tension mode, blind, 64 x 64) and it with the
-#: arm's features; the plain generalist blind to its force limit; the "log" reward at 3M steps,
-#: and on that reward and budget the arm's features seen by both networks, by the actor only,
-#: by the critic only
-#: (privileged); the multiscale reward at 3M steps with two weights of the action-rate term;
-#: the pull-only residual in tension mode with a 3x heavier action-rate term.
+#: evaluation episodes from its run record): the residual generalist with action-rate weight
+#: 1, that on the registered reward's sigma (1 deg), and that without its error rate and force
+#: limit; that without its residual filter; the plain generalist blind to the arm; the
+#: unfiltered residual generalist blind to the arm; the previous generalist (tension mode,
+#: blind, 64 x 64) and it with the arm's features; the plain generalist blind to its force
+#: limit; the "log" reward at 3M steps, and on that reward and budget the arm's features seen
+#: by both networks, by the actor only, by the critic only (privileged); the multiscale reward
+#: at 3M steps with two weights of the action-rate term; the pull-only residual in tension mode
+#: with a 3x heavier action-rate term.
 BUNDLES = GENERALISTS
 ABLATIONS = (
+    "generalist_rate1",
     "generalist_coarse",
     "generalist_unscaled",
     "generalist_unfiltered",
@@ -412,7 +413,7 @@ def write(result: dict[str, Any], out: Path) -> None:
         "generalist: residual on PD in joint-torque mode, its residual through a first-order "
         "low-pass (PD's command unfiltered; the ablation table gives the time constant), "
         "seeing the arm's features, the tracking error's rate and its force limit, trained "
-        "on the multiscale reward at sigma 0.1 deg; "
+        "on the multiscale reward at sigma 0.1 deg with action-rate weight 3; "
         "generalist_scratch: plain PPO (normalized joint torques through a 2 ms action "
         "filter), seeing the arm's features, the tracking error's rate and its force limit; "
         "generalist_pull_only: the residual on arms with "
@@ -422,9 +423,10 @@ def write(result: dict[str, Any], out: Path) -> None:
         "columns are ablations (one seed each; configs/ppo.yaml's comment on each entry says "
         "what it changes, and the ablation table below gives each one's action mode, network, "
         "reward, arm features, evaluation episodes and training steps): "
-        "generalist_coarse, the generalist on the registered sigma (1 deg), and "
-        "generalist_unscaled, that without the error's rate and the force limit (the previous "
-        "generalist); generalist_unfiltered, generalist_unscaled without its residual filter; "
+        "generalist_rate1, the generalist with action-rate weight 1; generalist_coarse, that "
+        "on the registered sigma (1 deg), and generalist_unscaled, that without the error's "
+        "rate and the force limit (the previous generalist); generalist_unfiltered, "
+        "generalist_unscaled without its residual filter; "
         "generalist_scratch_blind, the plain generalist without the arm's features, and "
         "generalist_scratch_unscaled, it without its force limit; "
         "generalist_blind, generalist_unfiltered without them; generalist_tension, the "
