@@ -336,14 +336,16 @@ def test_generalist_ablation_names_each_bundles_reward_as_its_entry_sets_it():
     from tendon2r_gym.studies import generalist
     from tendon2r_gym.training import Hyperparams
 
-    registered, sigma = EnvConfig.make().tracking_form, EnvConfig.make().tracking_sigma_deg
+    registered = EnvConfig.make()
     shown = [n for n in ("generalist", *generalist.ABLATIONS) if n in bundle_names()]
     assert {"generalist", "generalist_log", "generalist_multiscale"} <= set(shown)
     for name in shown:
         env = Hyperparams.from_entry(name).env_kwargs
         weights = [f"{k} {w:g}" for k, w in env.get("reward_scales", {}).items()]
-        sigmas = [f"sigma {s:g} deg" for s in [env.get("tracking_sigma_deg", sigma)] if s != sigma]
-        expected = ", ".join([env.get("tracking_form", registered), *sigmas, *weights])
+        sigma = env.get("tracking_sigma_deg", registered.tracking_sigma_deg)
+        sigmas = [f"sigma {sigma:g} deg"] if sigma != registered.tracking_sigma_deg else []
+        form = env.get("tracking_form", registered.tracking_form)
+        expected = ", ".join([form, *sigmas, *weights])
         assert generalist.reward_of(bundled_model(name)) == expected, name
 
 
