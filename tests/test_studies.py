@@ -452,3 +452,22 @@ def test_generalist_summary_holds_every_arm_to_the_smoothness_limits():
     assert residual["max_tension_rate_x_pd"] == pytest.approx(over)
     assert residual["median_tension_rate_x_pd"] == pytest.approx(1.0)
     assert (plain["smooth"], plain["beats_pd_smooth"]) == (3, 2)
+
+
+def test_generalist_study_column_runs_a_bundle_or_one_of_its_seeds():
+    """A study column is a bundle (its primary seed) or NAME@SEED (another bundled seed); the
+    default columns add each shipped generalist's other seeds; a bad column is a ValueError
+    naming --bundles, a seed the bundle lacks one naming the seed."""
+    from tendon2r_gym.bundle import bundle_meta, bundled_model
+    from tendon2r_gym.studies import generalist
+
+    meta = bundle_meta("generalist")
+    assert generalist.model_of("generalist") == bundled_model("generalist")
+    for seed in meta["seeds"]:
+        assert generalist.model_of(f"generalist@{seed}") == bundled_model("generalist", seed)
+    others = [s for s in meta["seeds"] if s != meta["primary_seed"]]
+    assert generalist.other_seeds(["generalist"]) == [f"generalist@{s}" for s in others]
+    with pytest.raises(ValueError, match="--bundles"):
+        generalist.model_of("generalist@one")
+    with pytest.raises(ValueError, match="seed of bundle 'generalist'"):
+        generalist.model_of(f"generalist@{max(meta['seeds']) + 1}")

@@ -337,6 +337,22 @@ def test_fine_tuning_starts_from_a_generalists_weights_on_an_arm_inside_its_rang
         _train(config, tmp_path / "far", "--env-config", str(far), "--init-from", str(source))
 
 
+def test_the_registered_fine_tune_trains_on_its_generalists_reward():
+    """generalist_finetune trains on the reward its source entry trained on (tracking form,
+    sigma, every weight), as the env resolves them; only the arm differs."""
+    from tendon2r_gym.env_config import EnvConfig
+
+    tune = Hyperparams.from_entry("generalist_finetune")
+    source = Hyperparams.from_entry(tune.init_from)
+
+    def reward(hp: Hyperparams) -> tuple:
+        c = EnvConfig.make(**hp.env_kwargs)
+        return c.tracking_form, c.tracking_sigma_deg, c.reward_scales
+
+    assert reward(tune) == reward(source)
+    assert reward(source) != reward(Hyperparams.from_entry("default"))  # the test can fail
+
+
 def test_a_filtered_residual_trains_deploys_and_fine_tunes_with_its_filter(tmp_path):
     """residual_filter_tau: run.json records it; PPOPolicy.load adds PD to the model's residual
     through the same filter, restarted with each episode; the eval callback's score is the

@@ -35,7 +35,7 @@ import yaml
 
 from tendon2r_gym.arms import GEOMETRY, draw_arms
 from tendon2r_gym.benchmark import GENERALISTS, LEARNED
-from tendon2r_gym.bundle import bundle_names, bundled_model
+from tendon2r_gym.bundle import bundle_meta, bundle_names, bundled_model
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.evaluation import evaluate
 from tendon2r_gym.learned import (
@@ -58,6 +58,7 @@ from tendon2r_gym.presets import load_yaml, preset_path
 from tendon2r_gym.runs import RunFolder, command_line, stem_of, training_record, training_summary
 from tendon2r_gym.studies import joints, save_json
 from tendon2r_gym.task import REWARD_SCALES
+from tendon2r_gym.validation import invalid
 
 #: The generalist bundles (configs/ppo.yaml entries of the same names: the residual, plain PPO,
 #: the residual on pull-only cables), then the ablations (what each changes is in its entry's
@@ -104,6 +105,33 @@ def with_pull_only_cables(content: dict[str, Any]) -> dict[str, Any]:
     return {**content, "mechanism": {**content["mechanism"], **cables}}
 
 
+#: A study column names a bundle (its primary seed) or, as ``NAME@SEED``, another of its seeds.
+SEED_MARK = "@"
+
+
+def model_of(column: str) -> Path:
+    """Returns the model a study column runs: a bundle's primary best model, or with
+    ``NAME@SEED`` the best model of that bundled seed."""
+    name, _, seed = column.partition(SEED_MARK)
+    if not seed:
+        return bundled_model(name)
+    if not seed.isdigit():
+        raise invalid("--bundles", column, f"a bundle's name, or NAME{SEED_MARK}SEED")
+    return bundled_model(name, int(seed))
+
+
+def other_seeds(bundles: list[str]) -> list[str]:
+    """Returns the columns of the bundles' non-primary seeds (``NAME@SEED``)."""
+    metas = {b: bundle_meta(b) for b in bundles}
+    return [
+        f"{b}{SEED_MARK}{s}"
+        for b, meta in metas.items()
+        if meta
+        for s in meta["seeds"]
+        if s != meta["primary_seed"]
+    ]
+
+
 def evaluate_arm(
     env_kwargs: dict[str, Any], bundles: list[str], seeds: list[int]
 ) -> dict[str, Any]:
@@ -113,7 +141,7 @@ def evaluate_arm(
     for name in ("pd", "ct"):
         rows[name], _ = evaluate(name, env_kwargs, seeds)
     for bundle in bundles:
-        model = bundled_model(bundle)
+        model = model_of(bundle)
         kwargs = in_model_settings(model, env_kwargs)  # as the benchmark runs it
         try:
             rows[bundle], _ = evaluate("ppo", kwargs, seeds, model)
@@ -144,12 +172,12 @@ SPECIALIST_ENTRY = LEARNED["ppo residual"][1]
 
 def action_mode_of(bundle: str) -> str:
     """Returns the action mode a bundle trained (and runs) in, as its run recorded it."""
-    return model_settings(bundled_model(bundle))["action_mode"]
+    return model_settings(model_of(bundle))["action_mode"]
 
 
 def is_residual(bundle: str) -> bool:
     """Returns whether a bundle is a residual on PD (else plain PPO), as its run recorded it."""
-    return (training_record(bundled_model(bundle)) or {}).get("residual_scale", 0.0) > 0
+    return (training_record(model_of(bundle)) or {}).get("residual_scale", 0.0) > 0
 
 
 def specialist_rms(arm: dict[str, Any], mode: str) -> list[float] | None:
@@ -349,7 +377,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--n-arms", type=int, default=32, help="unseen random course arms")
     p.add_argument("--arm-seed", type=int, default=9001, help="seed of the unseen arms")
     p.add_argument("--episodes", type=int, default=3, help="evaluation seeds 0..N-1 per arm")
-    p.add_argument("--bundles", nargs="*", default=None, help="default: the shipped generalists")
+    p.add_argument(
+        "--bundles", nargs="*", default=None,
+        help="bundle names, or NAME@SEED for another bundled seed (default: the shipped "
+        "generalists, their other seeds, then the ablations)",
+    )  # fmt: skip
     p.add_argument("--sweep", default="results/arm_sweep.json", help="the arm sweep's results")
     p.add_argument("--finetune-arms", type=int, default=3, help="fine-tuning curve on N arms")
     p.add_argument("--finetune-runs", default="runs/finetune", help="its training run folders")
@@ -360,8 +392,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--out", default="results")
     args = p.parse_args(argv)
     command = command_line(argv, "python scripts/generalist.py")
-    shipped = [b for b in (*BUNDLES, *ABLATIONS) if b in bundle_names()]
-    bundles = shipped if args.bundles is None else args.bundles
+    shipped = [b for b in BUNDLES if b in bundle_names()]
+    ablations = [b for b in ABLATIONS if b in bundle_names()]
+    default = [*shipped, *other_seeds(shipped), *ablations]
+    bundles = default if args.bundles is None else args.bundles
     seeds = list(range(args.episodes))
     arms: dict[str, dict[str, Any]] = {}
     drawn = draw_arms(args.arm_seed, args.n_arms)
@@ -419,8 +453,10 @@ def write(result: dict[str, Any], out: Path) -> None:
         "generalist_pull_only: the residual on arms with "
         "three pull-only cables (its preset's), in joint-torque mode, run on the unseen "
         "geometries with those cables (unseen_<i>_pull_only); each bundle runs in the action "
-        "mode it trained in, and one that saw the arm's features sees each arm's. The other "
-        "columns are ablations (one seed each; configs/ppo.yaml's comment on each entry says "
+        "mode it trained in, and one that saw the arm's features sees each arm's. A column "
+        "NAME@SEED is another training seed of that bundle (same entry; the unmarked column "
+        "is its primary seed, fixed before training). The other columns are ablations (one "
+        "seed each; configs/ppo.yaml's comment on each entry says "
         "what it changes, and the ablation table below gives each one's action mode, network, "
         "reward, arm features, evaluation episodes and training steps): "
         "generalist_rate1, the generalist with action-rate weight 1; generalist_coarse, that "
