@@ -471,3 +471,20 @@ def test_generalist_study_column_runs_a_bundle_or_one_of_its_seeds():
         generalist.model_of("generalist@one")
     with pytest.raises(ValueError, match="seed of bundle 'generalist'"):
         generalist.model_of(f"generalist@{max(meta['seeds']) + 1}")
+
+
+@pytest.mark.parametrize("name", ["generalist", "generalist_scratch", "generalist_pull_only",
+                                  "generalist_rate1", "generalist_coarse", "generalist_unscaled",
+                                  "generalist_scratch_blind", "generalist_scratch_unscaled"])  # fmt: skip
+def test_each_generalist_bundle_was_trained_with_its_entry(name):
+    """The study reads each bundle as its configs/ppo.yaml entry: every bundled seed's run
+    config.yaml equals the entry's resolved hyperparameters, field by field (an entry that
+    inherits a changed anchor, or a bundle left from an older entry, fails here)."""
+    from tendon2r_gym.bundle import bundle_meta, bundled_model
+    from tendon2r_gym.runs import RunFolder, stem_of
+    from tendon2r_gym.training import Hyperparams
+
+    entry = Hyperparams.from_entry(name).to_dict()
+    for seed in bundle_meta(name)["seeds"]:
+        recorded = RunFolder(stem_of(bundled_model(name, seed)).parent).read_config()
+        assert {k for k in entry if entry[k] != recorded.get(k)} == set(), (name, seed)
