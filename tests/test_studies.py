@@ -473,9 +473,14 @@ def test_generalist_study_column_runs_a_bundle_or_one_of_its_seeds():
         generalist.model_of(f"generalist@{max(meta['seeds']) + 1}")
 
 
-@pytest.mark.parametrize("name", ["generalist", "generalist_scratch", "generalist_pull_only",
-                                  "generalist_rate1", "generalist_coarse", "generalist_unscaled",
-                                  "generalist_scratch_blind", "generalist_scratch_unscaled"])  # fmt: skip
+SHIPPED_GENERALISTS = [
+    "generalist", "generalist_scratch", "generalist_pull_only", "generalist_rate1",
+    "generalist_coarse", "generalist_unscaled", "generalist_scratch_blind",
+    "generalist_scratch_unscaled",
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("name", SHIPPED_GENERALISTS)
 def test_each_generalist_bundle_was_trained_with_its_entry(name):
     """The study reads each bundle as its configs/ppo.yaml entry: every bundled seed's run
     config.yaml equals the entry's resolved hyperparameters, field by field (an entry that
