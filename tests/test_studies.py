@@ -382,9 +382,12 @@ def test_generalist_ablation_reads_action_mode_and_network_from_each_run():
         assert table[name]["network"] == " x ".join(map(str, net)), name
         assert table[name]["eval_episodes"] == len(hp.eval_seeds), name
         assert table[name]["residual_filter_tau"] == hp.residual_filter_tau, name
+        assert table[name]["learning_rate"] == hp.ppo["learning_rate"], name
         flags = [e[0] for e, flag in OPTIONAL.items() if hp.env_kwargs.get(flag)]
         assert table[name]["observes"] == (", ".join(flags) or "none"), name
-    for key in ("eval_episodes", "residual_filter_tau", "observes"):
+    assert generalist._rate("lin_3.0e-4") == "0.0003, linear to 0"
+    assert generalist._rate(3.0e-4) == "0.0003"
+    for key in ("eval_episodes", "residual_filter_tau", "observes", "learning_rate"):
         assert len({table[n][key] for n in shown}) > 1, f"the table tells {key} apart"
 
 
@@ -474,7 +477,8 @@ def test_generalist_study_column_runs_a_bundle_or_one_of_its_seeds():
 
 
 SHIPPED_GENERALISTS = [
-    "generalist", "generalist_scratch", "generalist_pull_only", "generalist_rate1",
+    "generalist", "generalist_scratch", "generalist_pull_only", "generalist_constant_lr",
+    "generalist_rate1",
     "generalist_coarse", "generalist_unscaled", "generalist_scratch_blind",
     "generalist_scratch_unscaled",
 ]  # fmt: skip

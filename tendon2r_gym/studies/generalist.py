@@ -58,22 +58,24 @@ from tendon2r_gym.presets import load_yaml, preset_path
 from tendon2r_gym.runs import RunFolder, command_line, stem_of, training_record, training_summary
 from tendon2r_gym.studies import joints, save_json
 from tendon2r_gym.task import REWARD_SCALES
+from tendon2r_gym.training.hyperparams import LINEAR, linear_start
 from tendon2r_gym.validation import invalid
 
 #: The generalist bundles (configs/ppo.yaml entries of the same names: the residual, plain PPO,
 #: the residual on pull-only cables), then the ablations (what each changes is in its entry's
-#: comment; the ablation table reads its action mode, network, reward, arm features and
-#: evaluation episodes from its run record): the residual generalist with action-rate weight
-#: 1, that on the registered reward's sigma (1 deg), and that without its error rate and force
-#: limit; that without its residual filter; the plain generalist blind to the arm; the
-#: unfiltered residual generalist blind to the arm; the previous generalist (tension mode,
-#: blind, 64 x 64) and it with the arm's features; the plain generalist blind to its force
-#: limit; the "log" reward at 3M steps, and on that reward and budget the arm's features seen
-#: by both networks, by the actor only, by the critic only (privileged); the multiscale reward
-#: at 3M steps with two weights of the action-rate term; the pull-only residual in tension mode
-#: with a 3x heavier action-rate term.
+#: comment; the ablation table reads its action mode, network, learning rate, reward, arm
+#: features and evaluation episodes from its run record): the residual generalist at a
+#: constant learning rate; that with action-rate weight 1, that on the registered reward's
+#: sigma (1 deg), and that without its error rate and force limit; that without its residual
+#: filter; the plain generalist blind to the arm; the plain generalist blind to its force
+#: limit; the unfiltered residual generalist blind to the arm; an earlier generalist (tension
+#: mode, blind, 64 x 64) and it with the arm's features; the "log" reward at 3M steps, and on
+#: that reward and budget the arm's features seen by both networks, by the actor only, by the
+#: critic only (privileged); the multiscale reward at 3M steps with two weights of the
+#: action-rate term; the pull-only residual in tension mode with a 3x heavier action-rate term.
 BUNDLES = GENERALISTS
 ABLATIONS = (
+    "generalist_constant_lr",
     "generalist_rate1",
     "generalist_coarse",
     "generalist_unscaled",
@@ -247,6 +249,7 @@ def ablation(bundles: list[str]) -> dict[str, Any]:
         net = config["policy_kwargs"].get("net_arch")
         out[b]["network"] = " x ".join(map(str, net)) if net else "SB3 default"
         out[b]["eval_episodes"] = len(config["eval_seeds"])
+        out[b]["learning_rate"] = config["ppo"]["learning_rate"]
     return out
 
 
@@ -458,10 +461,11 @@ def write(result: dict[str, Any], out: Path) -> None:
         "is its primary seed, fixed before training). The other columns are ablations (one "
         "seed each; configs/ppo.yaml's comment on each entry says "
         "what it changes, and the ablation table below gives each one's action mode, network, "
-        "reward, arm features, evaluation episodes and training steps): "
-        "generalist_rate1, the generalist with action-rate weight 1; generalist_coarse, that "
+        "learning rate, reward, arm features, evaluation episodes and training steps): "
+        "generalist_constant_lr, the generalist at a constant learning rate (the previous "
+        "generalist); generalist_rate1, that with action-rate weight 1; generalist_coarse, that "
         "on the registered sigma (1 deg), and generalist_unscaled, that without the error's "
-        "rate and the force limit (the previous generalist); generalist_unfiltered, "
+        "rate and the force limit (an earlier generalist); generalist_unfiltered, "
         "generalist_unscaled without its residual filter; "
         "generalist_scratch_blind, the plain generalist without the arm's features, and "
         "generalist_scratch_unscaled, it without its force limit; "
@@ -506,16 +510,17 @@ def write(result: dict[str, Any], out: Path) -> None:
             "PD on them). The summary above gives each on the unseen arms, zero-shot.",
             "",
             "| generalist | arm features seen by | also observes | action mode | residual filter "
-            "| network | reward (tracking form, changed weights) | evaluation episodes | "
-            "RMS A / B (deg) | PD A / B (deg) | RMS tension rate (N/s) | steps | wall time (s) |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+            "| network | learning rate | reward (tracking form, changed weights) | evaluation "
+            "episodes | RMS A / B (deg) | PD A / B (deg) | RMS tension rate (N/s) | steps | "
+            "wall time (s) |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for b, a in result["ablation"].items():
             lines.append(
                 f"| {b} | {a.get('arm_seen_by', '?')} | {a.get('observes', '?')} | "
                 f"{a.get('action_mode', '?')} | "
                 f"{_filter(a.get('residual_filter_tau', 0.0))} | {a.get('network', '?')} | "
-                f"{a.get('reward', '?')} | "
+                f"{_rate(a.get('learning_rate', '?'))} | {a.get('reward', '?')} | "
                 f"{a.get('eval_episodes', '?')} | "
                 f"{fmt(a['best_rms_deg'])} | {fmt(a['pd_eval_rms_deg'])} | "
                 f"{fmt(a['best_tension_rate_N_per_s'])} | {a['timesteps']:,} | "
@@ -547,6 +552,14 @@ def write(result: dict[str, Any], out: Path) -> None:
 def _filter(tau: float) -> str:
     """Returns a residual filter's time constant as the ablation table shows it."""
     return f"{1000 * tau:g} ms" if tau else "none"
+
+
+def _rate(learning_rate: float | str) -> str:
+    """Returns a learning rate as the ablation table shows it: a number, or ``lin_<v>``
+    (rl_zoo3's notation) as a linear decay from v to 0."""
+    if isinstance(learning_rate, str) and learning_rate.startswith(LINEAR):
+        return f"{linear_start(learning_rate):g}, linear to 0"
+    return f"{learning_rate:g}" if isinstance(learning_rate, float | int) else learning_rate
 
 
 def finetune_lines(curves: dict[str, Any]) -> list[str]:
