@@ -64,8 +64,8 @@ from tendon2r_gym.validation import invalid
 #: The generalist bundles (configs/ppo.yaml entries of the same names: the residual, plain PPO,
 #: the residual on pull-only cables), then the ablations (what each changes is in its entry's
 #: comment; the ablation table reads its action mode, network, learning rate, reward, arm
-#: features and evaluation episodes from its run record): the residual generalist at a
-#: constant learning rate; that with action-rate weight 1, that on the registered reward's
+#: features and evaluation episodes from its run record): the residual generalist with a
+#: decaying learning rate; it with action-rate weight 1, that on the registered reward's
 #: sigma (1 deg), and that without its error rate and force limit; that without its residual
 #: filter; the plain generalist blind to the arm; the plain generalist blind to its force
 #: limit; the unfiltered residual generalist blind to the arm; an earlier generalist (tension
@@ -75,7 +75,7 @@ from tendon2r_gym.validation import invalid
 #: action-rate term; the pull-only residual in tension mode with a 3x heavier action-rate term.
 BUNDLES = GENERALISTS
 ABLATIONS = (
-    "generalist_constant_lr",
+    "generalist_lin_lr",
     "generalist_rate1",
     "generalist_coarse",
     "generalist_unscaled",
@@ -462,10 +462,10 @@ def write(result: dict[str, Any], out: Path) -> None:
         "seed each; configs/ppo.yaml's comment on each entry says "
         "what it changes, and the ablation table below gives each one's action mode, network, "
         "learning rate, reward, arm features, evaluation episodes and training steps): "
-        "generalist_constant_lr, the generalist at a constant learning rate (the previous "
-        "generalist); generalist_rate1, that with action-rate weight 1; generalist_coarse, that "
+        "generalist_lin_lr, the generalist with its learning rate decaying linearly to 0; "
+        "generalist_rate1, the generalist with action-rate weight 1; generalist_coarse, that "
         "on the registered sigma (1 deg), and generalist_unscaled, that without the error's "
-        "rate and the force limit (an earlier generalist); generalist_unfiltered, "
+        "rate and the force limit (the generalist before them); generalist_unfiltered, "
         "generalist_unscaled without its residual filter; "
         "generalist_scratch_blind, the plain generalist without the arm's features, and "
         "generalist_scratch_unscaled, it without its force limit; "
