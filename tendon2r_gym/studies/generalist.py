@@ -65,14 +65,15 @@ from tendon2r_gym.validation import invalid
 #: the residual on pull-only cables), then the ablations (what each changes is in its entry's
 #: comment; the ablation table reads its action mode, network, learning rate, reward, arm
 #: features and evaluation episodes from its run record): the residual generalist with a
-#: decaying learning rate; it with action-rate weight 1, that on the registered reward's
-#: sigma (1 deg), and that without its error rate and force limit; that without its residual
-#: filter; the plain generalist blind to the arm; the plain generalist blind to its force
-#: limit; the unfiltered residual generalist blind to the arm; an earlier generalist (tension
-#: mode, blind, 64 x 64) and it with the arm's features; the "log" reward at 3M steps, and on
-#: that reward and budget the arm's features seen by both networks, by the actor only, by the
-#: critic only (privileged); the multiscale reward at 3M steps with two weights of the
-#: action-rate term; the pull-only residual in tension mode with a 3x heavier action-rate term.
+#: decaying learning rate; at its constant rate, with action-rate weight 1, that on the
+#: registered reward's sigma (1 deg), and that without its error rate and force limit; that
+#: without its residual filter; the plain generalist blind to the arm; the plain generalist
+#: blind to its force limit; the unfiltered residual generalist blind to the arm; an earlier
+#: generalist (tension mode, blind, 64 x 64) and it with the arm's features; the "log" reward
+#: at 3M steps, and on that reward and budget the arm's features seen by both networks, by the
+#: actor only, by the critic only (privileged); the multiscale reward at 3M steps with two
+#: weights of the action-rate term; the pull-only residual in tension mode with a 3x heavier
+#: action-rate term.
 BUNDLES = GENERALISTS
 ABLATIONS = (
     "generalist_lin_lr",
