@@ -99,6 +99,10 @@ class EnvConfig:
     #: Peak tendon force (N) that inverse dynamics of the reference (or of the worst corner of
     #: reference_ranges) needs; computed, not an argument.
     force_need: float = field(default=math.nan, compare=False)
+    #: Peak torque (N m) of each joint that inverse dynamics of the same references needs (of
+    #: AUTO_FLOOR's motion, if more): the scale of a residual relative to the arm's need
+    #: (tendon2r_gym.learned, ``residual_relative_to: need``); computed, not an argument.
+    torque_need: tuple[float, float] = field(default=(math.nan, math.nan), compare=False)
     #: The mechanism as given (max_tendon_force possibly "auto"): what arms are drawn over.
     base_mechanism: Mechanism | None = field(default=None, compare=False, repr=False)
 
@@ -246,6 +250,9 @@ class EnvConfig:
         # never falls below the need of AUTO_FLOOR's motion about the same bias (last entry).
         refs.append(Reference(bias_deg=self.reference.bias_deg, **AUTO_FLOOR))
         *needs, floor_need = _physics(self.mechanism.replace(max_tendon_force=1.0), tuple(refs))
+        torque = np.max([t for _, t in (*needs, floor_need)], axis=0)
+        object.__setattr__(self, "torque_need", (float(torque[0]), float(torque[1])))
+        needs, floor_need = [f for f, _ in needs], floor_need[0]
         need = max(needs)
         if self.mechanism.pull_only:
             need = max(need, self.mechanism.pretension)
@@ -452,7 +459,7 @@ class EnvConfig:
 
 
 #: EnvConfig fields that are computed, not arguments.
-COMPUTED = ("force_need", "base_mechanism")
+COMPUTED = ("force_need", "torque_need", "base_mechanism")
 
 
 def arguments() -> list[str]:
@@ -461,15 +468,20 @@ def arguments() -> list[str]:
 
 
 @lru_cache(maxsize=64)
-def _physics(mech: Mechanism, refs: tuple[Reference, ...]) -> tuple[float, ...]:
+def _physics(mech: Mechanism, refs: tuple[Reference, ...]) -> tuple[tuple[float, np.ndarray], ...]:
     """Checks that MuJoCo compiles ``mech`` and that the integrator can integrate it; returns
-    the force need (N) of each reference, from the nominal model (no stretch, lag or friction:
-    inverse dynamics of the arm)."""
+    the force need (N) and each joint's torque need (N m) of each reference, from the nominal
+    model (no stretch, lag or friction: inverse dynamics of the arm)."""
     model = build_model(mech)
     if mech.realistic:
         model = build_model(mech.ideal())
     check_stability(model, mech)
-    return tuple(force_need(model, [r], mech.pull_only, mech.pretension) for r in refs)
+    out = []
+    for r in refs:
+        J, tau = inverse_dynamics_grid(model, [r])
+        tensions = distribute(J, tau, mech.pull_only, mech.pretension)
+        out.append((float(np.max(np.abs(tensions))), np.max(np.abs(tau), axis=0)))
+    return tuple(out)
 
 
 assert set(SECTIONS) <= set(arguments())
@@ -483,12 +495,21 @@ def force_need(
     grid: int = 24,
 ) -> float:
     """Returns the peak tendon tension (N) that inverse dynamics needs to follow any of
-    ``references`` exactly, over every combination of the two joints' phases.
+    ``references`` exactly, over every combination of the two joints' phases: the tensions of
+    :func:`inverse_dynamics_grid`'s torques from tendon2r_gym.actuation.distribute (with the
+    pretension for pull-only tendons)."""
+    J, tau = inverse_dynamics_grid(model, references, grid)
+    return float(np.max(np.abs(distribute(J, tau, pull_only, pretension))))
 
-    Each joint j moves as q = bias + amp sin(theta_j); the torques tau come from mj_inverse at
-    (q, dq, ddq) on a ``grid`` x ``grid`` grid of (theta_A, theta_B), and the tensions from
-    tendon2r_gym.actuation.distribute (with the pretension for pull-only tendons).  Taking every
-    phase pair bounds the need of any start time, phase and episode length."""
+
+def inverse_dynamics_grid(
+    model: mujoco.MjModel, references: Sequence[Reference], grid: int = 24
+) -> tuple[np.ndarray, np.ndarray]:
+    """Returns the moment arms J (K, n_tendons, 2) and the joint torques tau (K, 2) that
+    inverse dynamics needs to follow ``references`` at every combination of the two joints'
+    phases.  Each joint j moves as q = bias + amp sin(theta_j); tau comes from mj_inverse at
+    (q, dq, ddq) on a ``grid`` x ``grid`` grid of (theta_A, theta_B).  Taking every phase pair
+    bounds the need of any start time, phase and episode length."""
     data = mujoco.MjData(model)
     arms = MomentArms(model, data)
     theta = np.linspace(0.0, 2.0 * np.pi, grid, endpoint=False)
@@ -502,8 +523,7 @@ def force_need(
             mujoco.mj_inverse(model, data)
             J.append(arms.dense().copy())
             tau.append(data.qfrc_inverse.copy())
-    tensions = distribute(np.array(J), np.array(tau), pull_only, pretension)  # one batch
-    return float(np.max(np.abs(tensions)))
+    return np.array(J), np.array(tau)
 
 
 def low_pass_alpha(tau: float, dt: float) -> float:

@@ -8,6 +8,16 @@ scratch").  With ``residual_filter_tau > 0`` the residual passes a first-order l
 (:class:`ResidualFilter`) before it is added, and PD's own command does not: a filter on the
 whole command would put its lag inside PD's loop.
 
+``residual_relative_to`` sets what ``residual_scale`` is a fraction of, per joint:
+
+- ``range`` (default): the joint's whole command range, the same on every arm;
+- ``need`` (joint-torque mode only): the joint's torque need, the peak torque that inverse
+  dynamics of the arm's reference needs (EnvConfig.torque_need), over the joint's torque
+  range (:attr:`TorqueToTension.max_torque`): residual_scale * need_j / max_torque_j.  On an
+  arm whose joint needs a small part of its range, a residual relative to the range can
+  move that joint far more than its task does; relative to the need, the residual's reach
+  follows the task on every arm.
+
 A trained model only meets the env it was trained for: :meth:`PPOPolicy.load` compares the env
 config recorded in the run (``run.json``) with the env's and refuses another mechanism,
 reference set or observation layout.
@@ -31,7 +41,7 @@ from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.policies import PDPolicy
 from tendon2r_gym.reference import Reference, ReferenceRanges
 from tendon2r_gym.runs import RUN_META, model_files, stem_of, training_record
-from tendon2r_gym.validation import number, real_array
+from tendon2r_gym.validation import invalid, number, real_array
 
 #: Env config settings a trained model depends on, compared as recorded (a setting recorded
 #: before it existed takes its EnvConfig default): what its actions mean, its timing and the
@@ -57,30 +67,75 @@ MODEL_ENV_FIELDS = (
 )
 
 
+#: What a residual_scale is a fraction of (module docstring).
+RESIDUAL_RELATIVE_TO = ("range", "need")
+
+
+def check_relative_to(value: Any, action_mode: str) -> str:
+    """Returns a valid ``residual_relative_to`` for an env of ``action_mode``, else raises."""
+    if value not in RESIDUAL_RELATIVE_TO:
+        raise invalid("residual_relative_to", value, f"one of {list(RESIDUAL_RELATIVE_TO)}")
+    if value == "need" and action_mode != "joint_torque":
+        raise invalid(
+            "residual_relative_to",
+            value,
+            f"'range' in action_mode {action_mode!r} ('need' "
+            "only with action_mode 'joint_torque', whose actions are joint torques)",
+        )
+    return value
+
+
+def residual_scales(
+    scale: float, relative_to: str, torque_need: Any, max_torque: np.ndarray
+) -> Any:
+    """Returns the residual's scale: ``scale``, or relative to the need (module docstring)
+    ``scale * torque_need / max_torque`` per joint, shape (2,) or (N, 2) per arm
+    (``torque_need``: each arm's EnvConfig.torque_need, as reset infos give it)."""
+    if relative_to == "range":
+        return scale
+    need = np.asarray(torque_need, dtype=float).reshape(np.shape(max_torque))
+    return scale * need / max_torque
+
+
 class ResidualPDWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """The agent's action is a residual on the PD command (see module docstring)."""
 
     def __init__(
-        self, env: gym.Env, residual_scale: float, residual_filter_tau: float = 0.0
+        self,
+        env: gym.Env,
+        residual_scale: float,
+        residual_filter_tau: float = 0.0,
+        residual_relative_to: str = "range",
     ) -> None:
         gym.utils.RecordConstructorArgs.__init__(
-            self, residual_scale=residual_scale, residual_filter_tau=residual_filter_tau
+            self,
+            residual_scale=residual_scale,
+            residual_filter_tau=residual_filter_tau,
+            residual_relative_to=residual_relative_to,
         )
         super().__init__(env)
         self.residual_scale = number("residual_scale", residual_scale, 0.0, 2.0, lo_open=True)
+        config = env.unwrapped.config
+        self.relative_to = check_relative_to(residual_relative_to, config.action_mode)
         self.pd = PDPolicy.from_env(env)
-        self.filter = ResidualFilter(residual_filter_tau, env.unwrapped.config.ctrl_dt)
+        self.filter = ResidualFilter(residual_filter_tau, config.ctrl_dt)
         self._obs: np.ndarray | None = None
+        self._scale = self._scales(config.torque_need)
+
+    def _scales(self, torque_need: Any) -> Any:
+        max_torque = self.pd.actuation.max_torque
+        return residual_scales(self.residual_scale, self.relative_to, torque_need, max_torque)
 
     def reset(self, **kwargs: Any):
         self._obs, info = self.env.reset(**kwargs)
         self.pd.reset(info)  # follows the episode's arm, if the env draws arms
+        self._scale = self._scales(info["torque_need_Nm"])
         self.filter.clear()
         return self._obs, info
 
     def step(self, action: np.ndarray):
         base, _ = self.pd.predict(self._obs)
-        command = residual_command(base, action, self.residual_scale, self.filter)
+        command = residual_command(base, action, self._scale, self.filter)
         self._obs, reward, terminated, truncated, info = self.env.step(command)
         return self._obs, reward, terminated, truncated, info
 
@@ -123,16 +178,23 @@ def recorded_filter_tau(record: dict[str, Any] | None) -> float:
     return float((record or {}).get("residual_filter_tau", 0.0))
 
 
+def recorded_relative_to(record: dict[str, Any] | None) -> str:
+    """Returns the residual_relative_to a model's run record gives: ``range`` for a run
+    recorded before it existed, or without a record."""
+    return str((record or {}).get("residual_relative_to", "range"))
+
+
 def residual_command(
     base: np.ndarray,
     action: np.ndarray,
-    scale: float,
+    scale: Any,
     filter_: ResidualFilter | None = None,
     start: Any = None,
 ) -> np.ndarray:
-    """Returns clip(base + r, -1, 1) with r = scale * clip(action, -1, 1) (through ``filter_``
-    if given; ``start`` as :meth:`ResidualFilter.__call__` takes it): the PD command ``base``
-    plus the agent's residual.  Training (ResidualPDWrapper, the native vector env) and
+    """Returns clip(base + r, -1, 1) with r = scale * clip(action, -1, 1) (``scale``: a number,
+    or one per joint, :func:`residual_scales`; through ``filter_`` if given; ``start`` as
+    :meth:`ResidualFilter.__call__` takes it): the PD command ``base`` plus the agent's
+    residual.  Training (ResidualPDWrapper, the native vector env) and
     deployment (PPOPolicy) share it, and it refuses an action of the wrong shape or a
     non-finite one."""
     shape = np.shape(base)
@@ -148,6 +210,7 @@ def make_training_env(
     residual_scale: float,
     zero_obs: tuple[str, ...] = (),
     residual_filter_tau: float = 0.0,
+    residual_relative_to: str = "range",
 ) -> gym.Env:
     """Returns Tendon2R-v0 with the given kwargs, wrapped for residual learning if asked.
     ``zero_obs`` names observation entries (tendon2r_gym.observation) to blank out, for
@@ -158,7 +221,7 @@ def make_training_env(
         env = gym.wrappers.TransformObservation(env, lambda o: o * keep, env.observation_space)
     if residual_scale == 0:
         return env
-    return ResidualPDWrapper(env, residual_scale, residual_filter_tau)
+    return ResidualPDWrapper(env, residual_scale, residual_filter_tau, residual_relative_to)
 
 
 def recorded_settings(recorded: dict[str, Any]) -> dict[str, Any]:
@@ -356,7 +419,8 @@ class PPOPolicy:
     ``normalize_obs``, and adds PD if it was residual: the PD of its training env's gains
     (``pd_gains``), whatever the env's are, except gains drawn in training, which are the
     env's (:func:`deployed_gains`), and the residual through the filter it trained with
-    (``residual_filter_tau``)."""
+    (``residual_filter_tau``), at the scale it trained with (``residual_relative_to``: per
+    joint relative to each episode's torque need, from the reset info)."""
 
     def __init__(
         self,
@@ -369,6 +433,7 @@ class PPOPolicy:
         frame_stack: int = 1,
         frame_stride: int = 1,
         residual_filter_tau: float = 0.0,
+        residual_relative_to: str = "range",
     ) -> None:
         self.model = model
         self.vecnormalize = vecnormalize
@@ -384,9 +449,13 @@ class PPOPolicy:
 
             self._history = FrameHistory(frame_stack, frame_stride)
         self.pd, self.filter = None, None
+        self.relative_to, self._scale = residual_relative_to, residual_scale
         if residual_scale > 0 and env is not None:  # the PD it was trained on: its gains
+            config = env.unwrapped.config
+            check_relative_to(residual_relative_to, config.action_mode)
             self.pd = PDPolicy.from_env(env, gains=gains_of(pd_gains))
-            self.filter = ResidualFilter(residual_filter_tau, env.unwrapped.config.ctrl_dt)
+            self.filter = ResidualFilter(residual_filter_tau, config.ctrl_dt)
+            self._scale = self._scales(config.torque_need)
 
     @classmethod
     def load(cls, model_path: str | Path, env: gym.Env) -> PPOPolicy:
@@ -403,8 +472,15 @@ class PPOPolicy:
         vecnorm.training, vecnorm.norm_reward = False, False
         gains = deployed_gains(meta["env_config"], env)
         history = int(meta.get("frame_stack", 1)), int(meta.get("frame_stride", 1))
-        tau = recorded_filter_tau(meta)
-        return cls(model, vecnorm, float(meta["residual_scale"]), env, gains, arm, *history, tau)
+        tau, relative_to = recorded_filter_tau(meta), recorded_relative_to(meta)
+        return cls(
+            model, vecnorm, float(meta["residual_scale"]), env, gains, arm, *history, tau,
+            relative_to,
+        )  # fmt: skip
+
+    def _scales(self, torque_need: Any) -> Any:
+        max_torque = self.pd.actuation.max_torque
+        return residual_scales(self.residual_scale, self.relative_to, torque_need, max_torque)
 
     def reset(self, info: dict[str, Any]) -> None:
         """Follows the episode's arm with the PD inside a residual policy (the rollouts call
@@ -414,6 +490,7 @@ class PPOPolicy:
             self._history.clear()
         if self.pd is not None:
             self.pd.reset(info)
+            self._scale = self._scales(info["torque_need_Nm"])
             self.filter.clear()
 
     def predict(
@@ -435,7 +512,7 @@ class PPOPolicy:
         if self.pd is None:
             return np.clip(action, -1.0, 1.0).astype(np.float32), state
         base, _ = self.pd.predict(obs)
-        command = residual_command(base, action, self.residual_scale, self.filter, episode_start)
+        command = residual_command(base, action, self._scale, self.filter, episode_start)
         return command.astype(np.float32), state
 
 

@@ -97,7 +97,8 @@ STEP_INFO_KEYS = (
 #: episode's arm (Mechanism fields), which PD, CT and the residual wrapper follow, and its
 #: sensors' ``observation_noise`` and ``observation_delay``; where mechanism_ranges draws PD's
 #: gains, also the episode's ``pd_gains`` (Gains fields).
-RESET_INFO_KEYS = ("reference", "time", "force_need_N", "max_tendon_force_N")
+#: ``torque_need_Nm`` is each joint's peak torque need (EnvConfig.torque_need).
+RESET_INFO_KEYS = ("reference", "time", "force_need_N", "torque_need_Nm", "max_tendon_force_N")
 
 
 def reference_params(ref: Reference) -> tuple[float, ...]:
@@ -226,6 +227,7 @@ class Task:
             "reference": ref.to_dict(),
             "time": time,
             "force_need_N": arm.force_need,
+            "torque_need_Nm": np.array(arm.torque_need),
             "max_tendon_force_N": arm.mechanism.max_tendon_force,
         }
         if self.config.mechanism_ranges is not None:

@@ -9,7 +9,12 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from tendon2r_gym import observation
 from tendon2r_gym.gains import gains_of
-from tendon2r_gym.learned import ResidualFilter, residual_command
+from tendon2r_gym.learned import (
+    ResidualFilter,
+    check_relative_to,
+    residual_command,
+    residual_scales,
+)
 from tendon2r_gym.policies import PDPolicy
 from tendon2r_gym.validation import invalid
 
@@ -19,7 +24,8 @@ class SB3VecEnv(VecEnv):
     Gymnasium's SAME_STEP autoreset mode: ``terminal_observation`` and ``TimeLimit.truncated``
     go in each env's info, as SB3's own VecEnvs put them.  With ``residual_scale > 0`` it
     also adds the agent's action to a batched PD command (one numpy call for all arms),
-    through a filter of ``residual_filter_tau`` (tendon2r_gym.learned.ResidualFilter)."""
+    through a filter of ``residual_filter_tau`` (tendon2r_gym.learned.ResidualFilter), at a
+    scale relative to ``residual_relative_to`` (tendon2r_gym.learned.residual_scales)."""
 
     def __init__(
         self,
@@ -27,6 +33,7 @@ class SB3VecEnv(VecEnv):
         residual_scale: float = 0.0,
         zero_obs: tuple[str, ...] = (),
         residual_filter_tau: float = 0.0,
+        residual_relative_to: str = "range",
     ) -> None:
         from gymnasium.vector import AutoresetMode
 
@@ -36,6 +43,7 @@ class SB3VecEnv(VecEnv):
         self.venv, self.residual_scale = venv, residual_scale
         self.pd = PDPolicy.from_env(venv) if residual_scale > 0 else None
         self.filter = ResidualFilter(residual_filter_tau, venv.config.ctrl_dt)
+        self.relative_to = check_relative_to(residual_relative_to, venv.config.action_mode)
         self._starts = np.ones(venv.num_envs, dtype=bool)  # a slot's episode starts
         ranges = venv.config.mechanism_ranges
         self._random_arms = ranges is not None
@@ -58,16 +66,19 @@ class SB3VecEnv(VecEnv):
     def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
         actions = self._actions
         if self.pd is not None:
+            need = self.venv.config.torque_need
             if self._random_arms:  # PD follows each slot's arm
                 arms = self.venv.arms
                 gains = [gains_of(a.pd_gains) for a in arms] if self._drawn_gains else None
                 self.pd.follow(
                     [a.mechanism for a in arms], [a.observation_delay for a in arms], gains
                 )
+                need = [a.torque_need for a in arms]
             base, _ = self.pd.predict(self._raw)
-            actions = residual_command(
-                base, actions, self.residual_scale, self.filter, self._starts
+            scale = residual_scales(
+                self.residual_scale, self.relative_to, need, self.pd.actuation.max_torque
             )
+            actions = residual_command(base, actions, scale, self.filter, self._starts)
         obs, rewards, terminated, truncated, info = self.venv.step(actions)
         dones = terminated | truncated
         infos = [_arm_info(info, i) for i in range(self.num_envs)]
@@ -102,16 +113,17 @@ def make_native(
     zero_obs: tuple[str, ...] = (),
     seed: int | None = None,
     residual_filter_tau: float = 0.0,
+    residual_relative_to: str = "range",
 ) -> VecEnv:
     """Returns the native vector env for SB3 training: N arms in one process with staggered
-    first episodes, batched PD for a residual (filtered by ``residual_filter_tau``), and
-    SB3's VecMonitor."""
+    first episodes, batched PD for a residual (filtered by ``residual_filter_tau``, scaled
+    relative to ``residual_relative_to``), and SB3's VecMonitor."""
     from stable_baselines3.common.vec_env import VecMonitor
 
     from tendon2r_gym.vector_env import Tendon2RVectorEnv
 
     native = Tendon2RVectorEnv(n_envs, autoreset_mode="SameStep", stagger=True, **env_kwargs)
-    venv = SB3VecEnv(native, residual_scale, zero_obs, residual_filter_tau)
+    venv = SB3VecEnv(native, residual_scale, zero_obs, residual_filter_tau, residual_relative_to)
     venv.seed(seed)
     return VecMonitor(venv)
 

@@ -243,3 +243,34 @@ def test_training_staggers_the_first_episodes():
         *_, trunc, _ = envs.step(np.zeros((4, 2)))
         lengths[trunc & (lengths == 0)] = step
     assert sorted(lengths.tolist()) == [2, 4, 6, 8]
+
+
+def test_sb3_adapter_scales_the_residual_to_each_arms_need_as_the_wrapper_does():
+    """residual_relative_to "need": on random arms, the native vector env's batched residual
+    has the single env's per-joint scale, residual_scale * torque_need / max_torque of each
+    slot's arm, through every autoreset to a new arm."""
+    from stable_baselines3.common.env_util import make_vec_env
+
+    from tendon2r_gym.learned import make_training_env
+    from tendon2r_gym.vector_env_sb3 import SB3VecEnv
+
+    kwargs = {"preset": "generalist", "action_mode": "joint_torque", "episode_duration": 0.008}
+    native = SB3VecEnv(
+        Tendon2RVectorEnv(2, autoreset_mode="SameStep", **kwargs), 1.5, (), 0.0, "need"
+    )
+    dummy = make_vec_env(make_training_env, n_envs=2, env_kwargs={
+        "env_kwargs": kwargs, "residual_scale": 1.5, "residual_relative_to": "need"})  # fmt: skip
+    ranged = SB3VecEnv(Tendon2RVectorEnv(2, autoreset_mode="SameStep", **kwargs), 1.5)
+    for venv in (native, dummy, ranged):
+        venv.seed(5)
+        venv.reset()
+    ends, differs = 0, False
+    for _ in range(20):
+        action = np.full((2, *native.action_space.shape), 0.5, dtype=np.float32)
+        o1, _, d1, _ = native.step(action)
+        o2, _, d2, _ = dummy.step(action)
+        o3, *_ = ranged.step(action)
+        np.testing.assert_array_equal(o1, o2)
+        np.testing.assert_array_equal(d1, d2)
+        ends, differs = ends + int(d1.sum()), differs or not np.array_equal(o1, o3)
+    assert ends >= 4 and differs  # new arms, and the scale changed the commands

@@ -94,6 +94,7 @@ class TrackingEvalCallback(BaseCallback):
         frame_stack: int = 1,
         frame_stride: int = 1,
         residual_filter_tau: float = 0.0,
+        residual_relative_to: str = "range",
         wall_offset_s: float = 0.0,
         verbose: int = 1,
     ) -> None:
@@ -103,6 +104,7 @@ class TrackingEvalCallback(BaseCallback):
         self.run, self.residual_scale = run, residual_scale
         self.frame_stack, self.frame_stride = frame_stack, frame_stride  # as PPOPolicy takes them
         self.residual_filter_tau = residual_filter_tau
+        self.residual_relative_to = residual_relative_to
         self._last_eval = 0
         self._start = time.perf_counter() - wall_offset_s
         # One env, built once: its mechanism and control period define the PD baseline and
@@ -158,6 +160,7 @@ class TrackingEvalCallback(BaseCallback):
             frame_stack=self.frame_stack,
             frame_stride=self.frame_stride,
             residual_filter_tau=self.residual_filter_tau,
+            residual_relative_to=self.residual_relative_to,
         )
         measured = self.measure(policy)
         metrics = {k: v for k, v in measured.items() if k != ON_REFERENCE}

@@ -16,7 +16,7 @@ from typing import Any
 
 from tendon2r_gym import observation
 from tendon2r_gym.env_config import EnvConfig
-from tendon2r_gym.learned import MAX_RESIDUAL_FILTER_TAU
+from tendon2r_gym.learned import MAX_RESIDUAL_FILTER_TAU, check_relative_to
 from tendon2r_gym.presets import PPO_CONFIG, load_yaml
 from tendon2r_gym.validation import check_keys, integer, invalid, mapping, number
 
@@ -45,6 +45,10 @@ class Hyperparams:
     # With residual_scale > 0: the time constant (s) of a first-order low-pass on the residual
     # alone, PD's command unfiltered (tendon2r_gym.learned.ResidualFilter).  0: none.
     residual_filter_tau: float = 0.0
+    # With residual_scale > 0: what residual_scale is a fraction of, per joint: "range", the
+    # joint's command range, or "need", its torque need on the episode's arm and reference
+    # (joint-torque mode; tendon2r_gym.learned).
+    residual_relative_to: str = "range"
     vec_env: str = "subproc"  # native, subproc or dummy
     torch_threads: int = 1
     ppo: dict[str, Any] = field(default_factory=dict)  # SB3 PPO keyword arguments
@@ -124,6 +128,10 @@ class Hyperparams:
             if key in self.ppo:
                 schedule(f"ppo.{key}", self.ppo[key])
         env_config = EnvConfig.make(**self.env_kwargs)  # before any worker starts
+        relative_to = self.residual_relative_to
+        if relative_to != "range" and self.residual_scale == 0:
+            raise invalid("residual_relative_to", relative_to, "'range' without a residual")
+        check_relative_to(relative_to, env_config.action_mode)
         names = env_config.observation_entries()
         for key in ("hide_from_actor", "hide_from_critic"):
             hidden = tuple(getattr(self, key) or ())

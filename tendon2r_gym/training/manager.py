@@ -138,7 +138,13 @@ def make_vec_env(hp: Hyperparams, seed: int) -> Any:
         from tendon2r_gym.vector_env_sb3 import make_native
 
         return make_native(
-            hp.n_envs, hp.env_kwargs, hp.residual_scale, hp.zero_obs, seed, hp.residual_filter_tau
+            hp.n_envs,
+            hp.env_kwargs,
+            hp.residual_scale,
+            hp.zero_obs,
+            seed,
+            hp.residual_filter_tau,
+            hp.residual_relative_to,
         )
     subproc = hp.vec_env == "subproc" and hp.n_envs > 1
     return sb3_make_vec_env(
@@ -150,6 +156,7 @@ def make_vec_env(hp: Hyperparams, seed: int) -> Any:
             "residual_scale": hp.residual_scale,
             "zero_obs": hp.zero_obs,
             "residual_filter_tau": hp.residual_filter_tau,
+            "residual_relative_to": hp.residual_relative_to,
         },
         vec_env_cls=SubprocVecEnv if subproc else DummyVecEnv,
     )
@@ -200,19 +207,27 @@ def initial_model(hp: Hyperparams) -> tuple[Path, Path]:
 def fine_tune(hp: Hyperparams) -> Hyperparams:
     """Returns the hyperparameters of a run that starts from ``hp.init_from``: its env kwargs
     take the source model's settings and arm slice (learned.fine_tune_env_kwargs), and its
-    residual the source's filter (``residual_filter_tau``), so that every env of the run, its
+    residual the source's filter and scale (``residual_filter_tau``,
+    ``residual_relative_to``), so that every env of the run, its
     run.json and its deployment see what the model saw and its actions mean what they meant;
     ``hp`` itself without init_from."""
     from tendon2r_gym.bundle import model_path
-    from tendon2r_gym.learned import fine_tune_env_kwargs, recorded_filter_tau
+    from tendon2r_gym.learned import (
+        fine_tune_env_kwargs,
+        recorded_filter_tau,
+        recorded_relative_to,
+    )
 
     if hp.init_from is None:
         return hp  # (a missing source is refused by initial_model, naming init_from)
     source = model_path(hp.init_from)
-    tau = recorded_filter_tau(training_record(source))
+    record = training_record(source)
+    if hp.residual_scale == 0:
+        return hp.replace(env_kwargs=fine_tune_env_kwargs(source, hp.env_kwargs))
     return hp.replace(
         env_kwargs=fine_tune_env_kwargs(source, hp.env_kwargs),
-        residual_filter_tau=tau if hp.residual_scale > 0 else hp.residual_filter_tau,
+        residual_filter_tau=recorded_filter_tau(record),
+        residual_relative_to=recorded_relative_to(record),
     )
 
 
@@ -279,6 +294,7 @@ def train_run(
         {
             "residual_scale": hp.residual_scale,
             "residual_filter_tau": hp.residual_filter_tau,
+            "residual_relative_to": hp.residual_relative_to,
             "frame_stack": hp.frame_stack,
             "frame_stride": hp.frame_stride,
             "seed": seed,
@@ -319,6 +335,7 @@ def train_run(
             hp.frame_stack,
             hp.frame_stride,
             hp.residual_filter_tau,
+            hp.residual_relative_to,
             wall_offset_s=previous["wall_time_s"] if previous else 0.0,
         ),
         TimedCheckpointCallback(
