@@ -188,16 +188,30 @@ class RunFolder:
         self.write_json(EVALUATIONS, [*rows, row])
 
     def checkpoint_candidates(self) -> list[tuple[Path, Path]]:
-        """Returns every saved (zip, pkl) pair of the run, newest first: last_model (written on
-        Ctrl-C and at the end) and the checkpoints."""
-        pairs = [model_files(self.last)]
+        """Returns every saved (zip, pkl) pair of the run, the most trained first (by the steps
+        each one recorded, last_model first among equals, not by file times, which a copy of
+        the run folder may reset): last_model (written on Ctrl-C and at the end) and the
+        checkpoints."""
+        last = model_files(self.last)
+        pairs = [(*last, saved_steps(last[0]))]
         for zip_path in self.checkpoints.glob(f"{CHECKPOINT_PREFIX}_*_steps.zip"):
             steps = zip_path.stem.removeprefix(f"{CHECKPOINT_PREFIX}_").removesuffix("_steps")
-            pairs.append(
-                (
-                    zip_path,
-                    zip_path.with_name(f"{CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.pkl"),
-                )
-            )
+            if not steps.isdigit():
+                continue
+            stats = zip_path.with_name(f"{CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.pkl")
+            pairs.append((zip_path, stats, int(steps)))
         pairs = [p for p in pairs if p[0].is_file() and p[1].is_file()]
-        return sorted(pairs, key=lambda p: p[0].stat().st_mtime_ns, reverse=True)
+        ordered = sorted(enumerate(pairs), key=lambda ip: (-ip[1][2], ip[0]))
+        return [(zip_path, stats) for _, (zip_path, stats, _) in ordered]
+
+
+def saved_steps(zip_path: Path) -> int:
+    """Returns the training steps an SB3 model zip recorded (``num_timesteps`` in its
+    ``data``), or -1 if it is missing or unreadable."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(zip_path) as z:
+            return int(json.loads(z.read("data"))["num_timesteps"])
+    except (OSError, KeyError, ValueError, TypeError, zipfile.BadZipFile):
+        return -1

@@ -270,6 +270,31 @@ def test_ctrl_c_stops_every_seed_and_saves_and_resume_keeps_the_overrides(tmp_pa
     assert done["finished"] == [0, 1] and all(r["timesteps"] >= 512 for r in done["runs"])
 
 
+def test_resume_takes_the_most_trained_state_whatever_the_file_times(tmp_path):
+    """checkpoint_candidates orders the saved states by the steps each recorded (last_model
+    first among equals), so a run folder copied without its file times (cp -r) resumes from
+    its most trained state; an unreadable last_model comes last."""
+    import zipfile
+
+    run = RunFolder(tmp_path / "seed_0")
+    run.checkpoints.mkdir(parents=True)
+
+    def save(stem, steps, stats):
+        with zipfile.ZipFile(stem.with_suffix(".zip"), "w") as z:
+            z.writestr("data", json.dumps({"num_timesteps": steps}))
+        stats.write_bytes(b"stats")
+
+    for steps in (300, 100, 200):  # written in this order: the newest file holds 200 steps
+        save(run.checkpoints / f"rl_model_{steps}_steps", steps,
+             run.checkpoints / f"rl_model_vecnormalize_{steps}_steps.pkl")  # fmt: skip
+    save(run.path / "last_model", 300, run.path / "last_model_vecnormalize.pkl")
+    os.utime(run.path / "last_model.zip", (0, 0))  # the oldest file of all
+    names = [z.name for z, _ in run.checkpoint_candidates()]
+    assert names == ["last_model.zip", *(f"rl_model_{n}_steps.zip" for n in (300, 200, 100))]
+    (run.path / "last_model.zip").write_bytes(b"truncated")
+    assert [z.name for z, _ in run.checkpoint_candidates()][-1] == "last_model.zip"
+
+
 def test_sigkill_loses_little_thanks_to_timed_checkpoints(tmp_path):
     """Checkpoints are also taken by time, and written whole: after a SIGKILL at any moment,
     --resume has a complete state to continue (the newest zip and its statistics load)."""
