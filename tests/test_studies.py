@@ -363,7 +363,7 @@ def test_generalist_ablation_reads_who_saw_the_arm_from_each_run():
 
 
 def test_generalist_ablation_reads_action_mode_and_network_from_each_run():
-    """The ablation table's action mode, residual filter, network, evaluation episodes and
+    """The ablation table's action mode, residual, its filter, network, evaluation episodes and
     optional observation entries come from each bundle's run record: what its
     configs/ppo.yaml entry trained it with."""
     from tendon2r_gym.bundle import bundle_names
@@ -383,6 +383,8 @@ def test_generalist_ablation_reads_action_mode_and_network_from_each_run():
         assert table[name]["eval_episodes"] == len(hp.eval_seeds), name
         assert table[name]["residual_filter_tau"] == hp.residual_filter_tau, name
         assert table[name]["learning_rate"] == hp.ppo["learning_rate"], name
+        expected = f"{hp.residual_scale:g} x each joint's {hp.residual_relative_to}"
+        assert table[name]["residual"] == (expected if hp.residual_scale else "none (plain PPO)")
         flags = [e[0] for e, flag in OPTIONAL.items() if hp.env_kwargs.get(flag)]
         assert table[name]["observes"] == (", ".join(flags) or "none"), name
     assert generalist._rate("lin_3.0e-4") == "0.0003, linear to 0"
@@ -488,12 +490,15 @@ SHIPPED_GENERALISTS = [
 def test_each_generalist_bundle_was_trained_with_its_entry(name):
     """The study reads each bundle as its configs/ppo.yaml entry: every bundled seed's run
     config.yaml equals the entry's resolved hyperparameters, field by field (an entry that
-    inherits a changed anchor, or a bundle left from an older entry, fails here)."""
+    inherits a changed anchor, or a bundle left from an older entry, fails here).  A field
+    added after the run was recorded reads as its default, as a resumed run reads it."""
     from tendon2r_gym.bundle import bundle_meta, bundled_model
     from tendon2r_gym.runs import RunFolder, stem_of
     from tendon2r_gym.training import Hyperparams
 
     entry = Hyperparams.from_entry(name).to_dict()
     for seed in bundle_meta(name)["seeds"]:
-        recorded = RunFolder(stem_of(bundled_model(name, seed)).parent).read_config()
+        config = RunFolder(stem_of(bundled_model(name, seed)).parent).read_config()
+        recorded = Hyperparams.from_dict(config).to_dict()
+        assert set(config) <= set(recorded)
         assert {k for k in entry if entry[k] != recorded.get(k)} == set(), (name, seed)

@@ -251,6 +251,7 @@ def ablation(bundles: list[str]) -> dict[str, Any]:
         out[b]["network"] = " x ".join(map(str, net)) if net else "SB3 default"
         out[b]["eval_episodes"] = len(config["eval_seeds"])
         out[b]["learning_rate"] = config["ppo"]["learning_rate"]
+        out[b]["residual"] = _residual(config)
     return out
 
 
@@ -510,16 +511,16 @@ def write(result: dict[str, Any], out: Path) -> None:
             "first episodes for all, with pull-only cables for the generalist_pull_only rows; "
             "PD on them). The summary above gives each on the unseen arms, zero-shot.",
             "",
-            "| generalist | arm features seen by | also observes | action mode | residual filter "
-            "| network | learning rate | reward (tracking form, changed weights) | evaluation "
-            "episodes | RMS A / B (deg) | PD A / B (deg) | RMS tension rate (N/s) | steps | "
-            "wall time (s) |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+            "| generalist | arm features seen by | also observes | action mode | residual "
+            "| residual filter | network | learning rate | reward (tracking form, changed "
+            "weights) | evaluation episodes | RMS A / B (deg) | PD A / B (deg) | RMS tension "
+            "rate (N/s) | steps | wall time (s) |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for b, a in result["ablation"].items():
             lines.append(
                 f"| {b} | {a.get('arm_seen_by', '?')} | {a.get('observes', '?')} | "
-                f"{a.get('action_mode', '?')} | "
+                f"{a.get('action_mode', '?')} | {a.get('residual', '?')} | "
                 f"{_filter(a.get('residual_filter_tau', 0.0))} | {a.get('network', '?')} | "
                 f"{_rate(a.get('learning_rate', '?'))} | {a.get('reward', '?')} | "
                 f"{a.get('eval_episodes', '?')} | "
@@ -548,6 +549,15 @@ def write(result: dict[str, Any], out: Path) -> None:
             + " |"
         )
     (out / "generalist.md").write_text("\n".join(lines) + "\n")
+
+
+def _residual(config: dict[str, Any]) -> str:
+    """Returns a run's residual (its recorded hyperparameters) as the ablation table shows it:
+    its scale and what the scale is relative to (tendon2r_gym.learned), or none (plain)."""
+    scale = config.get("residual_scale", 0.0)
+    if not scale:
+        return "none (plain PPO)"
+    return f"{scale:g} x each joint's {config.get('residual_relative_to', 'range')}"
 
 
 def _filter(tau: float) -> str:
