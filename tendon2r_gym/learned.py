@@ -89,12 +89,12 @@ def residual_scales(
     scale: float, relative_to: str, torque_need: Any, max_torque: np.ndarray
 ) -> Any:
     """Returns the residual's scale: ``scale``, or relative to the need (module docstring)
-    ``scale * torque_need / max_torque`` per joint, shape (2,) or (N, 2) per arm
-    (``torque_need``: each arm's EnvConfig.torque_need, as reset infos give it)."""
+    ``scale * torque_need / max_torque`` per joint: (2,) for one arm, (N, 2) for N
+    (``torque_need``: each episode's EnvConfig.torque_need, as reset infos give it, (2,) or
+    (N, 2); ``max_torque``: TorqueToTension.max_torque of the arms PD follows, one or N)."""
     if relative_to == "range":
         return scale
-    need = np.asarray(torque_need, dtype=float).reshape(np.shape(max_torque))
-    return scale * need / max_torque
+    return scale * np.asarray(torque_need, dtype=float) / max_torque
 
 
 class ResidualPDWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
