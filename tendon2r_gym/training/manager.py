@@ -195,11 +195,12 @@ def initial_model(hp: Hyperparams) -> tuple[Path, Path]:
     source = hp.init_from
     env = gym.make("Tendon2R-v0", **hp.env_kwargs)
     zip_path, stats, meta = trained_model(model_path(source), env, "init_from")
-    if float(meta["residual_scale"]) != hp.residual_scale:
+    if (float(meta["residual_scale"]) > 0) != (hp.residual_scale > 0):
+        kind = "a residual model (residual_scale > 0)" if hp.residual_scale else "a plain model"
         raise invalid(
             "init_from",
             source,
-            f"a model with residual_scale {hp.residual_scale} (it has {meta['residual_scale']})",
+            f"{kind} for this entry (the model has residual_scale {meta['residual_scale']})",
         )
     return zip_path, stats
 
@@ -207,10 +208,11 @@ def initial_model(hp: Hyperparams) -> tuple[Path, Path]:
 def fine_tune(hp: Hyperparams) -> Hyperparams:
     """Returns the hyperparameters of a run that starts from ``hp.init_from``: its env kwargs
     take the source model's settings and arm slice (learned.fine_tune_env_kwargs), and its
-    residual the source's filter and scale (``residual_filter_tau``,
-    ``residual_relative_to``), so that every env of the run, its
-    run.json and its deployment see what the model saw and its actions mean what they meant;
-    ``hp`` itself without init_from."""
+    residual the source's scale and filter (``residual_scale``, ``residual_relative_to``,
+    ``residual_filter_tau``), so that every env of the run, its run.json and its deployment
+    see what the model saw and its actions mean what they meant; ``hp`` itself without
+    init_from.  A plain entry does not fine-tune a residual model, nor the reverse
+    (initial_model refuses it)."""
     from tendon2r_gym.bundle import model_path
     from tendon2r_gym.learned import (
         fine_tune_env_kwargs,
@@ -222,10 +224,12 @@ def fine_tune(hp: Hyperparams) -> Hyperparams:
         return hp  # (a missing source is refused by initial_model, naming init_from)
     source = model_path(hp.init_from)
     record = training_record(source)
-    if hp.residual_scale == 0:
+    scale = float(record.get("residual_scale", 0.0)) if record else 0.0
+    if hp.residual_scale == 0 or scale == 0:
         return hp.replace(env_kwargs=fine_tune_env_kwargs(source, hp.env_kwargs))
     return hp.replace(
         env_kwargs=fine_tune_env_kwargs(source, hp.env_kwargs),
+        residual_scale=scale,
         residual_filter_tau=recorded_filter_tau(record),
         residual_relative_to=recorded_relative_to(record),
     )
