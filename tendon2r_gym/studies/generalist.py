@@ -65,7 +65,8 @@ from tendon2r_gym.validation import invalid
 #: the residual on pull-only cables), then the ablations (what each changes is in its entry's
 #: comment; the ablation table reads its action mode, network, learning rate, reward, arm
 #: features and evaluation episodes from its run record): the residual generalist with a
-#: decaying learning rate; at its constant rate, with action-rate weight 1, that on the
+#: decaying learning rate; with its residual relative to each joint's need; at its constant
+#: rate and relative to the range, with action-rate weight 1, that on the
 #: registered reward's sigma (1 deg), and that without its error rate and force limit; that
 #: without its residual filter; the plain generalist blind to the arm; the plain generalist
 #: blind to its force limit; the unfiltered residual generalist blind to the arm; an earlier
@@ -77,6 +78,7 @@ from tendon2r_gym.validation import invalid
 BUNDLES = GENERALISTS
 ABLATIONS = (
     "generalist_lin_lr",
+    "generalist_need",
     "generalist_rate1",
     "generalist_coarse",
     "generalist_unscaled",
