@@ -383,13 +383,14 @@ def test_generalist_ablation_reads_action_mode_and_network_from_each_run():
         assert table[name]["eval_episodes"] == len(hp.eval_seeds), name
         assert table[name]["residual_filter_tau"] == hp.residual_filter_tau, name
         assert table[name]["learning_rate"] == hp.ppo["learning_rate"], name
-        expected = f"{hp.residual_scale:g} x each joint's {hp.residual_relative_to}"
+        relative = {"range": "the command range", "need": "each joint's need"}
+        expected = f"{hp.residual_scale:g} x {relative[hp.residual_relative_to]}"
         assert table[name]["residual"] == (expected if hp.residual_scale else "none (plain PPO)")
         flags = [e[0] for e, flag in OPTIONAL.items() if hp.env_kwargs.get(flag)]
         assert table[name]["observes"] == (", ".join(flags) or "none"), name
     assert generalist._rate("lin_3.0e-4") == "0.0003, linear to 0"
     assert generalist._rate(3.0e-4) == "0.0003"
-    for key in ("eval_episodes", "residual_filter_tau", "observes", "learning_rate"):
+    for key in ("eval_episodes", "residual_filter_tau", "observes", "learning_rate", "residual"):
         assert len({table[n][key] for n in shown}) > 1, f"the table tells {key} apart"
 
 

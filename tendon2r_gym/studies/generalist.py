@@ -555,11 +555,15 @@ def write(result: dict[str, Any], out: Path) -> None:
 
 def _residual(config: dict[str, Any]) -> str:
     """Returns a run's residual (its recorded hyperparameters) as the ablation table shows it:
-    its scale and what the scale is relative to (tendon2r_gym.learned), or none (plain)."""
+    its scale and what the scale is relative to (tendon2r_gym.learned: each command's range,
+    a tendon's in tension mode, a joint's in joint-torque mode, or each joint's need), or none
+    (plain PPO)."""
     scale = config.get("residual_scale", 0.0)
     if not scale:
         return "none (plain PPO)"
-    return f"{scale:g} x each joint's {config.get('residual_relative_to', 'range')}"
+    if config.get("residual_relative_to", "range") == "need":
+        return f"{scale:g} x each joint's need"
+    return f"{scale:g} x the command range"
 
 
 def _filter(tau: float) -> str:
