@@ -220,19 +220,27 @@ def test_sb3_adapter_filters_the_residual_as_the_wrapper_does():
     dummy = make_vec_env(make_training_env, n_envs=2, env_kwargs={
         "env_kwargs": kwargs, "residual_scale": 0.5, "residual_filter_tau": 0.004})  # fmt: skip
     plain = SB3VecEnv(Tendon2RVectorEnv(2, autoreset_mode="SameStep", **kwargs), 0.5)
-    for venv in (native, dummy, plain):
+    ends, differs = _step_alike(native, dummy, plain, 1.0)
+    assert ends >= 4 and differs  # episodes restarted, and the filter changed the commands
+
+
+def _step_alike(native, dummy, other, action_value: float) -> tuple[int, bool]:
+    """Steps the three SB3 VecEnvs 20 times with the same constant action after seed 5: the
+    native one and SB3's DummyVecEnv of single envs agree bit for bit; returns the episodes
+    ended and whether ``other`` (one setting changed) ever differed."""
+    for venv in (native, dummy, other):
         venv.seed(5)
         venv.reset()
     ends, differs = 0, False
     for _ in range(20):
-        action = np.ones((2, *native.action_space.shape), dtype=np.float32)
+        action = np.full((2, *native.action_space.shape), action_value, dtype=np.float32)
         o1, _, d1, _ = native.step(action)
         o2, _, d2, _ = dummy.step(action)
-        o3, *_ = plain.step(action)
+        o3, *_ = other.step(action)
         np.testing.assert_array_equal(o1, o2)
         np.testing.assert_array_equal(d1, d2)
         ends, differs = ends + int(d1.sum()), differs or not np.array_equal(o1, o3)
-    assert ends >= 4 and differs  # episodes restarted, and the filter changed the commands
+    return ends, differs
 
 
 def test_training_staggers_the_first_episodes():
@@ -261,16 +269,5 @@ def test_sb3_adapter_scales_the_residual_to_each_arms_need_as_the_wrapper_does()
     dummy = make_vec_env(make_training_env, n_envs=2, env_kwargs={
         "env_kwargs": kwargs, "residual_scale": 1.5, "residual_relative_to": "need"})  # fmt: skip
     ranged = SB3VecEnv(Tendon2RVectorEnv(2, autoreset_mode="SameStep", **kwargs), 1.5)
-    for venv in (native, dummy, ranged):
-        venv.seed(5)
-        venv.reset()
-    ends, differs = 0, False
-    for _ in range(20):
-        action = np.full((2, *native.action_space.shape), 0.5, dtype=np.float32)
-        o1, _, d1, _ = native.step(action)
-        o2, _, d2, _ = dummy.step(action)
-        o3, *_ = ranged.step(action)
-        np.testing.assert_array_equal(o1, o2)
-        np.testing.assert_array_equal(d1, d2)
-        ends, differs = ends + int(d1.sum()), differs or not np.array_equal(o1, o3)
+    ends, differs = _step_alike(native, dummy, ranged, 0.5)
     assert ends >= 4 and differs  # new arms, and the scale changed the commands
