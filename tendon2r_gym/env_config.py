@@ -479,8 +479,7 @@ def _physics(mech: Mechanism, refs: tuple[Reference, ...]) -> tuple[tuple[float,
     out = []
     for r in refs:
         J, tau = inverse_dynamics_grid(model, [r])
-        tensions = distribute(J, tau, mech.pull_only, mech.pretension)
-        out.append((float(np.max(np.abs(tensions))), np.max(np.abs(tau), axis=0)))
+        out.append((peak_tension(J, tau, mech.pull_only, mech.pretension), np.max(np.abs(tau), 0)))
     return tuple(out)
 
 
@@ -498,7 +497,12 @@ def force_need(
     ``references`` exactly, over every combination of the two joints' phases: the tensions of
     :func:`inverse_dynamics_grid`'s torques from tendon2r_gym.actuation.distribute (with the
     pretension for pull-only tendons)."""
-    J, tau = inverse_dynamics_grid(model, references, grid)
+    return peak_tension(*inverse_dynamics_grid(model, references, grid), pull_only, pretension)
+
+
+def peak_tension(J: np.ndarray, tau: np.ndarray, pull_only: bool, pretension: float) -> float:
+    """Returns the peak tendon tension (N) that gives the joint torques ``tau`` (K, 2) through
+    the moment arms ``J`` (K, n_tendons, 2): tendon2r_gym.actuation.distribute, one batch."""
     return float(np.max(np.abs(distribute(J, tau, pull_only, pretension))))
 
 

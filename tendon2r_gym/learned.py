@@ -85,16 +85,15 @@ def check_relative_to(value: Any, action_mode: str) -> str:
     return value
 
 
-def residual_scales(
-    scale: float, relative_to: str, torque_need: Any, max_torque: np.ndarray
-) -> Any:
+def residual_scales(scale: float, relative_to: str, torque_need: Any, pd: PDPolicy) -> Any:
     """Returns the residual's scale: ``scale``, or relative to the need (module docstring)
     ``scale * torque_need / max_torque`` per joint: (2,) for one arm, (N, 2) for N
     (``torque_need``: each episode's EnvConfig.torque_need, as reset infos give it, (2,) or
-    (N, 2); ``max_torque``: TorqueToTension.max_torque of the arms PD follows, one or N)."""
+    (N, 2), read only relative to the need; max_torque: that of the arms ``pd`` follows, one
+    or N)."""
     if relative_to == "range":
         return scale
-    return scale * np.asarray(torque_need, dtype=float) / max_torque
+    return scale * np.asarray(torque_need, dtype=float) / pd.actuation.max_torque
 
 
 class ResidualPDWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -120,16 +119,14 @@ class ResidualPDWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.pd = PDPolicy.from_env(env)
         self.filter = ResidualFilter(residual_filter_tau, config.ctrl_dt)
         self._obs: np.ndarray | None = None
-        self._scale = self._scales(config.torque_need)
-
-    def _scales(self, torque_need: Any) -> Any:
-        max_torque = self.pd.actuation.max_torque
-        return residual_scales(self.residual_scale, self.relative_to, torque_need, max_torque)
+        need = config.torque_need
+        self._scale = residual_scales(self.residual_scale, self.relative_to, need, self.pd)
 
     def reset(self, **kwargs: Any):
         self._obs, info = self.env.reset(**kwargs)
         self.pd.reset(info)  # follows the episode's arm, if the env draws arms
-        self._scale = self._scales(info["torque_need_Nm"])
+        need = info["torque_need_Nm"]
+        self._scale = residual_scales(self.residual_scale, self.relative_to, need, self.pd)
         self.filter.clear()
         return self._obs, info
 
@@ -455,7 +452,9 @@ class PPOPolicy:
             check_relative_to(residual_relative_to, config.action_mode)
             self.pd = PDPolicy.from_env(env, gains=gains_of(pd_gains))
             self.filter = ResidualFilter(residual_filter_tau, config.ctrl_dt)
-            self._scale = self._scales(config.torque_need)
+            self._scale = residual_scales(
+                residual_scale, residual_relative_to, config.torque_need, self.pd
+            )
 
     @classmethod
     def load(cls, model_path: str | Path, env: gym.Env) -> PPOPolicy:
@@ -478,10 +477,6 @@ class PPOPolicy:
             relative_to,
         )  # fmt: skip
 
-    def _scales(self, torque_need: Any) -> Any:
-        max_torque = self.pd.actuation.max_torque
-        return residual_scales(self.residual_scale, self.relative_to, torque_need, max_torque)
-
     def reset(self, info: dict[str, Any]) -> None:
         """Follows the episode's arm with the PD inside a residual policy (the rollouts call
         it with each reset's info), and starts the stack of observations and the residual's
@@ -490,7 +485,8 @@ class PPOPolicy:
             self._history.clear()
         if self.pd is not None:
             self.pd.reset(info)
-            self._scale = self._scales(info["torque_need_Nm"])
+            need = info["torque_need_Nm"]
+            self._scale = residual_scales(self.residual_scale, self.relative_to, need, self.pd)
             self.filter.clear()
 
     def predict(

@@ -66,18 +66,14 @@ class SB3VecEnv(VecEnv):
     def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
         actions = self._actions
         if self.pd is not None:
-            need = self.venv.config.torque_need
             if self._random_arms:  # PD follows each slot's arm
                 arms = self.venv.arms
                 gains = [gains_of(a.pd_gains) for a in arms] if self._drawn_gains else None
                 self.pd.follow(
                     [a.mechanism for a in arms], [a.observation_delay for a in arms], gains
                 )
-                need = [a.torque_need for a in arms]
             base, _ = self.pd.predict(self._raw)
-            scale = residual_scales(
-                self.residual_scale, self.relative_to, need, self.pd.actuation.max_torque
-            )
+            scale = residual_scales(self.residual_scale, self.relative_to, self._need(), self.pd)
             actions = residual_command(base, actions, scale, self.filter, self._starts)
         obs, rewards, terminated, truncated, info = self.venv.step(actions)
         dones = terminated | truncated
@@ -89,6 +85,15 @@ class SB3VecEnv(VecEnv):
             infos[i]["terminal_observation"] = info["final_obs"][i] * self._mask
         self._raw, self._starts = obs, dones
         return obs * self._mask, rewards.astype(np.float32), dones, infos
+
+    def _need(self) -> Any:
+        """Returns each slot's torque need (EnvConfig.torque_need; the config's for one fixed
+        arm), only where the residual is relative to the need (None otherwise: unused)."""
+        if self.relative_to != "need":
+            return None
+        if self._random_arms:
+            return [a.torque_need for a in self.venv.arms]
+        return self.venv.config.torque_need
 
     def close(self) -> None:
         self.venv.close()
