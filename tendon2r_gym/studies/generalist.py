@@ -58,7 +58,7 @@ from tendon2r_gym.presets import load_yaml, preset_path
 from tendon2r_gym.runs import RunFolder, command_line, stem_of, training_record, training_summary
 from tendon2r_gym.studies import joints, save_json
 from tendon2r_gym.task import REWARD_SCALES
-from tendon2r_gym.training.hyperparams import LINEAR, linear_start
+from tendon2r_gym.training.hyperparams import LINEAR, Smoothing, linear_start
 from tendon2r_gym.validation import invalid
 
 #: The generalist bundles (configs/ppo.yaml entries of the same names: the residual, plain PPO,
@@ -254,6 +254,7 @@ def ablation(bundles: list[str]) -> dict[str, Any]:
         out[b]["eval_episodes"] = len(config["eval_seeds"])
         out[b]["learning_rate"] = config["ppo"]["learning_rate"]
         out[b]["residual"] = _residual(config)
+        out[b]["smoothing"] = _smoothing(config)
     return out
 
 
@@ -465,7 +466,8 @@ def write(result: dict[str, Any], out: Path) -> None:
         "is its primary seed, fixed before training). The other columns are ablations (one "
         "seed each; configs/ppo.yaml's comment on each entry says "
         "what it changes, and the ablation table below gives each one's action mode, network, "
-        "learning rate, reward, arm features, evaluation episodes and training steps): "
+        "learning rate, policy smoothing, reward, arm features, evaluation episodes and "
+        "training steps): "
         "generalist_lin_lr, the generalist with its learning rate decaying linearly to 0; "
         "generalist_rate1, the generalist with action-rate weight 1; generalist_coarse, that "
         "on the registered sigma (1 deg), and generalist_unscaled, that without the error's "
@@ -514,17 +516,18 @@ def write(result: dict[str, Any], out: Path) -> None:
             "PD on them). The summary above gives each on the unseen arms, zero-shot.",
             "",
             "| generalist | arm features seen by | also observes | action mode | residual "
-            "| residual filter | network | learning rate | reward (tracking form, changed "
-            "weights) | evaluation episodes | RMS A / B (deg) | PD A / B (deg) | RMS tension "
-            "rate (N/s) | steps | wall time (s) |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+            "| residual filter | network | learning rate | policy smoothing | reward (tracking "
+            "form, changed weights) | evaluation episodes | RMS A / B (deg) | PD A / B (deg) | "
+            "RMS tension rate (N/s) | steps | wall time (s) |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for b, a in result["ablation"].items():
             lines.append(
                 f"| {b} | {a.get('arm_seen_by', '?')} | {a.get('observes', '?')} | "
                 f"{a.get('action_mode', '?')} | {a.get('residual', '?')} | "
                 f"{_filter(a.get('residual_filter_tau', 0.0))} | {a.get('network', '?')} | "
-                f"{_rate(a.get('learning_rate', '?'))} | {a.get('reward', '?')} | "
+                f"{_rate(a.get('learning_rate', '?'))} | {a.get('smoothing', '?')} | "
+                f"{a.get('reward', '?')} | "
                 f"{a.get('eval_episodes', '?')} | "
                 f"{fmt(a['best_rms_deg'])} | {fmt(a['pd_eval_rms_deg'])} | "
                 f"{fmt(a['best_tension_rate_N_per_s'])} | {a['timesteps']:,} | "
@@ -564,6 +567,15 @@ def _residual(config: dict[str, Any]) -> str:
     if config.get("residual_relative_to", "range") == "need":
         return f"{scale:g} x each joint's need"
     return f"{scale:g} x the command range"
+
+
+def _smoothing(config: dict[str, Any]) -> str:
+    """Returns a run's policy smoothing (tendon2r_gym.training.smoothing; its recorded
+    hyperparameters, where a run before it has none) as the ablation table shows it."""
+    s = Smoothing.from_mapping(config.get("smoothing"))
+    if not s.active:
+        return "none"
+    return f"CAPS: temporal {s.temporal:g}, spatial {s.spatial:g} (sigma {s.sigma:g})"
 
 
 def _filter(tau: float) -> str:

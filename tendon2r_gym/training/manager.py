@@ -165,8 +165,9 @@ def make_vec_env(hp: Hyperparams, seed: int) -> Any:
 def _load_newest(run: RunFolder, venv: Any, hp: Hyperparams) -> tuple[Any, Any]:
     """Returns (PPO, VecNormalize) from the newest readable saved state of the run; a corrupt
     one is skipped with a warning."""
-    from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecNormalize
+
+    from tendon2r_gym.training.smoothing import SmoothPPO
 
     candidates = run.checkpoint_candidates()
     if not candidates:
@@ -175,7 +176,7 @@ def _load_newest(run: RunFolder, venv: Any, hp: Hyperparams) -> tuple[Any, Any]:
         try:
             vecnorm = VecNormalize.load(str(stats), venv)
             env = stacked(vecnorm, hp.frame_stack, hp.frame_stride)
-            model = PPO.load(zip_path, env=env, device="cpu")
+            model = SmoothPPO.load(zip_path, env=env, device="cpu", smoothing=hp.smoothing)
         except Exception as e:  # noqa: BLE001 (any unreadable file: try the one before)
             warnings.warn(f"resume: skipping unreadable {zip_path.name} ({e!r})", stacklevel=2)
             continue
@@ -238,16 +239,18 @@ def fine_tune(hp: Hyperparams) -> Hyperparams:
 def _load_initial(hp: Hyperparams, venv: Any, seed: int, run: RunFolder) -> tuple[Any, Any]:
     """Returns (PPO, VecNormalize) started from ``hp.init_from``'s weights and observation
     statistics, training on ``venv`` with the run's PPO settings."""
-    from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecNormalize
+
+    from tendon2r_gym.training.smoothing import SmoothPPO
 
     zip_path, stats = initial_model(hp)
     vecnorm = VecNormalize.load(str(stats), venv)
     vecnorm.training = True
     vecnorm.norm_reward = bool(hp.normalize.get("norm_reward", True))
-    model = PPO.load(
+    model = SmoothPPO.load(
         zip_path, env=stacked(vecnorm, hp.frame_stack, hp.frame_stride), device="cpu",
         custom_objects=hp.ppo_kwargs(), seed=seed, tensorboard_log=str(run.tensorboard),
+        smoothing=hp.smoothing,
     )  # fmt: skip
     model.num_timesteps = 0  # a fine-tune counts its own steps (the zip holds the source's)
     if hp.init_log_std is not None:
@@ -283,9 +286,10 @@ def train_run(
     """Trains one run; returns its summary.  Ctrl-C saves, writes the summary, re-raises.
     A new fine-tune (``init_from``) trains on :func:`fine_tune`'s env kwargs."""
     import torch
-    from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import CallbackList
     from stable_baselines3.common.vec_env import VecNormalize
+
+    from tendon2r_gym.training.smoothing import SmoothPPO
 
     if not resume:  # a resumed run keeps the env kwargs it recorded
         hp = fine_tune(hp)
@@ -318,7 +322,7 @@ def train_run(
     else:
         vecnorm = VecNormalize(venv, gamma=hp.gamma, **hp.normalize)
         policy, policy_kwargs = hp.policy(env_config)
-        model = PPO(
+        model = SmoothPPO(
             policy,
             stacked(vecnorm, hp.frame_stack, hp.frame_stride),
             seed=seed,
@@ -326,6 +330,7 @@ def train_run(
             verbose=0,
             tensorboard_log=str(run.tensorboard),
             policy_kwargs=policy_kwargs,
+            smoothing=hp.smoothing,
             **hp.ppo_kwargs(),
         )
     callbacks = [
