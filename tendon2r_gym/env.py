@@ -300,8 +300,13 @@ class Tendon2REnv(MujocoEnv, EzPickle):
             self._sensing.set_arm(0, arm.observation_delay_steps, arm.observation_noise)
         self._last_action = self.task.rest_command(arm)
         self._torque_map: TorqueToTension | None = None
+        max_torque = None
         if self.config.action_mode == "joint_torque":
             self._torque_map = TorqueToTension(self.mechanism)
+            max_torque = self._torque_map.max_torque
+        self._rate_inv = [
+            float(x) for x in self.task.rate_need_inverse(arm.torque_rate_need, max_torque)
+        ]
         # Named sensor reads: each tendon's motor force (N, positive lengthens), contiguous.
         first = self.model.sensor(f"force_{tendon_name(0)}").adr[0]
         n = self.mechanism.n_tendons
@@ -444,7 +449,8 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         """Returns (reward, scaled terms) from the observation's entries of the true state; the
         reward is the sum of the terms."""
         e1, e2 = entries[self._err]
-        return self.task.scale(self.task.reward_terms(SCALAR, e1, e2, action, last, diverged))
+        terms = self.task.reward_terms(SCALAR, e1, e2, action, last, self._rate_inv, diverged)
+        return self.task.scale(terms)
 
     def _get_info(self, obs: np.ndarray, terms: dict[str, float], diverged: bool) -> dict[str, Any]:
         return self.task.step_info(

@@ -103,6 +103,10 @@ class EnvConfig:
     #: AUTO_FLOOR's motion, if more): the scale of a residual relative to the arm's need
     #: (tendon2r_gym.learned, ``residual_relative_to: need``); computed, not an argument.
     torque_need: tuple[float, float] = field(default=(math.nan, math.nan), compare=False)
+    #: Peak rate (N m / s) of each joint's torque that inverse dynamics of the same references
+    #: needs (of AUTO_FLOOR's motion, if more): the scale of the ``action_rate_need`` reward
+    #: term (Task.rate_need_inverse); computed, not an argument.
+    torque_rate_need: tuple[float, float] = field(default=(math.nan, math.nan), compare=False)
     #: The mechanism as given (max_tendon_force possibly "auto"): what arms are drawn over.
     base_mechanism: Mechanism | None = field(default=None, compare=False, repr=False)
 
@@ -172,6 +176,14 @@ class EnvConfig:
                 for k, default in REWARD_SCALES.items()
             },
         )
+        need_weight = self.reward_scales["action_rate_need"]
+        if need_weight > 0 and self.action_mode != "joint_torque":
+            raise invalid(
+                "reward_scales.action_rate_need",
+                need_weight,
+                f"0 in action_mode {self.action_mode!r} (a joint's torque rate is the scale; "
+                "use action_mode 'joint_torque')",
+            )
         if self.tracking_form not in TRACKING_FORMS:
             raise invalid("tracking_form", self.tracking_form, f"one of {TRACKING_FORMS}")
         set_(
@@ -250,9 +262,11 @@ class EnvConfig:
         # never falls below the need of AUTO_FLOOR's motion about the same bias (last entry).
         refs.append(Reference(bias_deg=self.reference.bias_deg, **AUTO_FLOOR))
         *needs, floor_need = _physics(self.mechanism.replace(max_tendon_force=1.0), tuple(refs))
-        torque = np.max([t for _, t in (*needs, floor_need)], axis=0)
+        torque = np.max([t for _, t, _ in (*needs, floor_need)], axis=0)
         object.__setattr__(self, "torque_need", (float(torque[0]), float(torque[1])))
-        needs, floor_need = [f for f, _ in needs], floor_need[0]
+        rate = np.max([r for _, _, r in (*needs, floor_need)], axis=0)
+        object.__setattr__(self, "torque_rate_need", (float(rate[0]), float(rate[1])))
+        needs, floor_need = [f for f, _, _ in needs], floor_need[0]
         need = max(needs)
         if self.mechanism.pull_only:
             need = max(need, self.mechanism.pretension)
@@ -459,7 +473,7 @@ class EnvConfig:
 
 
 #: EnvConfig fields that are computed, not arguments.
-COMPUTED = ("force_need", "torque_need", "base_mechanism")
+COMPUTED = ("force_need", "torque_need", "torque_rate_need", "base_mechanism")
 
 
 def arguments() -> list[str]:
@@ -468,10 +482,13 @@ def arguments() -> list[str]:
 
 
 @lru_cache(maxsize=64)
-def _physics(mech: Mechanism, refs: tuple[Reference, ...]) -> tuple[tuple[float, np.ndarray], ...]:
+def _physics(
+    mech: Mechanism, refs: tuple[Reference, ...]
+) -> tuple[tuple[float, np.ndarray, np.ndarray], ...]:
     """Checks that MuJoCo compiles ``mech`` and that the integrator can integrate it; returns
-    the force need (N) and each joint's torque need (N m) of each reference, from the nominal
-    model (no stretch, lag or friction: inverse dynamics of the arm)."""
+    the force need (N), each joint's torque need (N m) and torque-rate need (N m / s) of each
+    reference, from the nominal model (no stretch, lag or friction: inverse dynamics of the
+    arm)."""
     model = build_model(mech)
     if mech.realistic:
         model = build_model(mech.ideal())
@@ -479,7 +496,13 @@ def _physics(mech: Mechanism, refs: tuple[Reference, ...]) -> tuple[tuple[float,
     out = []
     for r in refs:
         J, tau = inverse_dynamics_grid(model, [r])
-        out.append((peak_tension(J, tau, mech.pull_only, mech.pretension), np.max(np.abs(tau), 0)))
+        out.append(
+            (
+                peak_tension(J, tau, mech.pull_only, mech.pretension),
+                np.max(np.abs(tau), 0),
+                np.max(np.abs(torque_rate(tau, r)), 0),
+            )
+        )
     return tuple(out)
 
 
@@ -528,6 +551,19 @@ def inverse_dynamics_grid(
             J.append(arms.dense().copy())
             tau.append(data.qfrc_inverse.copy())
     return np.array(J), np.array(tau)
+
+
+def torque_rate(tau: np.ndarray, ref: Reference) -> np.ndarray:
+    """Returns the rate (N m / s) of the joint torques ``tau`` (grid^2, 2) of one reference on
+    :func:`inverse_dynamics_grid`'s phase grid: d tau / dt = omega_A d tau / d theta_A + omega_B
+    d tau / d theta_B, each partial a periodic central difference over the grid."""
+    grid = math.isqrt(len(tau))
+    t = tau.reshape(grid, grid, -1)
+    step = 2.0 * (2.0 * math.pi / grid)
+    d_a = (np.roll(t, -1, axis=0) - np.roll(t, 1, axis=0)) / step
+    d_b = (np.roll(t, -1, axis=1) - np.roll(t, 1, axis=1)) / step
+    w = ref.omega_array
+    return (w[0] * d_a + w[1] * d_b).reshape(tau.shape)
 
 
 def low_pass_alpha(tau: float, dt: float) -> float:

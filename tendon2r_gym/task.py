@@ -67,6 +67,16 @@ TERMS: dict[str, tuple[float, str]] = {
         "``-sum((command - last_command)^2)`` on the commands the env applied on this step and "
         "the last (observed, zeros after a reset): smooth commands that a motor can follow",
     ),
+    "action_rate_need": (
+        0.0,
+        "``-sum(log(1 + ((command - last_command) / s)^2))`` with s, per joint, the largest "
+        "change per control step of its torque command that the arm's reference needs "
+        "(EnvConfig.torque_rate_need x ctrl_dt over the joint's torque range, TorqueToTension."
+        "max_torque): the action rate in multiples of the task's own, alike on every arm, where "
+        "``action_rate`` weighs a jitter the same on a joint whose task moves its command "
+        "little as on one whose task moves it much; logarithmic, so that the step from rest "
+        "after a reset costs little more than a steady 3x (joint-torque mode only)",
+    ),
     "divergence": (
         100.0,
         "-1 on the step where the physics diverges, else 0: more than any discounted sum of "
@@ -322,6 +332,15 @@ class Task:
         return [c + alpha * (x - c) for x, c in zip(action, last, strict=True)]
 
     # -- reward ----------------------------------------------------------------------------------
+    def rate_need_inverse(self, torque_rate_need: Any, max_torque: Any) -> list[Any]:
+        """Returns, per action dimension, 1 / s of the ``action_rate_need`` term:
+        max_torque_j / (torque_rate_need_j ctrl_dt) in joint-torque mode (each (2,) of one arm,
+        or (N, 2) of N arms: one float, or one array of N, per joint), zeros in tension mode."""
+        if self.config.action_mode != "joint_torque":
+            return [0.0] * self.config.n_actions
+        inv = np.asarray(max_torque) / (np.asarray(torque_rate_need) * self.config.ctrl_dt)
+        return [inv[..., j] for j in range(2)]
+
     def reward_terms(
         self,
         ops: Ops,
@@ -329,11 +348,13 @@ class Task:
         e2: Any,
         action: Sequence[Any],
         last_action: Sequence[Any],
+        rate_need_inverse: Sequence[Any],
         diverged: Any,
     ) -> dict[str, Any]:
         """Returns the unscaled reward terms (keys of TERMS) from the tracking errors (rad), the
         clipped action and the one before it (one value, or one column of N values, per action
-        dimension) and divergence."""
+        dimension), :meth:`rate_need_inverse` of the arm (per action dimension) and
+        divergence."""
         e1, e2 = e1 / RAD_PER_DEG, e2 / RAD_PER_DEG
         if self.form == "log":
             u1, u2 = e1 / self.sigma, e2 / self.sigma
@@ -346,17 +367,20 @@ class Task:
                 tracking -= (log1p(u1 * u1) + log1p(u2 * u2)) / norm
         else:
             tracking = -(e1 * e1 + e2 * e2)
-        effort = rate = 0.0  # in action order, as numpy's sum over a few entries
+        effort = rate = rate_need = 0.0  # in action order, as numpy's sum over a few entries
         gain, offset, mapped = self.effort_gain, self.effort_offset, self._effort_mapped
-        for x, x0 in zip(action, last_action, strict=False):  # both n_actions long
+        for x, x0, inv in zip(action, last_action, rate_need_inverse, strict=False):
             f = x * gain + offset if mapped else x
             effort += f * f
             d = x - x0
             rate += d * d
+            r = d * inv
+            rate_need += ops.log1p(r * r)
         return {
             "tracking": tracking,
             "ctrl": -effort,
             "action_rate": -rate,
+            "action_rate_need": -rate_need,
             "divergence": ops.where(diverged, -1.0, 0.0),
         }
 

@@ -129,6 +129,7 @@ class Tendon2RVectorEnv(VectorEnv):
         self._refs: list[Reference] = [cfg.reference] * n
         self._ref = np.zeros((8, n))  # reference_params of each arm, one row per number
         self._set_references(np.arange(n), [cfg.reference] * n)
+        self._bind_rate_need()
         self._steps = np.zeros(n, dtype=np.int64)
         self._warn_count = np.zeros(n, dtype=np.int64)
         self._needs_reset = np.zeros(n, dtype=bool)
@@ -224,6 +225,15 @@ class Tendon2RVectorEnv(VectorEnv):
         self.batch.set_models(self._models)
         if self._torque_map is not None:
             self._torque_map.follow([a.mechanism for a in self._arm_cfgs])
+        self._bind_rate_need()
+
+    def _bind_rate_need(self) -> None:
+        """Sets each slot's 1 / s of the action_rate_need term (Task.rate_need_inverse)."""
+        need = np.array([a.torque_rate_need for a in self._arm_cfgs])
+        max_torque = None
+        if self._torque_map is not None:
+            max_torque = np.broadcast_to(self._torque_map.max_torque, need.shape)
+        self._rate_inv = self.task.rate_need_inverse(need, max_torque)
 
     def _bind_delays(self, i: int, arm: EnvConfig, drive: Drive) -> None:
         """Gives slot i the motor delay, rest command and sensors of the arm config ``arm``."""
@@ -400,7 +410,9 @@ class Tendon2RVectorEnv(VectorEnv):
         self, obs: np.ndarray, a: np.ndarray, last: np.ndarray, diverged: np.ndarray
     ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         e = obs[:, obs_layout.ERROR]
-        terms = self.task.reward_terms(BATCH, e[:, 0], e[:, 1], list(a.T), list(last.T), diverged)
+        terms = self.task.reward_terms(
+            BATCH, e[:, 0], e[:, 1], list(a.T), list(last.T), self._rate_inv, diverged
+        )
         return self.task.scale(terms)
 
     def _moment_arm_cond(self) -> np.ndarray:

@@ -400,7 +400,7 @@ def test_multiscale_tracking_reward_is_bounded_and_keeps_a_gradient_near_zero():
 
     def r(t, deg):
         e = deg * RAD_PER_DEG
-        return t.reward_terms(SCALAR, e, e, [0.0, 0.0], [0.0, 0.0], False)["tracking"]
+        return t.reward_terms(SCALAR, e, e, [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], False)["tracking"]
 
     errors = [0.0, 0.001, 0.01, 0.05, 0.1, 1.0, 10.0, 90.0, 180.0]
     values = [r(task, e) for e in errors]
@@ -420,7 +420,7 @@ def test_effort_term_charges_the_commanded_tension(preset):
 
     def effort(task, command):
         zero = [0.0] * len(command)
-        return task.reward_terms(SCALAR, 0.0, 0.0, command, zero, False)["ctrl"]
+        return task.reward_terms(SCALAR, 0.0, 0.0, command, zero, zero, False)["ctrl"]
 
     cfg = EnvConfig.make(preset=preset)
     task, n = Task(cfg), cfg.n_actions
@@ -435,3 +435,59 @@ def test_effort_term_charges_the_commanded_tension(preset):
     env.reset(seed=0)
     _, _, _, _, info = env.step(np.full(n, slack, dtype=np.float32))
     assert info["reward_ctrl"] == 0.0
+
+
+def test_torque_rate_need_is_the_peak_rate_of_inverse_dynamics_along_the_reference():
+    """EnvConfig.torque_rate_need (the phase grid's d tau / dt) against mj_inverse of the
+    compiled model along the reference in time, differenced in time: the grid bounds every
+    start phase, so the trajectory's peak is at most the grid's; with one joint moving, the
+    trajectory covers the grid's phases and the two agree."""
+    import mujoco
+
+    from tendon2r_gym.model import build_model
+
+    for amp_b in (0.0, 13.06):
+        cfg = EnvConfig.make(action_mode="joint_torque", reference={"amp_deg": [21.45, amp_b]})
+        ref, mech = cfg.reference, cfg.mechanism
+        model = build_model(mech)
+        data = mujoco.MjData(model)
+        dt = 1e-5
+        t = np.arange(0.0, 1.0, 2e-4)
+        torques = []
+        for shift in (0.0, dt):
+            w, amp, bias = ref.omega_array, ref.amp_rad, ref.bias_rad
+            rows = []
+            for ti in t + shift:
+                data.qpos[:2] = bias + amp * np.sin(w * ti)
+                data.qvel[:2] = amp * w * np.cos(w * ti)
+                data.qacc[:2] = -amp * w * w * np.sin(w * ti)
+                mujoco.mj_inverse(model, data)
+                rows.append(data.qfrc_inverse[:2].copy())
+            torques.append(np.array(rows))
+        peak = np.max(np.abs((torques[1] - torques[0]) / dt), axis=0)
+        need = np.array(cfg.torque_rate_need)
+        assert np.all(peak <= need * 1.02), (peak, need)
+        if amp_b == 0.0:  # joint A alone: one phase, the grid's own
+            np.testing.assert_allclose(peak[0], need[0], rtol=0.02)
+
+
+def test_action_rate_need_counts_the_rate_in_multiples_of_the_arms_own():
+    """The action_rate_need term of a step is -sum log(1 + (d / s)^2) with s the joint's
+    torque-rate need per control step over its torque range, on the episode's drawn arm;
+    a tension-mode env refuses a weight for it, naming the field."""
+    from tendon2r_gym.actuation import TorqueToTension
+
+    env = gym.make("Tendon2R-v0", preset="generalist", action_mode="joint_torque",
+                   reward_scales={"action_rate_need": 2.0})  # fmt: skip
+    env.reset(seed=3)
+    arm = env.unwrapped.arm
+    s = (np.array(arm.torque_rate_need) * arm.ctrl_dt
+         / TorqueToTension(arm.mechanism).max_torque)  # fmt: skip
+    a0, a1 = np.array([0.2, -0.1], np.float32), np.array([0.25, -0.3], np.float32)
+    env.step(a0)
+    info = env.step(a1)[4]
+    d = a1.astype(np.float64) - a0.astype(np.float64)
+    expected = -2.0 * np.sum(np.log1p((d / s) ** 2))
+    assert info["reward_action_rate_need"] == pytest.approx(expected, rel=1e-9)
+    with pytest.raises(ValueError, match=r"reward_scales.action_rate_need = 0.5 .*'tension'"):
+        gym.make("Tendon2R-v0", reward_scales={"action_rate_need": 0.5})
