@@ -396,7 +396,9 @@ def test_generalist_ablation_reads_action_mode_and_network_from_each_run():
         assert table[name]["observes"] == (", ".join(flags) or "none"), name
     assert generalist._rate("lin_3.0e-4") == "0.0003, linear to 0"
     assert generalist._rate(3.0e-4) == "0.0003"
-    for key in ("eval_episodes", "residual_filter_tau", "observes", "learning_rate", "residual"):
+    keys = ("eval_episodes", "residual_filter_tau", "observes", "learning_rate", "residual",
+            "smoothing")  # fmt: skip
+    for key in keys:
         assert len({table[n][key] for n in shown}) > 1, f"the table tells {key} apart"
 
 
@@ -487,7 +489,7 @@ def test_generalist_study_column_runs_a_bundle_or_one_of_its_seeds():
 
 SHIPPED_GENERALISTS = [
     "generalist", "generalist_scratch", "generalist_pull_only", "generalist_lin_lr",
-    "generalist_need",
+    "generalist_need", "generalist_caps",
     "generalist_rate1",
     "generalist_coarse", "generalist_unscaled", "generalist_scratch_blind",
     "generalist_scratch_unscaled",
