@@ -489,7 +489,7 @@ def test_generalist_study_column_runs_a_bundle_or_one_of_its_seeds():
 
 SHIPPED_GENERALISTS = [
     "generalist", "generalist_scratch", "generalist_pull_only", "generalist_lin_lr",
-    "generalist_need", "generalist_caps",
+    "generalist_need", "generalist_caps", "generalist_rate_need",
     "generalist_rate1",
     "generalist_coarse", "generalist_unscaled", "generalist_scratch_blind",
     "generalist_scratch_unscaled",

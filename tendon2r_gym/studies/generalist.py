@@ -66,7 +66,7 @@ from tendon2r_gym.validation import invalid
 #: comment; the ablation table reads its action mode, network, learning rate, reward, arm
 #: features and evaluation episodes from its run record): the residual generalist with a
 #: decaying learning rate; with its residual relative to each joint's need; trained with CAPS's
-#: smoothness terms; at its constant
+#: smoothness terms; with its action rate also charged in multiples of the task's; at its constant
 #: rate and relative to the range, with action-rate weight 1, that on the
 #: registered reward's sigma (1 deg), and that without its error rate and force limit; that
 #: without its residual filter; the plain generalist blind to the arm; the plain generalist
@@ -81,6 +81,7 @@ ABLATIONS = (
     "generalist_lin_lr",
     "generalist_need",
     "generalist_caps",
+    "generalist_rate_need",
     "generalist_rate1",
     "generalist_coarse",
     "generalist_unscaled",
@@ -473,6 +474,8 @@ def write(result: dict[str, Any], out: Path) -> None:
         "generalist_lin_lr, the generalist with its learning rate decaying linearly to 0; "
         "generalist_need, the generalist with its residual relative to each joint's need; "
         "generalist_caps, the generalist trained with CAPS's smoothness terms; "
+        "generalist_rate_need, the generalist with its action rate also charged in multiples "
+        "of the rate its arm's reference needs (action_rate_need); "
         "generalist_rate1, the generalist with action-rate weight 1; generalist_coarse, that "
         "on the registered sigma (1 deg), and generalist_unscaled, that without the error's "
         "rate and the force limit (the generalist before them); generalist_unfiltered, "
