@@ -42,7 +42,7 @@ class SmoothPPO(PPO):
         return [*super()._excluded_save_params(), "smoothing"]
 
     def train(self) -> None:
-        if not getattr(self, "smoothing", Smoothing()).active:
+        if not self.smoothing.active:
             return super().train()
         # The rollout in time order (n_steps, n_envs, ...), before PPO's train flattens it:
         # each state and the next within its episode.
