@@ -113,8 +113,8 @@ class Hyperparams:
     # The stacked frames are frame_stride control steps apart (tendon2r_gym.history): the same
     # frame_stack inputs span (frame_stack - 1) * frame_stride + 1 steps.  1: VecFrameStack.
     frame_stride: int = 1
-    # CAPS's smoothness terms on the policy's mean action ({temporal, spatial, sigma}; Smoothing):
-    # close and consecutive states give close actions.  Empty: SB3's PPO.
+    # CAPS's smoothness terms on the policy's mean action ({temporal, spatial, sigma, samples};
+    # Smoothing): close and consecutive states give close actions.  Empty: SB3's PPO.
     smoothing: Smoothing = field(default_factory=Smoothing)
 
     def __post_init__(self) -> None:

@@ -92,7 +92,7 @@ class SmoothPPO(PPO):
         params = [p for p in self.policy.parameters() if p.requires_grad]
         grads = th.autograd.grad(loss, params, allow_unused=True)
         pairs = [(p, g) for p, g in zip(params, grads, strict=True) if g is not None]
-        norm = th.linalg.vector_norm(th.stack([th.linalg.vector_norm(g) for _, g in pairs]))
+        norm = th.nn.utils.get_total_norm([g for _, g in pairs])  # as clip_grad_norm_ does
         factor = min(1.0, self.max_grad_norm / (float(norm) + 1e-6))
         for p, g in pairs:
             p.grad = g * factor if p.grad is None else p.grad + g * factor
