@@ -263,10 +263,7 @@ class TorqueToTension:
         (J^T J)^-1 when J has full rank); the scale of a normalized joint-torque action, (2,)
         or (N, 2) per arm.  A joint that no tendon spans gets 0."""
         J, _ = self.kinematics(np.zeros((len(self._models), 2)))
-        peak = np.max(np.abs(np.linalg.pinv(J)), axis=-1)  # (N, 2): per arm and joint
-        out = np.where(
-            peak > 0, np.reshape(self._max_force, (-1, 1)) / np.where(peak > 0, peak, 1.0), 0.0
-        )
+        out = max_joint_torque(J, np.reshape(self._max_force, (-1, 1)))
         return out[0] if len(self._models) == 1 else out
 
     def joint_torque_command(self, q: np.ndarray, action: np.ndarray) -> np.ndarray:
@@ -274,6 +271,14 @@ class TorqueToTension:
         (N, 2) at the joint angles q (N, 2): ``action_mode="joint_torque"`` in both envs."""
         J, _ = self.kinematics(q)
         return self.command(J, self.max_torque * action)
+
+
+def max_joint_torque(J: np.ndarray, max_force: Any) -> np.ndarray:
+    """Returns the torque (N m) each joint alone reaches before a tendon of limit
+    ``max_force`` (N) saturates, through the moment arms J (..., n_tendons, 2): F / max_k
+    |(J^+)^T_kj|, 0 for a joint that no tendon spans (:attr:`TorqueToTension.max_torque`)."""
+    peak = np.max(np.abs(np.linalg.pinv(J)), axis=-1)  # (..., 2): per joint
+    return np.where(peak > 0, max_force / np.where(peak > 0, peak, 1.0), 0.0)
 
 
 class _Kinematics:

@@ -133,6 +133,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     | `preview_steps` | `3` | number of future reference samples observed |
     | `preview_dt` | `0.01` | spacing of the future reference samples (s) |
     | `observe_error_rate` | `False` | observe the tracking error's rate, log-scaled (``error_rate_log``) |
+    | `error_rate_scale` | `"fixed"` | where error_rate_log turns logarithmic: ``"fixed"`` (0.1 rad/s) or ``"authority"`` (a tenth of each joint's ``control_authority``: the speed its full torque adds in one control step) |
     | `observe_force_limit` | `False` | observe ln of the arm's force limit, the actions' scale (``force_limit_log``) |
     | `observation_noise` | `(0.0, 0.0)` | std of the measured angles (rad) and speeds (rad/s) |
     | `observation_delay` | `0.0` | age of the measurements (s), a multiple of ctrl_dt |
@@ -440,7 +441,9 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         out = joints + parts[head.stop : tail.start] + rest + parts[tail.stop :]
         if self.config.observe_error_rate:
             where = obs_layout.error_rate_slice(self.preview_steps, self._n)
-            out[where] = self.task.error_rate_entries(SCALAR, *state[2:], *parts[obs_layout.DQ_DES])
+            out[where] = self.task.error_rate_entries(
+                SCALAR, *state[2:], *parts[obs_layout.DQ_DES], self._arm
+            )
         return out
 
     def _get_rew(

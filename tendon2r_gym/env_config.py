@@ -22,7 +22,7 @@ import mujoco
 import numpy as np
 
 from tendon2r_gym import observation
-from tendon2r_gym.actuation import MomentArms, distribute
+from tendon2r_gym.actuation import MomentArms, distribute, max_joint_torque
 from tendon2r_gym.arms import (
     CONTROLLER,
     DELAYS,
@@ -39,7 +39,7 @@ from tendon2r_gym.model import build_model
 from tendon2r_gym.presets import SECTIONS, load_preset, merge_env_kwargs
 from tendon2r_gym.reference import Reference, ReferenceRanges
 from tendon2r_gym.stability import check_stability
-from tendon2r_gym.task import REWARD_SCALES, TRACKING_FORMS
+from tendon2r_gym.task import ERROR_RATE_SCALES, REWARD_SCALES, TRACKING_FORMS
 from tendon2r_gym.validation import boolean, check_keys, integer, invalid, mapping, number
 
 #: ``max_tendon_force: auto`` is this many times the peak force that inverse dynamics of the
@@ -85,6 +85,11 @@ class EnvConfig:
     preview_dt: float = 0.01
     #: Observe the tracking error's rate, log-scaled (``error_rate_log``, after last_action).
     observe_error_rate: bool = False
+    #: The rate error_rate_log is linear below (tendon2r_gym.task.ERROR_RATE_SCALES): "fixed",
+    #: ERROR_RATE_LOG_SCALE rad/s on every arm; "authority", AUTHORITY_FRACTION of each
+    #: joint's control_authority, so that a policy's gain on it moves the loop alike on every
+    #: arm.
+    error_rate_scale: str = "fixed"
     #: Observe ln of the force limit max_tendon_force (``force_limit_log``, after
     #: error_rate_log): a normalized action's scale, which ``auto`` sizes per arm.
     observe_force_limit: bool = False
@@ -107,6 +112,13 @@ class EnvConfig:
     #: needs (of AUTO_FLOOR's motion, if more): the scale of the ``action_rate_need`` reward
     #: term (Task.rate_need_inverse); computed, not an argument.
     torque_rate_need: tuple[float, float] = field(default=(math.nan, math.nan), compare=False)
+    #: Each joint's control authority (rad/s per unit of normalized joint-torque action): the
+    #: most its speed changes in one control step per unit of action on it alone, ctrl_dt
+    #: max_torque_j (M(q)^-1)_jj (TorqueToTension.max_torque at this force limit) at the q
+    #: of the same references where the arm is lightest; the scale of ``error_rate_scale:
+    #: authority``.  A derivative gain that is stable on one arm chatters on an arm of far more
+    #: authority.  Computed, not an argument.
+    control_authority: tuple[float, float] = field(default=(math.nan, math.nan), compare=False)
     #: The mechanism as given (max_tendon_force possibly "auto"): what arms are drawn over.
     base_mechanism: Mechanism | None = field(default=None, compare=False, repr=False)
 
@@ -208,6 +220,12 @@ class EnvConfig:
                 raise invalid(name, value, f"a multiple of ctrl_dt = {self.ctrl_dt} s")
         set_("observe_arm", boolean("observe_arm", self.observe_arm))
         set_("observe_error_rate", boolean("observe_error_rate", self.observe_error_rate))
+        if self.error_rate_scale not in ERROR_RATE_SCALES:
+            raise invalid("error_rate_scale", self.error_rate_scale, f"one of {ERROR_RATE_SCALES}")
+        if self.error_rate_scale != "fixed" and not self.observe_error_rate:
+            raise invalid(
+                "error_rate_scale", self.error_rate_scale, "'fixed' unless observe_error_rate"
+            )
         set_("observe_force_limit", boolean("observe_force_limit", self.observe_force_limit))
         if self.observe_arm and self.feature_ranges is None:
             raise invalid(
@@ -261,12 +279,15 @@ class EnvConfig:
         # A slow or constant reference needs almost no force, but feedback still does: "auto"
         # never falls below the need of AUTO_FLOOR's motion about the same bias (last entry).
         refs.append(Reference(bias_deg=self.reference.bias_deg, **AUTO_FLOOR))
-        *needs, floor_need = _physics(self.mechanism.replace(max_tendon_force=1.0), tuple(refs))
-        torque = np.max([t for _, t, _ in (*needs, floor_need)], axis=0)
+        per_ref, torque_per_newton = _physics(
+            self.mechanism.replace(max_tendon_force=1.0), tuple(refs)
+        )
+        torque = np.max([t for _, t, _, _ in per_ref], axis=0)
         object.__setattr__(self, "torque_need", (float(torque[0]), float(torque[1])))
-        rate = np.max([r for _, _, r in (*needs, floor_need)], axis=0)
+        rate = np.max([r for _, _, r, _ in per_ref], axis=0)
         object.__setattr__(self, "torque_rate_need", (float(rate[0]), float(rate[1])))
-        needs, floor_need = [f for f, _, _ in needs], floor_need[0]
+        inverse_inertia = np.max([m for *_, m in per_ref], axis=0)
+        *needs, floor_need = [f for f, _, _, _ in per_ref]
         need = max(needs)
         if self.mechanism.pull_only:
             need = max(need, self.mechanism.pretension)
@@ -284,6 +305,9 @@ class EnvConfig:
                 f"(use max_tendon_force: auto, which gives {FORCE_HEADROOM:g} x the need)",
                 stacklevel=3,
             )
+        force = self.mechanism.max_tendon_force
+        authority = self.ctrl_dt * force * torque_per_newton * inverse_inertia
+        object.__setattr__(self, "control_authority", (float(authority[0]), float(authority[1])))
 
     # -- random arms ---------------------------------------------------------------------------
     def draw_arm(self, rng: np.random.Generator, reference: Reference | None = None) -> EnvConfig:
@@ -473,7 +497,13 @@ class EnvConfig:
 
 
 #: EnvConfig fields that are computed, not arguments.
-COMPUTED = ("force_need", "torque_need", "torque_rate_need", "base_mechanism")
+COMPUTED = (
+    "force_need",
+    "torque_need",
+    "torque_rate_need",
+    "control_authority",
+    "base_mechanism",
+)
 
 
 def arguments() -> list[str]:
@@ -484,26 +514,30 @@ def arguments() -> list[str]:
 @lru_cache(maxsize=64)
 def _physics(
     mech: Mechanism, refs: tuple[Reference, ...]
-) -> tuple[tuple[float, np.ndarray, np.ndarray], ...]:
-    """Checks that MuJoCo compiles ``mech`` and that the integrator can integrate it; returns
-    the force need (N), each joint's torque need (N m) and torque-rate need (N m / s) of each
-    reference, from the nominal model (no stretch, lag or friction: inverse dynamics of the
-    arm)."""
+) -> tuple[tuple[tuple[float, np.ndarray, np.ndarray, np.ndarray], ...], np.ndarray]:
+    """Checks that MuJoCo compiles ``mech`` and that the integrator can integrate it; returns,
+    from the nominal model (no stretch, lag or friction: inverse dynamics of the arm), for
+    each reference its force need (N), each joint's torque need (N m), torque-rate need (N m /
+    s) and peak (M^-1)_jj (1 / (kg m^2)); and each joint's torque per newton of force limit
+    (N m / N, max_joint_torque at q = 0)."""
     model = build_model(mech)
     if mech.realistic:
         model = build_model(mech.ideal())
     check_stability(model, mech)
     out = []
     for r in refs:
-        J, tau = inverse_dynamics_grid(model, [r])
+        J, tau, inverse_inertia = inverse_dynamics_grid(model, [r])
         out.append(
             (
                 peak_tension(J, tau, mech.pull_only, mech.pretension),
                 np.max(np.abs(tau), 0),
                 np.max(np.abs(torque_rate(tau, r)), 0),
+                np.max(inverse_inertia, 0),
             )
         )
-    return tuple(out)
+    data = mujoco.MjData(model)
+    mujoco.mj_fwdPosition(model, data)  # q = 0
+    return tuple(out), max_joint_torque(MomentArms(model, data).dense(), 1.0)
 
 
 assert set(SECTIONS) <= set(arguments())
@@ -520,7 +554,8 @@ def force_need(
     ``references`` exactly, over every combination of the two joints' phases: the tensions of
     :func:`inverse_dynamics_grid`'s torques from tendon2r_gym.actuation.distribute (with the
     pretension for pull-only tendons)."""
-    return peak_tension(*inverse_dynamics_grid(model, references, grid), pull_only, pretension)
+    J, tau, _ = inverse_dynamics_grid(model, references, grid)
+    return peak_tension(J, tau, pull_only, pretension)
 
 
 def peak_tension(J: np.ndarray, tau: np.ndarray, pull_only: bool, pretension: float) -> float:
@@ -531,10 +566,11 @@ def peak_tension(J: np.ndarray, tau: np.ndarray, pull_only: bool, pretension: fl
 
 def inverse_dynamics_grid(
     model: mujoco.MjModel, references: Sequence[Reference], grid: int = 24
-) -> tuple[np.ndarray, np.ndarray]:
-    """Returns the moment arms J (K, n_tendons, 2) and the joint torques tau (K, 2) that
-    inverse dynamics needs to follow ``references`` at every combination of the two joints'
-    phases.  Each joint j moves as q = bias + amp sin(theta_j); tau comes from mj_inverse at
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Returns the moment arms J (K, n_tendons, 2), the joint torques tau (K, 2) that inverse
+    dynamics needs to follow ``references`` and the diagonal of the inverse inertia M(q)^-1
+    (K, 2) at every combination of the two joints' phases.  Each joint j moves as q = bias +
+    amp sin(theta_j); tau comes from mj_inverse at
     (q, dq, ddq) on a ``grid`` x ``grid`` grid of (theta_A, theta_B).  Taking every phase pair
     bounds the need of any start time, phase and episode length."""
     data = mujoco.MjData(model)
@@ -542,7 +578,8 @@ def inverse_dynamics_grid(
     theta = np.linspace(0.0, 2.0 * np.pi, grid, endpoint=False)
     s = np.stack(np.meshgrid(np.sin(theta), np.sin(theta), indexing="ij"), -1).reshape(-1, 2)
     c = np.stack(np.meshgrid(np.cos(theta), np.cos(theta), indexing="ij"), -1).reshape(-1, 2)
-    J, tau = [], []
+    J, tau, inverse_inertia = [], [], []
+    M = np.zeros((model.nv, model.nv))
     for ref in references:
         amp, bias, w = ref.amp_rad, ref.bias_rad, ref.omega_array
         for q, dq, ddq in zip(bias + amp * s, amp * w * c, -amp * w * w * s, strict=True):
@@ -550,7 +587,9 @@ def inverse_dynamics_grid(
             mujoco.mj_inverse(model, data)
             J.append(arms.dense().copy())
             tau.append(data.qfrc_inverse.copy())
-    return np.array(J), np.array(tau)
+            mujoco.mj_fullM(model, data, M)
+            inverse_inertia.append(np.diag(np.linalg.inv(M))[:2])
+    return np.array(J), np.array(tau), np.array(inverse_inertia)
 
 
 def torque_rate(tau: np.ndarray, ref: Reference) -> np.ndarray:

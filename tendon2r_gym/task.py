@@ -86,6 +86,10 @@ TERMS: dict[str, tuple[float, str]] = {
 }
 REWARD_SCALES: dict[str, float] = {name: weight for name, (weight, _) in TERMS.items()}
 TRACKING_FORMS = ("quadratic", "log", "multiscale")
+#: What ``error_rate_log`` is linear below (EnvConfig.error_rate_scale): "fixed", the same
+#: ERROR_RATE_LOG_SCALE on every arm; "authority", AUTHORITY_FRACTION of each joint's
+#: control_authority.
+ERROR_RATE_SCALES = ("fixed", "authority")
 #: Error scales of the "multiscale" tracking reward, as multiples of tracking_sigma_deg: one
 #: log kernel per decade, so that its gradient stays useful from tens of degrees down to
 #: 0.01 deg (the "log" form alone is flat below about sigma / 10).
@@ -122,15 +126,24 @@ def reference_params(ref: Reference) -> tuple[float, ...]:
     )
 
 
+#: The number of leading :func:`arm_params` that the observation reads but does not hold.
+N_ARM_PARAMS = 5
+
+
 def arm_params(arm: EnvConfig, observed: EnvConfig) -> tuple[float, ...]:
     """Returns the per-arm numbers :meth:`Task.observation` reads: the link lengths (a, b, c)
-    of the episode's arm config ``arm``, then the observation's last per-arm entries if the
-    env's config ``observed`` holds them: ``force_limit_log``, ln of the arm's force limit
-    (N), and the arm's features over its ranges."""
+    of the episode's arm config ``arm`` and error_rate_log's scale of each joint (rad/s,
+    EnvConfig.error_rate_scale), then the observation's last per-arm entries if the env's
+    config ``observed`` holds them: ``force_limit_log``, ln of the arm's force limit (N), and
+    the arm's features over its ranges."""
     mech = arm.mechanism
+    if observed.error_rate_scale == "authority":
+        rate_scale = [L.AUTHORITY_FRACTION * x for x in arm.control_authority]
+    else:
+        rate_scale = [L.ERROR_RATE_LOG_SCALE] * 2
     force = [math.log(mech.max_tendon_force)] if observed.observe_force_limit else []
     features = observed.feature_ranges.features(arm) if observed.observe_arm else []
-    return (mech.a, mech.b, mech.c, *force, *features)
+    return (mech.a, mech.b, mech.c, *rate_scale, *force, *features)
 
 
 def rewards_table() -> str:
@@ -277,9 +290,9 @@ class Task:
             joints += [amp1 * sin(arg1 + om1 * dt) + bias1, amp2 * sin(arg2 + om2 * dt) + bias2]
         joints += last_action
         if self.config.observe_error_rate:
-            joints += self.error_rate_entries(ops, w1, w2, dqd1, dqd2)
-        if len(arm) > 3:  # force_limit_log and arm, if observed
-            joints += arm[3:]
+            joints += self.error_rate_entries(ops, w1, w2, dqd1, dqd2, arm)
+        if len(arm) > N_ARM_PARAMS:  # force_limit_log and arm, if observed
+            joints += arm[N_ARM_PARAMS:]
         return joints
 
     def state_entries(
@@ -307,11 +320,13 @@ class Task:
         ]  # fmt: skip
         return [q1, q2, w1, w2], rest
 
-    def error_rate_entries(self, ops: Ops, w1: Any, w2: Any, dqd1: Any, dqd2: Any) -> list[Any]:
+    def error_rate_entries(
+        self, ops: Ops, w1: Any, w2: Any, dqd1: Any, dqd2: Any, arm: Sequence[Any]
+    ) -> list[Any]:
         """Returns ``error_rate_log`` (observe_error_rate) from the joint speeds and the
-        reference's: sign(de) log(1 + |de| / ERROR_RATE_LOG_SCALE), de = dq_des - dq."""
-        scale = L.ERROR_RATE_LOG_SCALE
-        return [signed_log(ops, dqd1 - w1, scale), signed_log(ops, dqd2 - w2, scale)]
+        reference's: sign(de_j) log(1 + |de_j| / s_j), de = dq_des - dq, with each joint's
+        scale s_j from :func:`arm_params` (EnvConfig.error_rate_scale)."""
+        return [signed_log(ops, dqd1 - w1, arm[3]), signed_log(ops, dqd2 - w2, arm[4])]
 
     # -- action ----------------------------------------------------------------------------------
     def rest_command(self, arm: EnvConfig) -> list[float]:

@@ -402,7 +402,9 @@ class Tendon2RVectorEnv(VectorEnv):
         if self.config.observe_error_rate:
             cfg, dq_des = self.config, measured[:, obs_layout.DQ_DES]
             where = obs_layout.error_rate_slice(cfg.preview_steps, cfg.n_actions)
-            rate = self.task.error_rate_entries(BATCH, w[:, 0], w[:, 1], dq_des[:, 0], dq_des[:, 1])
+            rate = self.task.error_rate_entries(
+                BATCH, w[:, 0], w[:, 1], dq_des[:, 0], dq_des[:, 1], tuple(self._arm)
+            )
             truth[:, where] = np.stack(rate, axis=1)
         return truth
 

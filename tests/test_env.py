@@ -491,3 +491,66 @@ def test_action_rate_need_counts_the_rate_in_multiples_of_the_arms_own():
     assert info["reward_action_rate_need"] == pytest.approx(expected, rel=1e-9)
     with pytest.raises(ValueError, match=r"reward_scales.action_rate_need = 0.5 .*'tension'"):
         gym.make("Tendon2R-v0", reward_scales={"action_rate_need": 0.5})
+
+
+def test_control_authority_is_the_speed_a_full_joint_torque_adds_in_one_step():
+    """EnvConfig.control_authority against the compiled model: from rest at a q on the
+    reference's path, a joint-torque action on joint j alone adds ctrl_dt max_torque_j
+    (M^-1)_jj(q) per unit of action to that joint's speed in one control step (the simulated
+    response to a small action, which no tendon saturates, minus the rest action's), and its
+    peak over the path is the authority."""
+    import mujoco
+
+    env = Tendon2REnv(action_mode="joint_torque")
+    env.reset(seed=0)
+    cfg = env.config
+    model, data = env.model, env.data
+    ref = cfg.reference
+    rng = np.random.default_rng(0)
+    phases = np.concatenate([rng.uniform(0, 2 * np.pi, (60, 2)), [[np.pi / 2, -np.pi / 2]]])
+    gained = np.zeros((len(phases), 2))
+    M = np.zeros((model.nv, model.nv))
+    for k, theta in enumerate(phases):
+        q = ref.bias_rad + ref.amp_rad * np.sin(theta)
+        for j in range(2):
+            speeds = []
+            for a in (np.zeros(2), 0.2 * np.eye(2)[j]):
+                mujoco.mj_resetData(model, data)
+                data.qpos[:2] = q
+                env.step(a.astype(np.float32))
+                speeds.append(data.qvel[j])
+            gained[k, j] = (speeds[1] - speeds[0]) / 0.2
+        data.qpos[:2] = q
+        mujoco.mj_fwdPosition(model, data)
+        mujoco.mj_fullM(model, data, M)
+        expected = cfg.ctrl_dt * env._torque_map.max_torque * np.diag(np.linalg.inv(M))[:2]
+        np.testing.assert_allclose(gained[k], expected, rtol=0.02)
+    peak = gained.max(axis=0)
+    authority = np.array(cfg.control_authority)
+    assert np.all(peak <= authority * 1.02), (peak, authority)
+    assert np.all(peak >= authority * 0.9), (peak, authority)
+
+
+def test_error_rate_scale_authority_scales_each_joint_by_its_authority():
+    """error_rate_scale 'authority': error_rate_log is sign(de) log(1 + |de| / s_j) with s_j =
+    AUTHORITY_FRACTION x the episode arm's control_authority_j, every other entry as with
+    the fixed scale; bad values and the scale without observe_error_rate are refused, named."""
+    kw = {"preset": "generalist", "observe_error_rate": True, "action_mode": "joint_torque"}
+    fixed, env = Tendon2REnv(**kw), Tendon2REnv(**kw, error_rate_scale="authority")
+    assert fixed.config.observation_layout() == env.config.observation_layout()
+    fixed.reset(seed=4)
+    env.reset(seed=4)
+    for a in ([0.3, -0.2], [-0.1, 0.5]):
+        obs, fixed_obs = env.step(np.array(a))[0], fixed.step(np.array(a))[0]
+    where = L.error_rate_slice(3, 2)
+    np.testing.assert_array_equal(np.delete(obs, np.r_[where]), np.delete(fixed_obs, np.r_[where]))
+    arm = env.arm
+    assert arm.control_authority != env.config.control_authority  # the drawn arm's own
+    scale = L.AUTHORITY_FRACTION * np.array(arm.control_authority)
+    de = env.reference.qdot(env.data.time) - obs[L.DQ]
+    expected = np.sign(de) * np.log1p(np.abs(de) / scale)
+    np.testing.assert_allclose(obs[where], expected, rtol=1e-12)
+    with pytest.raises(ValueError, match=r"error_rate_scale = 'arm' .*'fixed', 'authority'"):
+        gym.make("Tendon2R-v0", observe_error_rate=True, error_rate_scale="arm")
+    with pytest.raises(ValueError, match=r"error_rate_scale = 'authority' .*observe_error_rate"):
+        gym.make("Tendon2R-v0", error_rate_scale="authority")
