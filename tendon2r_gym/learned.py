@@ -97,6 +97,71 @@ def residual_scales(scale: float, relative_to: str, torque_need: Any, pd: PDPoli
     return scale * np.asarray(torque_need, dtype=float) / pd.actuation.max_torque
 
 
+#: The largest residual_scale (a fraction of the command range, or of the need).
+MAX_RESIDUAL_SCALE = 2.0
+#: The largest residual_filter_tau (s).
+MAX_RESIDUAL_FILTER_TAU = 1.0
+
+
+@dataclasses.dataclass(frozen=True)
+class Residual:
+    """How a policy's action joins PD's command (module docstring): ``scale`` (0: no PD, the
+    action is the command; > 0: a residual on PD), the residual's low-pass ``filter_tau`` (s)
+    and what the scale is ``relative_to``.  An entry, a run record and a deployed policy
+    carry these three as ``residual_scale``, ``residual_filter_tau`` and
+    ``residual_relative_to`` (:meth:`to_record`, :meth:`from_record`); errors name those."""
+
+    scale: float = 0.0
+    filter_tau: float = 0.0
+    relative_to: str = "range"
+
+    def __post_init__(self) -> None:
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
+        set_("scale", number("residual_scale", self.scale, 0.0, MAX_RESIDUAL_SCALE))
+        tau = number("residual_filter_tau", self.filter_tau, 0.0, MAX_RESIDUAL_FILTER_TAU)
+        if tau > 0 and self.scale == 0:
+            raise invalid("residual_filter_tau", tau, "0 without a residual (residual_scale 0)")
+        set_("filter_tau", tau)
+        if self.relative_to not in RESIDUAL_RELATIVE_TO:
+            raise invalid(
+                "residual_relative_to", self.relative_to, f"one of {list(RESIDUAL_RELATIVE_TO)}"
+            )
+        if self.relative_to != "range" and self.scale == 0:
+            raise invalid("residual_relative_to", self.relative_to, "'range' without a residual")
+
+    @property
+    def active(self) -> bool:
+        """Whether the action is a residual on PD (scale > 0)."""
+        return self.scale > 0
+
+    def to_record(self) -> dict[str, Any]:
+        """Returns the fields under the names an entry and a run record give them."""
+        return {
+            "residual_scale": self.scale,
+            "residual_filter_tau": self.filter_tau,
+            "residual_relative_to": self.relative_to,
+        }
+
+    @classmethod
+    def from_record(cls, record: dict[str, Any] | None) -> Residual:
+        """Returns the residual an entry or a model's run record (run.json) gives; a field
+        recorded before it existed, or no record, takes its default (no filter, ``range``)."""
+        record = record or {}
+        return cls(
+            float(record.get("residual_scale", 0.0)),
+            float(record.get("residual_filter_tau", 0.0)),
+            str(record.get("residual_relative_to", "range")),
+        )
+
+    def scales(self, torque_need: Any, pd: PDPolicy) -> Any:
+        """Returns the residual's scale on the arms ``pd`` follows: :func:`residual_scales`."""
+        return residual_scales(self.scale, self.relative_to, torque_need, pd)
+
+
+#: No residual: the policy's action is the command (plain PPO).
+NO_RESIDUAL = Residual()
+
+
 class ResidualPDWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """The agent's action is a residual on the PD command (see module docstring)."""
 
@@ -114,20 +179,19 @@ class ResidualPDWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             residual_relative_to=residual_relative_to,
         )
         super().__init__(env)
-        self.residual_scale = number("residual_scale", residual_scale, 0.0, 2.0, lo_open=True)
+        number("residual_scale", residual_scale, 0.0, MAX_RESIDUAL_SCALE, lo_open=True)
+        self.residual = Residual(residual_scale, residual_filter_tau, residual_relative_to)
         config = env.unwrapped.config
-        self.relative_to = check_relative_to(residual_relative_to, config.action_mode)
+        check_relative_to(residual_relative_to, config.action_mode)
         self.pd = PDPolicy.from_env(env)
         self.filter = ResidualFilter(residual_filter_tau, config.ctrl_dt)
         self._obs: np.ndarray | None = None
-        need = config.torque_need
-        self._scale = residual_scales(self.residual_scale, self.relative_to, need, self.pd)
+        self._scale = self.residual.scales(config.torque_need, self.pd)
 
     def reset(self, **kwargs: Any):
         self._obs, info = self.env.reset(**kwargs)
         self.pd.reset(info)  # follows the episode's arm, if the env draws arms
-        need = info["torque_need_Nm"]
-        self._scale = residual_scales(self.residual_scale, self.relative_to, need, self.pd)
+        self._scale = self.residual.scales(info["torque_need_Nm"], self.pd)
         self.filter.clear()
         return self._obs, info
 
@@ -136,10 +200,6 @@ class ResidualPDWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         command = residual_command(base, action, self._scale, self.filter)
         self._obs, reward, terminated, truncated, info = self.env.step(command)
         return self._obs, reward, terminated, truncated, info
-
-
-#: The largest residual_filter_tau (s).
-MAX_RESIDUAL_FILTER_TAU = 1.0
 
 
 class ResidualFilter:
@@ -170,18 +230,6 @@ class ResidualFilter:
         return self._y.copy()
 
 
-def recorded_filter_tau(record: dict[str, Any] | None) -> float:
-    """Returns the residual_filter_tau a model's run record (its run.json) gives: 0 for a run
-    recorded before the filter existed, or without a record."""
-    return float((record or {}).get("residual_filter_tau", 0.0))
-
-
-def recorded_relative_to(record: dict[str, Any] | None) -> str:
-    """Returns the residual_relative_to a model's run record gives: ``range`` for a run
-    recorded before it existed, or without a record."""
-    return str((record or {}).get("residual_relative_to", "range"))
-
-
 def residual_command(
     base: np.ndarray,
     action: np.ndarray,
@@ -204,22 +252,19 @@ def residual_command(
 
 
 def make_training_env(
-    env_kwargs: dict[str, Any],
-    residual_scale: float,
-    zero_obs: tuple[str, ...] = (),
-    residual_filter_tau: float = 0.0,
-    residual_relative_to: str = "range",
+    env_kwargs: dict[str, Any], residual: Residual = NO_RESIDUAL, zero_obs: tuple[str, ...] = ()
 ) -> gym.Env:
-    """Returns Tendon2R-v0 with the given kwargs, wrapped for residual learning if asked.
-    ``zero_obs`` names observation entries (tendon2r_gym.observation) to blank out, for
-    ablations: a constant zero carries no information."""
+    """Returns Tendon2R-v0 with the given kwargs, wrapped for residual learning if
+    ``residual`` is active.  ``zero_obs`` names observation entries
+    (tendon2r_gym.observation) to blank out, for ablations: a constant zero carries no
+    information."""
     env = gym.make("Tendon2R-v0", **env_kwargs)
     if zero_obs:
         keep = observation.mask(zero_obs, env.observation_space.shape[0])
         env = gym.wrappers.TransformObservation(env, lambda o: o * keep, env.observation_space)
-    if residual_scale == 0:
+    if not residual.active:
         return env
-    return ResidualPDWrapper(env, residual_scale, residual_filter_tau, residual_relative_to)
+    return ResidualPDWrapper(env, **residual.to_record())
 
 
 def recorded_settings(recorded: dict[str, Any]) -> dict[str, Any]:
@@ -424,18 +469,16 @@ class PPOPolicy:
         self,
         model: Any,
         vecnormalize: Any,
-        residual_scale: float,
+        residual: Residual,
         env: gym.Env | None = None,
         pd_gains: Gains | dict[str, float] | None = None,
         arm: np.ndarray | None = None,
         frame_stack: int = 1,
         frame_stride: int = 1,
-        residual_filter_tau: float = 0.0,
-        residual_relative_to: str = "range",
     ) -> None:
         self.model = model
         self.vecnormalize = vecnormalize
-        self.residual_scale = residual_scale
+        self.residual = residual
         #: The ``arm`` slice appended to each observation (:func:`arm_features`), or None.
         self.arm = arm
         #: The model sees its last frame_stack normalized observations, frame_stride control
@@ -446,16 +489,13 @@ class PPOPolicy:
             from tendon2r_gym.history import FrameHistory
 
             self._history = FrameHistory(frame_stack, frame_stride)
-        self.pd, self.filter = None, None
-        self.relative_to, self._scale = residual_relative_to, residual_scale
-        if residual_scale > 0 and env is not None:  # the PD it was trained on: its gains
+        self.pd, self.filter, self._scale = None, None, residual.scale
+        if residual.active and env is not None:  # the PD it was trained on: its gains
             config = env.unwrapped.config
-            check_relative_to(residual_relative_to, config.action_mode)
+            check_relative_to(residual.relative_to, config.action_mode)
             self.pd = PDPolicy.from_env(env, gains=gains_of(pd_gains))
-            self.filter = ResidualFilter(residual_filter_tau, config.ctrl_dt)
-            self._scale = residual_scales(
-                residual_scale, residual_relative_to, config.torque_need, self.pd
-            )
+            self.filter = ResidualFilter(residual.filter_tau, config.ctrl_dt)
+            self._scale = residual.scales(config.torque_need, self.pd)
 
     @classmethod
     def load(cls, model_path: str | Path, env: gym.Env) -> PPOPolicy:
@@ -472,11 +512,7 @@ class PPOPolicy:
         vecnorm.training, vecnorm.norm_reward = False, False
         gains = deployed_gains(meta["env_config"], env)
         history = int(meta.get("frame_stack", 1)), int(meta.get("frame_stride", 1))
-        tau, relative_to = recorded_filter_tau(meta), recorded_relative_to(meta)
-        return cls(
-            model, vecnorm, float(meta["residual_scale"]), env, gains, arm, *history, tau,
-            relative_to,
-        )  # fmt: skip
+        return cls(model, vecnorm, Residual.from_record(meta), env, gains, arm, *history)
 
     def reset(self, info: dict[str, Any]) -> None:
         """Follows the episode's arm with the PD inside a residual policy (the rollouts call
@@ -486,8 +522,7 @@ class PPOPolicy:
             self._history.clear()
         if self.pd is not None:
             self.pd.reset(info)
-            need = info["torque_need_Nm"]
-            self._scale = residual_scales(self.residual_scale, self.relative_to, need, self.pd)
+            self._scale = self.residual.scales(info["torque_need_Nm"], self.pd)
             self.filter.clear()
 
     def predict(

@@ -10,10 +10,11 @@ from stable_baselines3.common.vec_env import VecEnv
 from tendon2r_gym import observation
 from tendon2r_gym.gains import gains_of
 from tendon2r_gym.learned import (
+    NO_RESIDUAL,
+    Residual,
     ResidualFilter,
     check_relative_to,
     residual_command,
-    residual_scales,
 )
 from tendon2r_gym.policies import PDPolicy
 from tendon2r_gym.validation import invalid
@@ -22,28 +23,22 @@ from tendon2r_gym.validation import invalid
 class SB3VecEnv(VecEnv):
     """Stable-Baselines3's VecEnv API over the native vector env (tendon2r_gym.vector_env) in
     Gymnasium's SAME_STEP autoreset mode: ``terminal_observation`` and ``TimeLimit.truncated``
-    go in each env's info, as SB3's own VecEnvs put them.  With ``residual_scale > 0`` it
-    also adds the agent's action to a batched PD command (one numpy call for all arms),
-    through a filter of ``residual_filter_tau`` (tendon2r_gym.learned.ResidualFilter), at a
-    scale relative to ``residual_relative_to`` (tendon2r_gym.learned.residual_scales)."""
+    go in each env's info, as SB3's own VecEnvs put them.  With an active ``residual``
+    (tendon2r_gym.learned.Residual) it also adds the agent's action to a batched PD command
+    (one numpy call for all arms), through the residual's filter, at its scale."""
 
     def __init__(
-        self,
-        venv: Any,
-        residual_scale: float = 0.0,
-        zero_obs: tuple[str, ...] = (),
-        residual_filter_tau: float = 0.0,
-        residual_relative_to: str = "range",
+        self, venv: Any, residual: Residual = NO_RESIDUAL, zero_obs: tuple[str, ...] = ()
     ) -> None:
         from gymnasium.vector import AutoresetMode
 
         if venv.autoreset_mode != AutoresetMode.SAME_STEP:
             raise invalid("autoreset_mode", venv.autoreset_mode, "SAME_STEP for SB3")
         super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
-        self.venv, self.residual_scale = venv, residual_scale
-        self.pd = PDPolicy.from_env(venv) if residual_scale > 0 else None
-        self.filter = ResidualFilter(residual_filter_tau, venv.config.ctrl_dt)
-        self.relative_to = check_relative_to(residual_relative_to, venv.config.action_mode)
+        self.venv, self.residual = venv, residual
+        self.pd = PDPolicy.from_env(venv) if residual.active else None
+        self.filter = ResidualFilter(residual.filter_tau, venv.config.ctrl_dt)
+        check_relative_to(residual.relative_to, venv.config.action_mode)
         self._starts = np.ones(venv.num_envs, dtype=bool)  # a slot's episode starts
         ranges = venv.config.mechanism_ranges
         self._random_arms = ranges is not None
@@ -73,7 +68,7 @@ class SB3VecEnv(VecEnv):
                     [a.mechanism for a in arms], [a.observation_delay for a in arms], gains
                 )
             base, _ = self.pd.predict(self._raw)
-            scale = residual_scales(self.residual_scale, self.relative_to, self._need(), self.pd)
+            scale = self.residual.scales(self._need(), self.pd)
             actions = residual_command(base, actions, scale, self.filter, self._starts)
         obs, rewards, terminated, truncated, info = self.venv.step(actions)
         dones = terminated | truncated
@@ -89,7 +84,7 @@ class SB3VecEnv(VecEnv):
     def _need(self) -> Any:
         """Returns each slot's torque need (EnvConfig.torque_need; the config's for one fixed
         arm), only where the residual is relative to the need (None otherwise: unused)."""
-        if self.relative_to != "need":
+        if self.residual.relative_to != "need":
             return None
         if self._random_arms:
             return [a.torque_need for a in self.venv.arms]
@@ -114,21 +109,19 @@ class SB3VecEnv(VecEnv):
 def make_native(
     n_envs: int,
     env_kwargs: dict[str, Any],
-    residual_scale: float = 0.0,
+    residual: Residual = NO_RESIDUAL,
     zero_obs: tuple[str, ...] = (),
     seed: int | None = None,
-    residual_filter_tau: float = 0.0,
-    residual_relative_to: str = "range",
 ) -> VecEnv:
     """Returns the native vector env for SB3 training: N arms in one process with staggered
-    first episodes, batched PD for a residual (filtered by ``residual_filter_tau``, scaled
-    relative to ``residual_relative_to``), and SB3's VecMonitor."""
+    first episodes, batched PD for an active ``residual`` (its filter and scale), and SB3's
+    VecMonitor."""
     from stable_baselines3.common.vec_env import VecMonitor
 
     from tendon2r_gym.vector_env import Tendon2RVectorEnv
 
     native = Tendon2RVectorEnv(n_envs, autoreset_mode="SameStep", stagger=True, **env_kwargs)
-    venv = SB3VecEnv(native, residual_scale, zero_obs, residual_filter_tau, residual_relative_to)
+    venv = SB3VecEnv(native, residual, zero_obs)
     venv.seed(seed)
     return VecMonitor(venv)
 

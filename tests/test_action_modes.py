@@ -9,7 +9,7 @@ import pytest
 from tendon2r_gym import observation as L
 from tendon2r_gym.env import Tendon2REnv
 from tendon2r_gym.evaluation import evaluate
-from tendon2r_gym.learned import ResidualPDWrapper
+from tendon2r_gym.learned import NO_RESIDUAL, Residual, ResidualPDWrapper
 from tendon2r_gym.policies import PDPolicy
 
 
@@ -106,6 +106,24 @@ def test_residual_filter_low_passes_the_residual_and_not_pd():
         np.testing.assert_allclose(y, 0.5 * step * (1 - np.exp(-1)), rtol=1e-9)
     with pytest.raises(ValueError, match=r"residual_filter_tau = 2 .*\[0, 1\]"):
         ResidualPDWrapper(gym.make("Tendon2R-v0"), 0.5, residual_filter_tau=2)
+
+
+def test_residual_settings_travel_as_one_record():
+    """A Residual reads back from the record it writes (an entry's and run.json's names); a
+    record without residual fields (plain PPO, or none) is no residual, and one written before
+    the filter and relative_to existed takes their defaults; bad values name the record's
+    field."""
+    for residual in (Residual(0.5), Residual(1.5, 0.002, "need"), NO_RESIDUAL):
+        assert Residual.from_record(residual.to_record()) == residual
+    assert Residual.from_record(None) == Residual.from_record({}) == NO_RESIDUAL
+    assert not NO_RESIDUAL.active and Residual(0.5).active
+    assert Residual.from_record({"residual_scale": 0.5}) == Residual(0.5, 0.0, "range")
+    for bad, match in (({"scale": 3.0}, r"residual_scale = 3"),
+                       ({"filter_tau": 0.01}, r"residual_filter_tau = 0.01 .*without a residual"),
+                       ({"scale": 0.5, "relative_to": "x"}, r"residual_relative_to = 'x'"),
+                       ({"relative_to": "need"}, r"residual_relative_to = 'need'")):  # fmt: skip
+        with pytest.raises(ValueError, match=match):
+            Residual(**bad)
 
 
 def test_bad_action_mode_names_the_field():

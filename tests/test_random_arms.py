@@ -197,14 +197,14 @@ def test_fixed_reference_option_on_random_arms():
 def test_a_residual_policy_follows_the_arm_in_rollouts():
     """PPOPolicy's inner PD follows each episode's arm (rollouts call reset(info)): with a
     zero residual it acts exactly as PD does on every drawn arm."""
-    from tendon2r_gym.learned import PPOPolicy
+    from tendon2r_gym.learned import PPOPolicy, Residual
 
     class Zero:
         def predict(self, obs, state=None, episode_start=None, deterministic=True):
             return np.zeros((*np.shape(obs)[:-1], 2), dtype=np.float32), state
 
     env = gym.make("Tendon2R-v0", preset="generalist")
-    residual = PPOPolicy(Zero(), None, 0.5, env)
+    residual = PPOPolicy(Zero(), None, Residual(0.5), env)
     for seed in (0, 1):
         _, ours = _episode(env, residual, seed, 50)
         _, pd = _episode(env, PDPolicy.from_env(env), seed, 50)

@@ -10,7 +10,7 @@ import yaml
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.evaluation import evaluate
 from tendon2r_gym.gains import Gains, default_gains, loop_delay
-from tendon2r_gym.learned import PPOPolicy, ResidualPDWrapper
+from tendon2r_gym.learned import PPOPolicy, Residual, ResidualPDWrapper
 from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.policies import ComputedTorquePolicy, PDPolicy
 from tendon2r_gym.tuning import (
@@ -59,9 +59,9 @@ def test_a_residual_keeps_the_pd_it_was_trained_on():
     """PPOPolicy's inner PD has the gains recorded with the model, not the env's."""
     env = gym.make("Tendon2R-v0", pd_gains={"bandwidth_hz": 20.0})
     trained_on = {"bandwidth_hz": 15.0}
-    policy = PPOPolicy(None, None, 0.5, env, trained_on)
+    policy = PPOPolicy(None, None, Residual(0.5), env, trained_on)
     assert policy.pd.gains == Gains.from_dict(trained_on)
-    assert PPOPolicy(None, None, 0.5, env).pd.gains == default_gains()  # recorded: none
+    assert PPOPolicy(None, None, Residual(0.5), env).pd.gains == default_gains()  # recorded: none
 
 
 def test_bandwidth_grid_is_geometric_through_the_default_up_to_the_cap():

@@ -190,12 +190,12 @@ def test_sb3_adapter_steps_like_dummy_vec_env(kwargs):
     episodes."""
     from stable_baselines3.common.env_util import make_vec_env
 
-    from tendon2r_gym.learned import make_training_env
+    from tendon2r_gym.learned import Residual, make_training_env
     from tendon2r_gym.vector_env_sb3 import SB3VecEnv
 
-    native = SB3VecEnv(Tendon2RVectorEnv(3, autoreset_mode="SameStep", **kwargs), 0.5)
+    native = SB3VecEnv(Tendon2RVectorEnv(3, autoreset_mode="SameStep", **kwargs), Residual(0.5))
     dummy = make_vec_env(make_training_env, n_envs=3,
-                         env_kwargs={"env_kwargs": kwargs, "residual_scale": 0.5})  # fmt: skip
+                         env_kwargs={"env_kwargs": kwargs, "residual": Residual(0.5)})  # fmt: skip
     native.seed(5)
     dummy.seed(5)
     np.testing.assert_array_equal(native.reset(), dummy.reset())
@@ -218,14 +218,15 @@ def test_sb3_adapter_filters_the_residual_as_the_wrapper_does():
     ResidualPDWrapper's, each slot's restarting with its episode (8-step episodes here)."""
     from stable_baselines3.common.env_util import make_vec_env
 
-    from tendon2r_gym.learned import make_training_env
+    from tendon2r_gym.learned import Residual, make_training_env
     from tendon2r_gym.vector_env_sb3 import SB3VecEnv
 
     kwargs = {"episode_duration": 0.008}
-    native = SB3VecEnv(Tendon2RVectorEnv(2, autoreset_mode="SameStep", **kwargs), 0.5, (), 0.004)
-    dummy = make_vec_env(make_training_env, n_envs=2, env_kwargs={
-        "env_kwargs": kwargs, "residual_scale": 0.5, "residual_filter_tau": 0.004})  # fmt: skip
-    plain = SB3VecEnv(Tendon2RVectorEnv(2, autoreset_mode="SameStep", **kwargs), 0.5)
+    filtered = Residual(0.5, filter_tau=0.004)
+    native = SB3VecEnv(Tendon2RVectorEnv(2, autoreset_mode="SameStep", **kwargs), filtered)
+    dummy = make_vec_env(make_training_env, n_envs=2,
+                         env_kwargs={"env_kwargs": kwargs, "residual": filtered})  # fmt: skip
+    plain = SB3VecEnv(Tendon2RVectorEnv(2, autoreset_mode="SameStep", **kwargs), Residual(0.5))
     ends, differs = _step_alike(native, dummy, plain, 1.0)
     assert ends >= 4 and differs  # episodes restarted, and the filter changed the commands
 
@@ -265,15 +266,14 @@ def test_sb3_adapter_scales_the_residual_to_each_arms_need_as_the_wrapper_does()
     slot's arm, through every autoreset to a new arm."""
     from stable_baselines3.common.env_util import make_vec_env
 
-    from tendon2r_gym.learned import make_training_env
+    from tendon2r_gym.learned import Residual, make_training_env
     from tendon2r_gym.vector_env_sb3 import SB3VecEnv
 
     kwargs = {"preset": "generalist", "action_mode": "joint_torque", "episode_duration": 0.008}
-    native = SB3VecEnv(
-        Tendon2RVectorEnv(2, autoreset_mode="SameStep", **kwargs), 1.5, (), 0.0, "need"
-    )
-    dummy = make_vec_env(make_training_env, n_envs=2, env_kwargs={
-        "env_kwargs": kwargs, "residual_scale": 1.5, "residual_relative_to": "need"})  # fmt: skip
-    ranged = SB3VecEnv(Tendon2RVectorEnv(2, autoreset_mode="SameStep", **kwargs), 1.5)
+    need = Residual(1.5, relative_to="need")
+    native = SB3VecEnv(Tendon2RVectorEnv(2, autoreset_mode="SameStep", **kwargs), need)
+    dummy = make_vec_env(make_training_env, n_envs=2,
+                         env_kwargs={"env_kwargs": kwargs, "residual": need})  # fmt: skip
+    ranged = SB3VecEnv(Tendon2RVectorEnv(2, autoreset_mode="SameStep", **kwargs), Residual(1.5))
     ends, differs = _step_alike(native, dummy, ranged, 0.5)
     assert ends >= 4 and differs  # new arms, and the scale changed the commands

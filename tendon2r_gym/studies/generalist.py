@@ -39,11 +39,11 @@ from tendon2r_gym.bundle import bundle_meta, bundle_names, bundled_model
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.evaluation import evaluate
 from tendon2r_gym.learned import (
+    Residual,
     feature_ranges,
     in_model_settings,
     model_settings,
     observes_arm,
-    recorded_filter_tau,
 )
 from tendon2r_gym.metrics import (
     RATE_LIMIT_X_PD,
@@ -53,7 +53,7 @@ from tendon2r_gym.metrics import (
     smoothness_x_pd,
     worst_ratio,
 )
-from tendon2r_gym.observation import OPTIONAL, layout_mask
+from tendon2r_gym.observation import ERROR_RATE, OPTIONAL, layout_mask
 from tendon2r_gym.presets import load_yaml, preset_path
 from tendon2r_gym.runs import RunFolder, command_line, stem_of, training_record, training_summary
 from tendon2r_gym.studies import joints, save_json
@@ -185,7 +185,7 @@ def action_mode_of(bundle: str) -> str:
 
 def is_residual(bundle: str) -> bool:
     """Returns whether a bundle is a residual on PD (else plain PPO), as its run recorded it."""
-    return (training_record(model_of(bundle)) or {}).get("residual_scale", 0.0) > 0
+    return Residual.from_record(training_record(model_of(bundle))).active
 
 
 def specialist_rms(arm: dict[str, Any], mode: str) -> list[float] | None:
@@ -250,7 +250,7 @@ def ablation(bundles: list[str]) -> dict[str, Any]:
         out[b]["arm_seen_by"] = arm_seen_by(model)
         out[b]["observes"] = optional_entries(model)
         out[b]["action_mode"] = action_mode_of(b)
-        out[b]["residual_filter_tau"] = recorded_filter_tau(training_record(model))
+        out[b]["residual_filter_tau"] = Residual.from_record(training_record(model)).filter_tau
         config = RunFolder(stem_of(model).parent).read_config()
         net = config["policy_kwargs"].get("net_arch")
         out[b]["network"] = " x ".join(map(str, net)) if net else "SB3 default"
@@ -283,9 +283,17 @@ def arm_seen_by(model_path: Path) -> str:
 
 def optional_entries(model_path: Path) -> str:
     """Returns the optional observation entries (tendon2r_gym.observation.OPTIONAL) a bundled
-    model observed, as its run recorded its layout ("none" without any)."""
-    names = {name for name, _ in training_record(model_path)["env_config"]["observation"]}
-    return ", ".join(n for n, *_ in OPTIONAL if n in names) or "none"
+    model observed, as its run recorded its layout ("none" without any), error_rate_log with
+    its scale where that is per joint's authority (error_rate_scale)."""
+    recorded = training_record(model_path)["env_config"]
+    names = {name for name, _ in recorded["observation"]}
+    per_authority = recorded.get("error_rate_scale", EnvConfig.error_rate_scale) == "authority"
+    shown = [
+        f"{n} (per authority)" if n == ERROR_RATE[0] and per_authority else n
+        for n, *_ in OPTIONAL
+        if n in names
+    ]
+    return ", ".join(shown) or "none"
 
 
 def reward_of(model_path: Path) -> str:
@@ -422,6 +430,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     compared = ("generalist", PULL_ONLY_PRESET, "generalist_scratch", *ABLATIONS)
     result["ablation"] = ablation([b for b in compared if b in bundle_names()])
     for name, arm in arms.items():
+        arm["control_authority"] = list(EnvConfig.make(**arm["env_kwargs"]).control_authority)
         arm["rows"] = evaluate_arm(arm["env_kwargs"], bundles, seeds)
         result["arms"][name] = arm
         result["summary"] = summarize(result["arms"], bundles)
@@ -545,8 +554,12 @@ def write(result: dict[str, Any], out: Path) -> None:
         "",
         "## Per arm",
         "",
-        "| arm | R1 / R2 / a / b / c (mm) | PD | CT | specialist | " + " | ".join(bundles) + " |",
-        "|---|---|---|---|---|" + "---|" * len(bundles),
+        "Control authority: each joint's EnvConfig.control_authority, the most its speed "
+        "changes in one control step per unit of normalized joint-torque action (rad/s).",
+        "",
+        "| arm | R1 / R2 / a / b / c (mm) | control authority A / B (rad/s) | PD | CT | "
+        "specialist | " + " | ".join(bundles) + " |",
+        "|---|---|---|---|---|---|" + "---|" * len(bundles),
     ]
     for name, arm in result["arms"].items():
         m = arm["env_kwargs"]["mechanism"]
@@ -555,10 +568,11 @@ def write(result: dict[str, Any], out: Path) -> None:
         pd = rows["pd"]["rms_deg"]
         spec = arm.get("specialist_rms_deg") or {}
         specs = "; ".join(f"{mode} {fmt(v)}" for mode, v in spec.items()) or "-"
+        authority = arm.get("control_authority")
+        authority = " / ".join(f"{x:.3g}" for x in authority) if authority else "-"
         lines.append(
-            f"| {name} | {geo} | {fmt(pd)} | {fmt(rows['ct']['rms_deg'])} | {specs} | "
-            + " | ".join(cell(rows[b], pd) for b in bundles)
-            + " |"
+            f"| {name} | {geo} | {authority} | {fmt(pd)} | {fmt(rows['ct']['rms_deg'])} | "
+            f"{specs} | " + " | ".join(cell(rows[b], pd) for b in bundles) + " |"
         )
     (out / "generalist.md").write_text("\n".join(lines) + "\n")
 
@@ -568,12 +582,12 @@ def _residual(config: dict[str, Any]) -> str:
     its scale and what the scale is relative to (tendon2r_gym.learned: each command's range,
     a tendon's in tension mode, a joint's in joint-torque mode, or each joint's need), or none
     (plain PPO)."""
-    scale = config.get("residual_scale", 0.0)
-    if not scale:
+    residual = Residual.from_record(config)
+    if not residual.active:
         return "none (plain PPO)"
-    if config.get("residual_relative_to", "range") == "need":
-        return f"{scale:g} x each joint's need"
-    return f"{scale:g} x the command range"
+    if residual.relative_to == "need":
+        return f"{residual.scale:g} x each joint's need"
+    return f"{residual.scale:g} x the command range"
 
 
 def _smoothing(config: dict[str, Any]) -> str:

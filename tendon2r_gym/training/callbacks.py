@@ -13,7 +13,7 @@ import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 
-from tendon2r_gym.learned import PPOPolicy
+from tendon2r_gym.learned import PPOPolicy, Residual
 from tendon2r_gym.metrics import (
     beats,
     selection_rank,
@@ -90,21 +90,17 @@ class TrackingEvalCallback(BaseCallback):
         seeds: list[int],
         eval_freq: int,
         run: RunFolder,
-        residual_scale: float,
+        residual: Residual,
         frame_stack: int = 1,
         frame_stride: int = 1,
-        residual_filter_tau: float = 0.0,
-        residual_relative_to: str = "range",
         wall_offset_s: float = 0.0,
         verbose: int = 1,
     ) -> None:
         super().__init__(verbose)
         self.env_kwargs, self.seeds, self.eval_freq = env_kwargs, seeds, eval_freq
         self.on_reference = {k: v for k, v in env_kwargs.items() if k != "reset_noise_scale"}
-        self.run, self.residual_scale = run, residual_scale
+        self.run, self.residual = run, residual
         self.frame_stack, self.frame_stride = frame_stack, frame_stride  # as PPOPolicy takes them
-        self.residual_filter_tau = residual_filter_tau
-        self.residual_relative_to = residual_relative_to
         self._last_eval = 0
         self._start = time.perf_counter() - wall_offset_s
         # One env, built once: its mechanism and control period define the PD baseline and
@@ -154,13 +150,11 @@ class TrackingEvalCallback(BaseCallback):
         policy = PPOPolicy(
             self.model,
             self.model.get_vec_normalize_env(),
-            self.residual_scale,
+            self.residual,
             self._env,
             config.pd_gains,  # the PD the residual trains on
             frame_stack=self.frame_stack,
             frame_stride=self.frame_stride,
-            residual_filter_tau=self.residual_filter_tau,
-            residual_relative_to=self.residual_relative_to,
         )
         measured = self.measure(policy)
         metrics = {k: v for k, v in measured.items() if k != ON_REFERENCE}
@@ -172,7 +166,7 @@ class TrackingEvalCallback(BaseCallback):
             "beats_pd": beats(metrics["rms_deg"], self.pd_rms),
             "tension_x_pd": tension_x_pd,
             "tension_rate_x_pd": rate_x_pd,
-            "within_limits": within_limits(tension_x_pd, rate_x_pd, self.residual_scale > 0),
+            "within_limits": within_limits(tension_x_pd, rate_x_pd, self.residual.active),
         }
         rank = selection_rank(row)
         self.logger.record("eval/rms_deg_A", metrics["rms_deg"][0])

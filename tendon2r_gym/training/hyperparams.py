@@ -16,7 +16,7 @@ from typing import Any
 
 from tendon2r_gym import observation
 from tendon2r_gym.env_config import EnvConfig
-from tendon2r_gym.learned import MAX_RESIDUAL_FILTER_TAU, check_relative_to
+from tendon2r_gym.learned import Residual, check_relative_to
 from tendon2r_gym.presets import PPO_CONFIG, load_yaml
 from tendon2r_gym.validation import check_keys, integer, invalid, mapping, number
 
@@ -129,11 +129,11 @@ class Hyperparams:
             raise invalid("frame_stride", self.frame_stride, "1 when frame_stack is 1")
         if not isinstance(self.smoothing, Smoothing):
             set_("smoothing", Smoothing.from_mapping(self.smoothing))
-        set_("residual_scale", number("residual_scale", self.residual_scale, 0.0, 2.0))
-        tau = number("residual_filter_tau", self.residual_filter_tau, 0.0, MAX_RESIDUAL_FILTER_TAU)
-        if tau > 0 and self.residual_scale == 0:
-            raise invalid("residual_filter_tau", tau, "0 without a residual (residual_scale 0)")
-        set_("residual_filter_tau", tau)
+        residual = Residual(
+            self.residual_scale, self.residual_filter_tau, self.residual_relative_to
+        )  # validates the three, naming each
+        set_("residual_scale", residual.scale)
+        set_("residual_filter_tau", residual.filter_tau)
         integer("eval_freq", self.eval_freq, 1, 10**10)
         integer("checkpoint_freq", self.checkpoint_freq, 1, 10**10)
         set_(
@@ -170,10 +170,7 @@ class Hyperparams:
             if key in self.ppo:
                 schedule(f"ppo.{key}", self.ppo[key])
         env_config = EnvConfig.make(**self.env_kwargs)  # before any worker starts
-        relative_to = self.residual_relative_to
-        if relative_to != "range" and self.residual_scale == 0:
-            raise invalid("residual_relative_to", relative_to, "'range' without a residual")
-        check_relative_to(relative_to, env_config.action_mode)
+        check_relative_to(self.residual_relative_to, env_config.action_mode)
         names = env_config.observation_entries()
         for key in ("hide_from_actor", "hide_from_critic"):
             hidden = tuple(getattr(self, key) or ())
@@ -220,6 +217,12 @@ class Hyperparams:
         return out
 
     # -- derived quantities ----------------------------------------------------------------------
+    @property
+    def residual(self) -> Residual:
+        """Returns how the policy's action joins PD's command (residual_scale,
+        residual_filter_tau and residual_relative_to: tendon2r_gym.learned.Residual)."""
+        return Residual(self.residual_scale, self.residual_filter_tau, self.residual_relative_to)
+
     @property
     def gamma(self) -> float:
         """Returns PPO's discount (also VecNormalize's, for reward normalization)."""

@@ -137,27 +137,13 @@ def make_vec_env(hp: Hyperparams, seed: int) -> Any:
     if hp.vec_env == "native":
         from tendon2r_gym.vector_env_sb3 import make_native
 
-        return make_native(
-            hp.n_envs,
-            hp.env_kwargs,
-            hp.residual_scale,
-            hp.zero_obs,
-            seed,
-            hp.residual_filter_tau,
-            hp.residual_relative_to,
-        )
+        return make_native(hp.n_envs, hp.env_kwargs, hp.residual, hp.zero_obs, seed)
     subproc = hp.vec_env == "subproc" and hp.n_envs > 1
     return sb3_make_vec_env(
         make_training_env,
         n_envs=hp.n_envs,
         seed=seed,
-        env_kwargs={
-            "env_kwargs": hp.env_kwargs,
-            "residual_scale": hp.residual_scale,
-            "zero_obs": hp.zero_obs,
-            "residual_filter_tau": hp.residual_filter_tau,
-            "residual_relative_to": hp.residual_relative_to,
-        },
+        env_kwargs={"env_kwargs": hp.env_kwargs, "residual": hp.residual, "zero_obs": hp.zero_obs},
         vec_env_cls=SubprocVecEnv if subproc else DummyVecEnv,
     )
 
@@ -191,13 +177,13 @@ def initial_model(hp: Hyperparams) -> tuple[Path, Path]:
     import gymnasium as gym
 
     from tendon2r_gym.bundle import model_path
-    from tendon2r_gym.learned import trained_model
+    from tendon2r_gym.learned import Residual, trained_model
 
     source = hp.init_from
     env = gym.make("Tendon2R-v0", **hp.env_kwargs)
     zip_path, stats, meta = trained_model(model_path(source), env, "init_from")
-    if (float(meta["residual_scale"]) > 0) != (hp.residual_scale > 0):
-        kind = "a residual model (residual_scale > 0)" if hp.residual_scale else "a plain model"
+    if Residual.from_record(meta).active != hp.residual.active:
+        kind = "a residual model (residual_scale > 0)" if hp.residual.active else "a plain model"
         raise invalid(
             "init_from",
             source,
@@ -215,25 +201,16 @@ def fine_tune(hp: Hyperparams) -> Hyperparams:
     init_from.  A plain entry does not fine-tune a residual model, nor the reverse
     (initial_model refuses it)."""
     from tendon2r_gym.bundle import model_path
-    from tendon2r_gym.learned import (
-        fine_tune_env_kwargs,
-        recorded_filter_tau,
-        recorded_relative_to,
-    )
+    from tendon2r_gym.learned import Residual, fine_tune_env_kwargs
 
     if hp.init_from is None:
         return hp  # (a missing source is refused by initial_model, naming init_from)
     source = model_path(hp.init_from)
-    record = training_record(source)
-    scale = float(record.get("residual_scale", 0.0)) if record else 0.0
-    if hp.residual_scale == 0 or scale == 0:
-        return hp.replace(env_kwargs=fine_tune_env_kwargs(source, hp.env_kwargs))
-    return hp.replace(
-        env_kwargs=fine_tune_env_kwargs(source, hp.env_kwargs),
-        residual_scale=scale,
-        residual_filter_tau=recorded_filter_tau(record),
-        residual_relative_to=recorded_relative_to(record),
-    )
+    residual = Residual.from_record(training_record(source))
+    env_kwargs = fine_tune_env_kwargs(source, hp.env_kwargs)
+    if not hp.residual.active or not residual.active:
+        return hp.replace(env_kwargs=env_kwargs)
+    return hp.replace(env_kwargs=env_kwargs, **residual.to_record())
 
 
 def _load_initial(hp: Hyperparams, venv: Any, seed: int, run: RunFolder) -> tuple[Any, Any]:
@@ -300,9 +277,7 @@ def train_run(
     run.write_json(
         RUN_META,
         {
-            "residual_scale": hp.residual_scale,
-            "residual_filter_tau": hp.residual_filter_tau,
-            "residual_relative_to": hp.residual_relative_to,
+            **hp.residual.to_record(),
             "frame_stack": hp.frame_stack,
             "frame_stride": hp.frame_stride,
             "seed": seed,
@@ -340,11 +315,9 @@ def train_run(
             hp.eval_seeds,
             hp.eval_freq,
             run,
-            hp.residual_scale,
+            hp.residual,
             hp.frame_stack,
             hp.frame_stride,
-            hp.residual_filter_tau,
-            hp.residual_relative_to,
             wall_offset_s=previous["wall_time_s"] if previous else 0.0,
         ),
         TimedCheckpointCallback(
