@@ -133,7 +133,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     | `preview_steps` | `3` | number of future reference samples observed |
     | `preview_dt` | `0.01` | spacing of the future reference samples (s) |
     | `observe_error_rate` | `False` | observe the tracking error's rate, log-scaled (``error_rate_log``) |
-    | `error_rate_scale` | `"fixed"` | where error_rate_log turns logarithmic: ``"fixed"`` (0.1 rad/s) or ``"authority"`` (a tenth of each joint's ``control_authority``: the speed its full torque adds in one control step) |
+    | `error_rate_units` | `"rad/s"` | what error_rate_log log-scales: the error's rate (``"rad/s"``) or the normalized joint torques that cancel it in one control step (``"action"``, ``rate_to_action``) |
     | `observe_force_limit` | `False` | observe ln of the arm's force limit, the actions' scale (``force_limit_log``) |
     | `observation_noise` | `(0.0, 0.0)` | std of the measured angles (rad) and speeds (rad/s) |
     | `observation_delay` | `0.0` | age of the measurements (s), a multiple of ctrl_dt |

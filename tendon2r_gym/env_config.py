@@ -39,7 +39,7 @@ from tendon2r_gym.model import build_model
 from tendon2r_gym.presets import SECTIONS, load_preset, merge_env_kwargs
 from tendon2r_gym.reference import Reference, ReferenceRanges
 from tendon2r_gym.stability import check_stability
-from tendon2r_gym.task import ERROR_RATE_SCALES, REWARD_SCALES, TRACKING_FORMS
+from tendon2r_gym.task import ERROR_RATE_UNITS, REWARD_SCALES, TRACKING_FORMS
 from tendon2r_gym.validation import boolean, check_keys, integer, invalid, mapping, number
 
 #: ``max_tendon_force: auto`` is this many times the peak force that inverse dynamics of the
@@ -85,11 +85,11 @@ class EnvConfig:
     preview_dt: float = 0.01
     #: Observe the tracking error's rate, log-scaled (``error_rate_log``, after last_action).
     observe_error_rate: bool = False
-    #: The rate error_rate_log is linear below (tendon2r_gym.task.ERROR_RATE_SCALES): "fixed",
-    #: ERROR_RATE_LOG_SCALE rad/s on every arm; "authority", AUTHORITY_FRACTION of each
-    #: joint's control_authority, so that a policy's gain on it moves the loop alike on every
-    #: arm.
-    error_rate_scale: str = "fixed"
+    #: What error_rate_log log-scales (tendon2r_gym.task.ERROR_RATE_UNITS): "rad/s", the
+    #: error's rate; "action", the normalized joint torques that cancel it in one control
+    #: step on the episode's arm (rate_to_action), so that a policy's gain on it moves the
+    #: joints' speeds alike on every arm.
+    error_rate_units: str = "rad/s"
     #: Observe ln of the force limit max_tendon_force (``force_limit_log``, after
     #: error_rate_log): a normalized action's scale, which ``auto`` sizes per arm.
     observe_force_limit: bool = False
@@ -115,10 +115,17 @@ class EnvConfig:
     #: Each joint's control authority (rad/s per unit of normalized joint-torque action): the
     #: most its speed changes in one control step per unit of action on it alone, ctrl_dt
     #: max_torque_j (M(q)^-1)_jj (TorqueToTension.max_torque at this force limit) at the q
-    #: of the same references where the arm is lightest; the scale of ``error_rate_scale:
-    #: authority``.  A derivative gain that is stable on one arm chatters on an arm of far more
-    #: authority.  Computed, not an argument.
+    #: of the same references where the arm is lightest.  A derivative gain that is stable on
+    #: one arm chatters on an arm of far more authority.  Computed, not an argument.
     control_authority: tuple[float, float] = field(default=(math.nan, math.nan), compare=False)
+    #: The normalized joint-torque actions that change the joints' speeds by dq (rad/s) in
+    #: one control step, diag(1 / max_torque) M(q) / ctrl_dt, as a 2 x 2 matrix (rows: the
+    #: actions) at the reference's bias: the unit of ``error_rate_units: action``.  Each
+    #: joint's action moves the other's speed too, on some arms several times its own; in
+    #: these units a policy's gain acts alike on every arm.  Computed, not an argument.
+    rate_to_action: tuple[tuple[float, float], tuple[float, float]] = field(
+        default=((math.nan, math.nan), (math.nan, math.nan)), compare=False
+    )
     #: The mechanism as given (max_tendon_force possibly "auto"): what arms are drawn over.
     base_mechanism: Mechanism | None = field(default=None, compare=False, repr=False)
 
@@ -220,11 +227,11 @@ class EnvConfig:
                 raise invalid(name, value, f"a multiple of ctrl_dt = {self.ctrl_dt} s")
         set_("observe_arm", boolean("observe_arm", self.observe_arm))
         set_("observe_error_rate", boolean("observe_error_rate", self.observe_error_rate))
-        if self.error_rate_scale not in ERROR_RATE_SCALES:
-            raise invalid("error_rate_scale", self.error_rate_scale, f"one of {ERROR_RATE_SCALES}")
-        if self.error_rate_scale != "fixed" and not self.observe_error_rate:
+        if self.error_rate_units not in ERROR_RATE_UNITS:
+            raise invalid("error_rate_units", self.error_rate_units, f"one of {ERROR_RATE_UNITS}")
+        if self.error_rate_units != "rad/s" and not self.observe_error_rate:
             raise invalid(
-                "error_rate_scale", self.error_rate_scale, "'fixed' unless observe_error_rate"
+                "error_rate_units", self.error_rate_units, "'rad/s' unless observe_error_rate"
             )
         set_("observe_force_limit", boolean("observe_force_limit", self.observe_force_limit))
         if self.observe_arm and self.feature_ranges is None:
@@ -279,7 +286,7 @@ class EnvConfig:
         # A slow or constant reference needs almost no force, but feedback still does: "auto"
         # never falls below the need of AUTO_FLOOR's motion about the same bias (last entry).
         refs.append(Reference(bias_deg=self.reference.bias_deg, **AUTO_FLOOR))
-        per_ref, torque_per_newton = _physics(
+        per_ref, torque_per_newton, inertia = _physics(
             self.mechanism.replace(max_tendon_force=1.0), tuple(refs)
         )
         torque = np.max([t for _, t, _, _ in per_ref], axis=0)
@@ -306,8 +313,13 @@ class EnvConfig:
                 stacklevel=3,
             )
         force = self.mechanism.max_tendon_force
-        authority = self.ctrl_dt * force * torque_per_newton * inverse_inertia
+        max_torque = force * torque_per_newton
+        authority = self.ctrl_dt * max_torque * inverse_inertia
         object.__setattr__(self, "control_authority", (float(authority[0]), float(authority[1])))
+        with np.errstate(divide="ignore"):  # a joint no tendon spans: no action moves it
+            rate = inertia / (self.ctrl_dt * max_torque[:, None])
+        rate = tuple(tuple(float(x) for x in row) for row in rate)
+        object.__setattr__(self, "rate_to_action", rate)
 
     # -- random arms ---------------------------------------------------------------------------
     def draw_arm(self, rng: np.random.Generator, reference: Reference | None = None) -> EnvConfig:
@@ -502,6 +514,7 @@ COMPUTED = (
     "torque_need",
     "torque_rate_need",
     "control_authority",
+    "rate_to_action",
     "base_mechanism",
 )
 
@@ -514,12 +527,13 @@ def arguments() -> list[str]:
 @lru_cache(maxsize=64)
 def _physics(
     mech: Mechanism, refs: tuple[Reference, ...]
-) -> tuple[tuple[tuple[float, np.ndarray, np.ndarray, np.ndarray], ...], np.ndarray]:
+) -> tuple[tuple[tuple[float, np.ndarray, np.ndarray, np.ndarray], ...], np.ndarray, np.ndarray]:
     """Checks that MuJoCo compiles ``mech`` and that the integrator can integrate it; returns,
     from the nominal model (no stretch, lag or friction: inverse dynamics of the arm), for
     each reference its force need (N), each joint's torque need (N m), torque-rate need (N m /
-    s) and peak (M^-1)_jj (1 / (kg m^2)); and each joint's torque per newton of force limit
-    (N m / N, max_joint_torque at q = 0)."""
+    s) and peak (M^-1)_jj (1 / (kg m^2)); each joint's torque per newton of force limit (N m /
+    N, max_joint_torque at q = 0); and the inertia M (kg m^2, 2 x 2) at the first reference's
+    bias."""
     model = build_model(mech)
     if mech.realistic:
         model = build_model(mech.ideal())
@@ -537,7 +551,12 @@ def _physics(
         )
     data = mujoco.MjData(model)
     mujoco.mj_fwdPosition(model, data)  # q = 0
-    return tuple(out), max_joint_torque(MomentArms(model, data).dense(), 1.0)
+    unit_torque = max_joint_torque(MomentArms(model, data).dense(), 1.0)
+    data.qpos[:2] = refs[0].bias_rad
+    mujoco.mj_fwdPosition(model, data)
+    inertia = np.zeros((model.nv, model.nv))
+    mujoco.mj_fullM(model, data, inertia)
+    return tuple(out), unit_torque, inertia[:2, :2]
 
 
 assert set(SECTIONS) <= set(arguments())

@@ -86,10 +86,11 @@ TERMS: dict[str, tuple[float, str]] = {
 }
 REWARD_SCALES: dict[str, float] = {name: weight for name, (weight, _) in TERMS.items()}
 TRACKING_FORMS = ("quadratic", "log", "multiscale")
-#: What ``error_rate_log`` is linear below (EnvConfig.error_rate_scale): "fixed", the same
-#: ERROR_RATE_LOG_SCALE on every arm; "authority", AUTHORITY_FRACTION of each joint's
-#: control_authority.
-ERROR_RATE_SCALES = ("fixed", "authority")
+#: What ``error_rate_log`` log-scales (EnvConfig.error_rate_units): "rad/s", the error's rate
+#: (linear below ERROR_RATE_LOG_SCALE); "action", the normalized joint torques that cancel it
+#: in one control step on the episode's arm (EnvConfig.rate_to_action; linear below
+#: ACTION_LOG_SCALE).
+ERROR_RATE_UNITS = ("rad/s", "action")
 #: Error scales of the "multiscale" tracking reward, as multiples of tracking_sigma_deg: one
 #: log kernel per decade, so that its gradient stays useful from tens of degrees down to
 #: 0.01 deg (the "log" form alone is flat below about sigma / 10).
@@ -127,23 +128,20 @@ def reference_params(ref: Reference) -> tuple[float, ...]:
 
 
 #: The number of leading :func:`arm_params` that the observation reads but does not hold.
-N_ARM_PARAMS = 5
+N_ARM_PARAMS = 7
 
 
 def arm_params(arm: EnvConfig, observed: EnvConfig) -> tuple[float, ...]:
     """Returns the per-arm numbers :meth:`Task.observation` reads: the link lengths (a, b, c)
-    of the episode's arm config ``arm`` and error_rate_log's scale of each joint (rad/s,
-    EnvConfig.error_rate_scale), then the observation's last per-arm entries if the env's
-    config ``observed`` holds them: ``force_limit_log``, ln of the arm's force limit (N), and
-    the arm's features over its ranges."""
+    of the episode's arm config ``arm`` and its EnvConfig.rate_to_action (row by row), then
+    the observation's last per-arm entries if the env's config ``observed`` holds them:
+    ``force_limit_log``, ln of the arm's force limit (N), and the arm's features over its
+    ranges."""
     mech = arm.mechanism
-    if observed.error_rate_scale == "authority":
-        rate_scale = [L.AUTHORITY_FRACTION * x for x in arm.control_authority]
-    else:
-        rate_scale = [L.ERROR_RATE_LOG_SCALE] * 2
+    (r00, r01), (r10, r11) = arm.rate_to_action
     force = [math.log(mech.max_tendon_force)] if observed.observe_force_limit else []
     features = observed.feature_ranges.features(arm) if observed.observe_arm else []
-    return (mech.a, mech.b, mech.c, *rate_scale, *force, *features)
+    return (mech.a, mech.b, mech.c, r00, r01, r10, r11, *force, *features)
 
 
 def rewards_table() -> str:
@@ -324,9 +322,15 @@ class Task:
         self, ops: Ops, w1: Any, w2: Any, dqd1: Any, dqd2: Any, arm: Sequence[Any]
     ) -> list[Any]:
         """Returns ``error_rate_log`` (observe_error_rate) from the joint speeds and the
-        reference's: sign(de_j) log(1 + |de_j| / s_j), de = dq_des - dq, with each joint's
-        scale s_j from :func:`arm_params` (EnvConfig.error_rate_scale)."""
-        return [signed_log(ops, dqd1 - w1, arm[3]), signed_log(ops, dqd2 - w2, arm[4])]
+        reference's: sign(x) log(1 + |x| / s) of x = de = dq_des - dq (rad/s, s =
+        ERROR_RATE_LOG_SCALE) or, with error_rate_units "action", of x = rate_to_action de
+        (:func:`arm_params`; s = ACTION_LOG_SCALE)."""
+        de1, de2 = dqd1 - w1, dqd2 - w2
+        if self.config.error_rate_units == "rad/s":
+            scale = L.ERROR_RATE_LOG_SCALE
+            return [signed_log(ops, de1, scale), signed_log(ops, de2, scale)]
+        x1, x2 = arm[3] * de1 + arm[4] * de2, arm[5] * de1 + arm[6] * de2
+        return [signed_log(ops, x1, L.ACTION_LOG_SCALE), signed_log(ops, x2, L.ACTION_LOG_SCALE)]
 
     # -- action ----------------------------------------------------------------------------------
     def rest_command(self, arm: EnvConfig) -> list[float]:

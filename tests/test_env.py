@@ -531,26 +531,45 @@ def test_control_authority_is_the_speed_a_full_joint_torque_adds_in_one_step():
     assert np.all(peak >= authority * 0.9), (peak, authority)
 
 
-def test_error_rate_scale_authority_scales_each_joint_by_its_authority():
-    """error_rate_scale 'authority': error_rate_log is sign(de) log(1 + |de| / s_j) with s_j =
-    AUTHORITY_FRACTION x the episode arm's control_authority_j, every other entry as with
-    the fixed scale; bad values and the scale without observe_error_rate are refused, named."""
+def test_rate_to_action_is_the_action_that_changes_the_speeds_in_one_step():
+    """EnvConfig.rate_to_action against the compiled model: from rest at the reference's bias,
+    a small joint-torque action a changes the joints' speeds by dq in one control step, and
+    rate_to_action dq gives a back (each joint's action moves the other's speed too)."""
+    import mujoco
+
+    env = Tendon2REnv(action_mode="joint_torque")
+    env.reset(seed=0)
+    model, data = env.model, env.data
+    rate_to_action = np.array(env.config.rate_to_action)
+    for a in ([0.2, 0.0], [0.0, 0.2], [-0.1, 0.15]):
+        speeds = []
+        for action in (np.zeros(2), np.array(a)):
+            mujoco.mj_resetData(model, data)
+            data.qpos[:2] = env.config.reference.bias_rad
+            env.step(action.astype(np.float32))
+            speeds.append(data.qvel[:2].copy())
+        np.testing.assert_allclose(rate_to_action @ (speeds[1] - speeds[0]), a, atol=2e-3)
+
+
+def test_error_rate_units_action_log_scales_the_action_that_cancels_the_rate():
+    """error_rate_units 'action': error_rate_log is sign(x) log(1 + |x| / ACTION_LOG_SCALE) of
+    x = rate_to_action (dq_des - dq) of the episode's arm, every other entry as in rad/s; bad
+    values, and the units without observe_error_rate, are refused, naming the field."""
     kw = {"preset": "generalist", "observe_error_rate": True, "action_mode": "joint_torque"}
-    fixed, env = Tendon2REnv(**kw), Tendon2REnv(**kw, error_rate_scale="authority")
-    assert fixed.config.observation_layout() == env.config.observation_layout()
-    fixed.reset(seed=4)
+    plain, env = Tendon2REnv(**kw), Tendon2REnv(**kw, error_rate_units="action")
+    assert plain.config.observation_layout() == env.config.observation_layout()
+    plain.reset(seed=4)
     env.reset(seed=4)
     for a in ([0.3, -0.2], [-0.1, 0.5]):
-        obs, fixed_obs = env.step(np.array(a))[0], fixed.step(np.array(a))[0]
+        obs, plain_obs = env.step(np.array(a))[0], plain.step(np.array(a))[0]
     where = L.error_rate_slice(3, 2)
-    np.testing.assert_array_equal(np.delete(obs, np.r_[where]), np.delete(fixed_obs, np.r_[where]))
+    np.testing.assert_array_equal(np.delete(obs, np.r_[where]), np.delete(plain_obs, np.r_[where]))
     arm = env.arm
-    assert arm.control_authority != env.config.control_authority  # the drawn arm's own
-    scale = L.AUTHORITY_FRACTION * np.array(arm.control_authority)
-    de = env.reference.qdot(env.data.time) - obs[L.DQ]
-    expected = np.sign(de) * np.log1p(np.abs(de) / scale)
+    assert arm.rate_to_action != env.config.rate_to_action  # the drawn arm's own
+    x = np.array(arm.rate_to_action) @ (env.reference.qdot(env.data.time) - obs[L.DQ])
+    expected = np.sign(x) * np.log1p(np.abs(x) / L.ACTION_LOG_SCALE)
     np.testing.assert_allclose(obs[where], expected, rtol=1e-12)
-    with pytest.raises(ValueError, match=r"error_rate_scale = 'arm' .*'fixed', 'authority'"):
-        gym.make("Tendon2R-v0", observe_error_rate=True, error_rate_scale="arm")
-    with pytest.raises(ValueError, match=r"error_rate_scale = 'authority' .*observe_error_rate"):
-        gym.make("Tendon2R-v0", error_rate_scale="authority")
+    with pytest.raises(ValueError, match=r"error_rate_units = 'deg/s' .*'rad/s', 'action'"):
+        gym.make("Tendon2R-v0", observe_error_rate=True, error_rate_units="deg/s")
+    with pytest.raises(ValueError, match=r"error_rate_units = 'action' .*observe_error_rate"):
+        gym.make("Tendon2R-v0", error_rate_units="action")

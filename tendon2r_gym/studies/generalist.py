@@ -82,6 +82,7 @@ ABLATIONS = (
     "generalist_need",
     "generalist_caps",
     "generalist_rate_need",
+    "generalist_action_units",
     "generalist_rate1",
     "generalist_coarse",
     "generalist_unscaled",
@@ -284,12 +285,12 @@ def arm_seen_by(model_path: Path) -> str:
 def optional_entries(model_path: Path) -> str:
     """Returns the optional observation entries (tendon2r_gym.observation.OPTIONAL) a bundled
     model observed, as its run recorded its layout ("none" without any), error_rate_log with
-    its scale where that is per joint's authority (error_rate_scale)."""
+    in action units where it was (error_rate_units)."""
     recorded = training_record(model_path)["env_config"]
     names = {name for name, _ in recorded["observation"]}
-    per_authority = recorded.get("error_rate_scale", EnvConfig.error_rate_scale) == "authority"
+    units = recorded.get("error_rate_units", EnvConfig.error_rate_units)
     shown = [
-        f"{n} (per authority)" if n == ERROR_RATE[0] and per_authority else n
+        f"{n} (in action units)" if n == ERROR_RATE[0] and units == "action" else n
         for n, *_ in OPTIONAL
         if n in names
     ]
@@ -485,6 +486,8 @@ def write(result: dict[str, Any], out: Path) -> None:
         "generalist_caps, the generalist trained with CAPS's smoothness terms; "
         "generalist_rate_need, the generalist with its action rate also charged in multiples "
         "of the rate its arm's reference needs (action_rate_need); "
+        "generalist_action_units, the generalist observing its error rate as the actions "
+        "that cancel it in one control step (error_rate_units action); "
         "generalist_rate1, the generalist with action-rate weight 1; generalist_coarse, that "
         "on the registered sigma (1 deg), and generalist_unscaled, that without the error's "
         "rate and the force limit (the generalist before them); generalist_unfiltered, "
