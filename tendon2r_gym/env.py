@@ -194,6 +194,9 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         reward); "log" and "quadratic" stay options.
       - the optional ``observe_error_rate`` and ``observe_force_limit`` (off by default: the
         registered observation and results are unchanged).
+      - the optional ``action_rate_need`` reward term (weight 0 by default) and
+        ``error_rate_units="action"`` (default "rad/s"): the registered reward, observation
+        and results are unchanged.
     """  # noqa: E501
 
     metadata = {"render_modes": ["human", "rgb_array", "depth_array"]}
