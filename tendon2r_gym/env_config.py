@@ -597,8 +597,8 @@ def inverse_dynamics_grid(
     theta = np.linspace(0.0, 2.0 * np.pi, grid, endpoint=False)
     s = np.stack(np.meshgrid(np.sin(theta), np.sin(theta), indexing="ij"), -1).reshape(-1, 2)
     c = np.stack(np.meshgrid(np.cos(theta), np.cos(theta), indexing="ij"), -1).reshape(-1, 2)
-    J, tau, inverse_inertia = [], [], []
-    M = np.zeros((model.nv, model.nv))
+    J, tau = [], []
+    M = np.zeros((len(references) * len(s), model.nv, model.nv))
     for ref in references:
         amp, bias, w = ref.amp_rad, ref.bias_rad, ref.omega_array
         for q, dq, ddq in zip(bias + amp * s, amp * w * c, -amp * w * w * s, strict=True):
@@ -606,9 +606,9 @@ def inverse_dynamics_grid(
             mujoco.mj_inverse(model, data)
             J.append(arms.dense().copy())
             tau.append(data.qfrc_inverse.copy())
-            mujoco.mj_fullM(model, data, M)
-            inverse_inertia.append(np.diag(np.linalg.inv(M))[:2])
-    return np.array(J), np.array(tau), np.array(inverse_inertia)
+            mujoco.mj_fullM(model, data, M[len(tau) - 1])
+    inverse_inertia = np.diagonal(np.linalg.inv(M), axis1=1, axis2=2)[:, :2]
+    return np.array(J), np.array(tau), inverse_inertia
 
 
 def torque_rate(tau: np.ndarray, ref: Reference) -> np.ndarray:
