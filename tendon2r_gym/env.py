@@ -133,7 +133,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     | `preview_steps` | `3` | number of future reference samples observed |
     | `preview_dt` | `0.01` | spacing of the future reference samples (s) |
     | `observe_error_rate` | `False` | observe the tracking error's rate, log-scaled (``error_rate_log``) |
-    | `error_rate_units` | `"rad/s"` | what error_rate_log log-scales: the error's rate (``"rad/s"``) or the normalized joint torques that cancel it in one control step (``"action"``, ``rate_to_action``) |
+    | `error_units` | `"rad"` | what error_log and error_rate_log log-scale: the error and its rate (``"rad"``), or the normalized joint torques that close the error and cancel its rate on the arm (``"action"``, ``rate_to_action``) |
     | `observe_force_limit` | `False` | observe ln of the arm's force limit, the actions' scale (``force_limit_log``) |
     | `observation_noise` | `(0.0, 0.0)` | std of the measured angles (rad) and speeds (rad/s) |
     | `observation_delay` | `0.0` | age of the measurements (s), a multiple of ctrl_dt |
@@ -195,7 +195,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
       - the optional ``observe_error_rate`` and ``observe_force_limit`` (off by default: the
         registered observation and results are unchanged).
       - the optional ``action_rate_need`` reward term (weight 0 by default) and
-        ``error_rate_units="action"`` (default "rad/s"): the registered reward, observation
+        ``error_units="action"`` (default "rad"): the registered reward, observation
         and results are unchanged.
     """  # noqa: E501
 

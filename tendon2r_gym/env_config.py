@@ -39,7 +39,7 @@ from tendon2r_gym.model import build_model
 from tendon2r_gym.presets import SECTIONS, load_preset, merge_env_kwargs
 from tendon2r_gym.reference import Reference, ReferenceRanges
 from tendon2r_gym.stability import check_stability
-from tendon2r_gym.task import ERROR_RATE_UNITS, REWARD_SCALES, TRACKING_FORMS
+from tendon2r_gym.task import ERROR_UNITS, REWARD_SCALES, TRACKING_FORMS
 from tendon2r_gym.validation import boolean, check_keys, integer, invalid, mapping, number
 
 #: ``max_tendon_force: auto`` is this many times the peak force that inverse dynamics of the
@@ -85,11 +85,11 @@ class EnvConfig:
     preview_dt: float = 0.01
     #: Observe the tracking error's rate, log-scaled (``error_rate_log``, after last_action).
     observe_error_rate: bool = False
-    #: What error_rate_log log-scales (tendon2r_gym.task.ERROR_RATE_UNITS): "rad/s", the
-    #: error's rate; "action", the normalized joint torques that cancel it in one control
-    #: step on the episode's arm (rate_to_action), so that a policy's gain on it moves the
-    #: joints' speeds alike on every arm.
-    error_rate_units: str = "rad/s"
+    #: What error_log and error_rate_log log-scale (tendon2r_gym.task.ERROR_UNITS): "rad", the
+    #: tracking error and its rate; "action", the normalized joint torques that close the
+    #: error and cancel its rate on the episode's arm (rate_to_action), so that a policy's
+    #: gains on them move the joints alike on every arm.
+    error_units: str = "rad"
     #: Observe ln of the force limit max_tendon_force (``force_limit_log``, after
     #: error_rate_log): a normalized action's scale, which ``auto`` sizes per arm.
     observe_force_limit: bool = False
@@ -120,7 +120,7 @@ class EnvConfig:
     control_authority: tuple[float, float] = field(default=(math.nan, math.nan), compare=False)
     #: The normalized joint-torque actions that change the joints' speeds by dq (rad/s) in
     #: one control step, diag(1 / max_torque) M(q) / ctrl_dt, as a 2 x 2 matrix (rows: the
-    #: actions) at the reference's bias: the unit of ``error_rate_units: action``.  Each
+    #: actions) at the reference's bias: the unit of ``error_units: action``.  Each
     #: joint's action moves the other's speed too, on some arms several times its own; in
     #: these units a policy's gain acts alike on every arm.  Computed, not an argument.
     rate_to_action: tuple[tuple[float, float], tuple[float, float]] = field(
@@ -227,12 +227,8 @@ class EnvConfig:
                 raise invalid(name, value, f"a multiple of ctrl_dt = {self.ctrl_dt} s")
         set_("observe_arm", boolean("observe_arm", self.observe_arm))
         set_("observe_error_rate", boolean("observe_error_rate", self.observe_error_rate))
-        if self.error_rate_units not in ERROR_RATE_UNITS:
-            raise invalid("error_rate_units", self.error_rate_units, f"one of {ERROR_RATE_UNITS}")
-        if self.error_rate_units != "rad/s" and not self.observe_error_rate:
-            raise invalid(
-                "error_rate_units", self.error_rate_units, "'rad/s' unless observe_error_rate"
-            )
+        if self.error_units not in ERROR_UNITS:
+            raise invalid("error_units", self.error_units, f"one of {ERROR_UNITS}")
         set_("observe_force_limit", boolean("observe_force_limit", self.observe_force_limit))
         if self.observe_arm and self.feature_ranges is None:
             raise invalid(

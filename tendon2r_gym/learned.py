@@ -53,7 +53,7 @@ MODEL_SETTINGS = (
     "preview_steps",
     "preview_dt",
     "observe_error_rate",
-    "error_rate_units",
+    "error_units",
     "observe_force_limit",
 )
 #: Env config fields a trained model depends on: what it observes, what its actions mean and

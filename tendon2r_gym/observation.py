@@ -44,9 +44,10 @@ ERROR_RATE = ("error_rate_log", 2, "1")
 #: scale, is the most gain a policy gets on a small error rate: at 1e-3 and 1e-2 rad/s plain
 #: PPO tracked as precisely, but its tensions chattered at the control rate.
 ERROR_RATE_LOG_SCALE = 0.1
-#: With ``error_rate_units: action``, error_rate_log log-scales the action that cancels the
-#: error's rate in one control step (EnvConfig.rate_to_action), linear below this fraction
-#: of a full action.
+#: With ``error_units: action``, error_log and error_rate_log log-scale normalized joint
+#: torques (EnvConfig.rate_to_action): those that give the joints, in one control step, the
+#: speed that closes the error in one more, and those that cancel the error's rate; linear
+#: below this fraction of a full action.
 ACTION_LOG_SCALE = 0.1
 
 #: The optional entry of ``observe_force_limit`` (name, size, unit): ln(F / 1 N) of the arm's
@@ -167,9 +168,9 @@ def table(preview_steps_name: str = "P") -> str:
     rows.append(
         "| (observe_error_rate only) the next 2 | the tracking error's rate dq_des - dq, "
         f"log-scaled as error_log (``{ERROR_RATE[0]}``, linear below "
-        f"{ERROR_RATE_LOG_SCALE:g} rad/s; with error_rate_units 'action', of the normalized "
-        "joint torques that cancel it in one control step, rate_to_action (dq_des - dq), "
-        f"linear below {ACTION_LOG_SCALE:g}) | {ERROR_RATE[2]} |"
+        f"{ERROR_RATE_LOG_SCALE:g} rad/s; with error_units 'action', as error_log of the "
+        "normalized joint torques that cancel it in one control step, rate_to_action "
+        f"(dq_des - dq), linear below {ACTION_LOG_SCALE:g}) | {ERROR_RATE[2]} |"
     )
     rows.append(
         f"| (observe_force_limit only) the next 1 | ln of the arm's force limit "

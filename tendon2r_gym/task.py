@@ -86,11 +86,12 @@ TERMS: dict[str, tuple[float, str]] = {
 }
 REWARD_SCALES: dict[str, float] = {name: weight for name, (weight, _) in TERMS.items()}
 TRACKING_FORMS = ("quadratic", "log", "multiscale")
-#: What ``error_rate_log`` log-scales (EnvConfig.error_rate_units): "rad/s", the error's rate
-#: (linear below ERROR_RATE_LOG_SCALE); "action", the normalized joint torques that cancel it
-#: in one control step on the episode's arm (EnvConfig.rate_to_action; linear below
-#: ACTION_LOG_SCALE).
-ERROR_RATE_UNITS = ("rad/s", "action")
+#: What ``error_log`` and ``error_rate_log`` log-scale (EnvConfig.error_units): "rad", the
+#: tracking error (rad) and its rate (rad/s), linear below ERROR_LOG_SCALE and
+#: ERROR_RATE_LOG_SCALE; "action", the normalized joint torques that, in one control step on
+#: the episode's arm (EnvConfig.rate_to_action), give the joints the speed that closes the
+#: error in one more step, and cancel its rate; both linear below ACTION_LOG_SCALE.
+ERROR_UNITS = ("rad", "action")
 #: Error scales of the "multiscale" tracking reward, as multiples of tracking_sigma_deg: one
 #: log kernel per decade, so that its gradient stays useful from tens of degrees down to
 #: 0.01 deg (the "log" form alone is flat below about sigma / 10).
@@ -308,11 +309,9 @@ class Task:
         c12, s12 = cos(q12), sin(q12)
         w12 = w1 + w2
         e1, e2 = qd1 - q1, qd2 - q2
-        scale = L.ERROR_LOG_SCALE
         rest = [
             e1, e2,
-            signed_log(ops, e1, scale),
-            signed_log(ops, e2, scale),
+            *self._log_entries(ops, e1, e2, L.ERROR_LOG_SCALE, arm, self.config.ctrl_dt),
             a + c * c1 + b * c12, c * s1 + b * s12,  # effector x, z
             -c * s1 * w1 - b * s12 * w12, c * c1 * w1 + b * c12 * w12,  # effector velocity
         ]  # fmt: skip
@@ -322,15 +321,21 @@ class Task:
         self, ops: Ops, w1: Any, w2: Any, dqd1: Any, dqd2: Any, arm: Sequence[Any]
     ) -> list[Any]:
         """Returns ``error_rate_log`` (observe_error_rate) from the joint speeds and the
-        reference's: sign(x) log(1 + |x| / s) of x = de = dq_des - dq (rad/s, s =
-        ERROR_RATE_LOG_SCALE) or, with error_rate_units "action", of x = rate_to_action de
-        (:func:`arm_params`; s = ACTION_LOG_SCALE)."""
-        de1, de2 = dqd1 - w1, dqd2 - w2
-        if self.config.error_rate_units == "rad/s":
-            scale = L.ERROR_RATE_LOG_SCALE
-            return [signed_log(ops, de1, scale), signed_log(ops, de2, scale)]
-        x1, x2 = arm[3] * de1 + arm[4] * de2, arm[5] * de1 + arm[6] * de2
-        return [signed_log(ops, x1, L.ACTION_LOG_SCALE), signed_log(ops, x2, L.ACTION_LOG_SCALE)]
+        reference's: :meth:`_log_entries` of de = dq_des - dq."""
+        return self._log_entries(ops, dqd1 - w1, dqd2 - w2, L.ERROR_RATE_LOG_SCALE, arm)
+
+    def _log_entries(
+        self, ops: Ops, x1: Any, x2: Any, scale: float, arm: Sequence[Any], per: float = 1.0
+    ) -> list[Any]:
+        """Returns sign(y) log(1 + |y| / s) of each joint's y: with error_units "rad", y = x
+        and s = ``scale``; with "action", y = rate_to_action (x / per) (:func:`arm_params`), the
+        normalized joint torques that change the joints' speeds by x / per in one control step,
+        and s = ACTION_LOG_SCALE."""
+        if self.config.error_units == "rad":
+            return [signed_log(ops, x1, scale), signed_log(ops, x2, scale)]
+        v1, v2 = x1 / per, x2 / per
+        y1, y2 = arm[3] * v1 + arm[4] * v2, arm[5] * v1 + arm[6] * v2
+        return [signed_log(ops, y1, L.ACTION_LOG_SCALE), signed_log(ops, y2, L.ACTION_LOG_SCALE)]
 
     # -- action ----------------------------------------------------------------------------------
     def rest_command(self, arm: EnvConfig) -> list[float]:

@@ -551,25 +551,26 @@ def test_rate_to_action_is_the_action_that_changes_the_speeds_in_one_step():
         np.testing.assert_allclose(rate_to_action @ (speeds[1] - speeds[0]), a, atol=2e-3)
 
 
-def test_error_rate_units_action_log_scales_the_action_that_cancels_the_rate():
-    """error_rate_units 'action': error_rate_log is sign(x) log(1 + |x| / ACTION_LOG_SCALE) of
-    x = rate_to_action (dq_des - dq) of the episode's arm, every other entry as in rad/s; bad
-    values, and the units without observe_error_rate, are refused, naming the field."""
+def test_error_units_action_log_scale_the_actions_that_close_the_error_and_its_rate():
+    """error_units 'action': error_log and error_rate_log are sign(y) log(1 + |y| /
+    ACTION_LOG_SCALE) of y = rate_to_action (e / ctrl_dt) and y = rate_to_action (dq_des - dq)
+    of the episode's arm, every other entry as in rad; a bad value is refused, named."""
     kw = {"preset": "generalist", "observe_error_rate": True, "action_mode": "joint_torque"}
-    plain, env = Tendon2REnv(**kw), Tendon2REnv(**kw, error_rate_units="action")
+    plain, env = Tendon2REnv(**kw), Tendon2REnv(**kw, error_units="action")
     assert plain.config.observation_layout() == env.config.observation_layout()
     plain.reset(seed=4)
     env.reset(seed=4)
     for a in ([0.3, -0.2], [-0.1, 0.5]):
         obs, plain_obs = env.step(np.array(a))[0], plain.step(np.array(a))[0]
-    where = L.error_rate_slice(3, 2)
-    np.testing.assert_array_equal(np.delete(obs, np.r_[where]), np.delete(plain_obs, np.r_[where]))
+    logged = np.r_[L.ERROR_LOG, L.error_rate_slice(3, 2)]
+    np.testing.assert_array_equal(np.delete(obs, logged), np.delete(plain_obs, logged))
     arm = env.arm
     assert arm.rate_to_action != env.config.rate_to_action  # the drawn arm's own
-    x = np.array(arm.rate_to_action) @ (env.reference.qdot(env.data.time) - obs[L.DQ])
-    expected = np.sign(x) * np.log1p(np.abs(x) / L.ACTION_LOG_SCALE)
-    np.testing.assert_allclose(obs[where], expected, rtol=1e-12)
-    with pytest.raises(ValueError, match=r"error_rate_units = 'deg/s' .*'rad/s', 'action'"):
-        gym.make("Tendon2R-v0", observe_error_rate=True, error_rate_units="deg/s")
-    with pytest.raises(ValueError, match=r"error_rate_units = 'action' .*observe_error_rate"):
-        gym.make("Tendon2R-v0", error_rate_units="action")
+    rate_to_action = np.array(arm.rate_to_action)
+    de = env.reference.qdot(env.data.time) - obs[L.DQ]
+    for where, y in ((L.ERROR_LOG, rate_to_action @ (obs[L.ERROR] / arm.ctrl_dt)),
+                     (L.error_rate_slice(3, 2), rate_to_action @ de)):  # fmt: skip
+        expected = np.sign(y) * np.log1p(np.abs(y) / L.ACTION_LOG_SCALE)
+        np.testing.assert_allclose(obs[where], expected, rtol=1e-12)
+    with pytest.raises(ValueError, match=r"error_units = 'deg' .*'rad', 'action'"):
+        gym.make("Tendon2R-v0", error_units="deg")

@@ -372,7 +372,7 @@ def test_generalist_ablation_reads_action_mode_and_network_from_each_run():
     evaluation episodes and optional observation entries come from each bundle's run record:
     what its configs/ppo.yaml entry trained it with."""
     from tendon2r_gym.bundle import bundle_names
-    from tendon2r_gym.observation import ERROR_RATE, OPTIONAL
+    from tendon2r_gym.observation import OPTIONAL
     from tendon2r_gym.studies import generalist
     from tendon2r_gym.training import Hyperparams
 
@@ -397,12 +397,9 @@ def test_generalist_ablation_reads_action_mode_and_network_from_each_run():
             if caps.active
             else "none"
         ), name
-        units = hp.env_kwargs.get("error_rate_units", "rad/s")
-        flags = [
-            f"{e[0]} (in action units)" if e == ERROR_RATE and units == "action" else e[0]
-            for e, flag in OPTIONAL.items()
-            if hp.env_kwargs.get(flag)
-        ]
+        flags = [e[0] for e, flag in OPTIONAL.items() if hp.env_kwargs.get(flag)]
+        if hp.env_kwargs.get("error_units") == "action":
+            flags.append("errors in action units")
         assert table[name]["observes"] == (", ".join(flags) or "none"), name
     assert generalist._rate("lin_3.0e-4") == "0.0003, linear to 0"
     assert generalist._rate(3.0e-4) == "0.0003"

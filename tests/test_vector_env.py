@@ -51,7 +51,7 @@ def _native(n, **kw):
      (3, 1, {"action_mode": "joint_torque", "reference_ranges": RANGES,
              "reward_scales": {"action_rate_need": 1.0}}),
      (3, 1, {"preset": "generalist", "action_mode": "joint_torque", "observe_error_rate": True,
-             "error_rate_units": "action", "observation_noise": [0, 0.1]}),
+             "error_units": "action", "observation_noise": [0, 0.1]}),
      (3, 1, {"preset": "pull_only", "mechanism": REAL, "mechanism_ranges": ARMS}),
      (4, 1, {"preset": "real_arm", "mechanism_ranges": "real_arm", "observe_arm": True}),
      (3, 1, {"preset": "real_arm", "mechanism_ranges": GAINS, "observe_arm": True})],

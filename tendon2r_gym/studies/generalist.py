@@ -53,7 +53,7 @@ from tendon2r_gym.metrics import (
     smoothness_x_pd,
     worst_ratio,
 )
-from tendon2r_gym.observation import ERROR_RATE, OPTIONAL, layout_mask
+from tendon2r_gym.observation import OPTIONAL, layout_mask
 from tendon2r_gym.presets import load_yaml, preset_path
 from tendon2r_gym.runs import RunFolder, command_line, stem_of, training_record, training_summary
 from tendon2r_gym.studies import joints, save_json
@@ -285,15 +285,12 @@ def arm_seen_by(model_path: Path) -> str:
 def optional_entries(model_path: Path) -> str:
     """Returns the optional observation entries (tendon2r_gym.observation.OPTIONAL) a bundled
     model observed, as its run recorded its layout ("none" without any), error_rate_log with
-    in action units where it was (error_rate_units)."""
+    and "errors in action units" where the errors were (error_units)."""
     recorded = training_record(model_path)["env_config"]
     names = {name for name, _ in recorded["observation"]}
-    units = recorded.get("error_rate_units", EnvConfig.error_rate_units)
-    shown = [
-        f"{n} (in action units)" if n == ERROR_RATE[0] and units == "action" else n
-        for n, *_ in OPTIONAL
-        if n in names
-    ]
+    shown = [n for n, *_ in OPTIONAL if n in names]
+    if recorded.get("error_units", EnvConfig.error_units) == "action":
+        shown.append("errors in action units")
     return ", ".join(shown) or "none"
 
 
@@ -486,8 +483,8 @@ def write(result: dict[str, Any], out: Path) -> None:
         "generalist_caps, the generalist trained with CAPS's smoothness terms; "
         "generalist_rate_need, the generalist with its action rate also charged in multiples "
         "of the rate its arm's reference needs (action_rate_need); "
-        "generalist_action_units, the generalist observing its error rate as the actions "
-        "that cancel it in one control step (error_rate_units action); "
+        "generalist_action_units, the generalist observing its error and error rate as the "
+        "actions that close and cancel them in one control step (error_units action); "
         "generalist_rate1, the generalist with action-rate weight 1; generalist_coarse, that "
         "on the registered sigma (1 deg), and generalist_unscaled, that without the error's "
         "rate and the force limit (the generalist before them); generalist_unfiltered, "
