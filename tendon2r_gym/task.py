@@ -128,8 +128,10 @@ def reference_params(ref: Reference) -> tuple[float, ...]:
     )
 
 
-#: The number of leading :func:`arm_params` that the observation reads but does not hold.
-N_ARM_PARAMS = 7
+#: Where :func:`arm_params` holds the link lengths (a, b, c) and EnvConfig.rate_to_action
+#: (row by row), which the observation reads but does not hold; its observed entries follow.
+LINKS, RATE_TO_ACTION = slice(0, 3), slice(3, 7)
+N_ARM_PARAMS = RATE_TO_ACTION.stop
 
 
 def arm_params(arm: EnvConfig, observed: EnvConfig) -> tuple[float, ...]:
@@ -302,7 +304,7 @@ class Task:
         speeds, the reference q_des and :func:`arm_params` (tendon2r_gym.observation.STATE
         gives their slices).  With sensors, the envs rewrite these of the measured observation
         with the true state for the reward and info."""
-        a, b, c = arm[0], arm[1], arm[2]
+        a, b, c = arm[LINKS]
         sin, cos = ops.sin, ops.cos
         c1, s1 = cos(q1), sin(q1)
         q12 = q1 + q2
@@ -333,8 +335,9 @@ class Task:
         and s = ACTION_LOG_SCALE."""
         if self.config.error_units == "rad":
             return [signed_log(ops, x1, scale), signed_log(ops, x2, scale)]
+        r00, r01, r10, r11 = arm[RATE_TO_ACTION]
         v1, v2 = x1 / per, x2 / per
-        y1, y2 = arm[3] * v1 + arm[4] * v2, arm[5] * v1 + arm[6] * v2
+        y1, y2 = r00 * v1 + r01 * v2, r10 * v1 + r11 * v2
         return [signed_log(ops, y1, L.ACTION_LOG_SCALE), signed_log(ops, y2, L.ACTION_LOG_SCALE)]
 
     # -- action ----------------------------------------------------------------------------------
