@@ -313,9 +313,13 @@ class EnvConfig:
         authority = self.ctrl_dt * max_torque * inverse_inertia
         object.__setattr__(self, "control_authority", (float(authority[0]), float(authority[1])))
         with np.errstate(divide="ignore"):  # a joint no tendon spans: no action moves it
-            rate = inertia / (self.ctrl_dt * max_torque[:, None])
-        rate = tuple(tuple(float(x) for x in row) for row in rate)
-        object.__setattr__(self, "rate_to_action", rate)
+            to_action = inertia / (self.ctrl_dt * max_torque[:, None])
+        if self.error_units == "action" and not np.all(np.isfinite(to_action)):
+            raise invalid(
+                "error_units", self.error_units, "'rad' on an arm with a joint no tendon spans"
+            )
+        to_action = tuple(tuple(float(x) for x in row) for row in to_action)
+        object.__setattr__(self, "rate_to_action", to_action)
 
     # -- random arms ---------------------------------------------------------------------------
     def draw_arm(self, rng: np.random.Generator, reference: Reference | None = None) -> EnvConfig:
@@ -585,9 +589,9 @@ def inverse_dynamics_grid(
     """Returns the moment arms J (K, n_tendons, 2), the joint torques tau (K, 2) that inverse
     dynamics needs to follow ``references`` and the diagonal of the inverse inertia M(q)^-1
     (K, 2) at every combination of the two joints' phases.  Each joint j moves as q = bias +
-    amp sin(theta_j); tau comes from mj_inverse at
-    (q, dq, ddq) on a ``grid`` x ``grid`` grid of (theta_A, theta_B).  Taking every phase pair
-    bounds the need of any start time, phase and episode length."""
+    amp sin(theta_j); tau comes from mj_inverse at (q, dq, ddq) on a ``grid`` x ``grid`` grid
+    of (theta_A, theta_B).  Taking every phase pair bounds the need of any start time, phase
+    and episode length."""
     data = mujoco.MjData(model)
     arms = MomentArms(model, data)
     theta = np.linspace(0.0, 2.0 * np.pi, grid, endpoint=False)
