@@ -72,20 +72,6 @@ MODEL_ENV_FIELDS = (
 RESIDUAL_RELATIVE_TO = ("range", "need")
 
 
-def check_relative_to(value: Any, action_mode: str) -> str:
-    """Returns a valid ``residual_relative_to`` for an env of ``action_mode``, else raises."""
-    if value not in RESIDUAL_RELATIVE_TO:
-        raise invalid("residual_relative_to", value, f"one of {list(RESIDUAL_RELATIVE_TO)}")
-    if value == "need" and action_mode != "joint_torque":
-        raise invalid(
-            "residual_relative_to",
-            value,
-            f"'range' in action_mode {action_mode!r} ('need' "
-            "only with action_mode 'joint_torque', whose actions are joint torques)",
-        )
-    return value
-
-
 def residual_scales(scale: float, relative_to: str, torque_need: Any, pd: PDPolicy) -> Any:
     """Returns the residual's scale: ``scale``, or relative to the need (module docstring)
     ``scale * torque_need / max_torque`` per joint: (2,) for one arm, (N, 2) for N
@@ -133,6 +119,17 @@ class Residual:
     def active(self) -> bool:
         """Whether the action is a residual on PD (scale > 0)."""
         return self.scale > 0
+
+    def check_action_mode(self, action_mode: str) -> None:
+        """Raises if the residual cannot act in an env of ``action_mode``: ``need`` is a
+        joint's torque need, so only joint-torque actions are relative to it."""
+        if self.relative_to == "need" and action_mode != "joint_torque":
+            raise invalid(
+                "residual_relative_to",
+                self.relative_to,
+                f"'range' in action_mode {action_mode!r} ('need' "
+                "only with action_mode 'joint_torque', whose actions are joint torques)",
+            )
 
     def to_record(self) -> dict[str, Any]:
         """Returns the fields under the names an entry and a run record give them."""
@@ -182,7 +179,7 @@ class ResidualPDWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         number("residual_scale", residual_scale, 0.0, MAX_RESIDUAL_SCALE, lo_open=True)
         self.residual = Residual(residual_scale, residual_filter_tau, residual_relative_to)
         config = env.unwrapped.config
-        check_relative_to(residual_relative_to, config.action_mode)
+        self.residual.check_action_mode(config.action_mode)
         self.pd = PDPolicy.from_env(env)
         self.filter = ResidualFilter(residual_filter_tau, config.ctrl_dt)
         self._obs: np.ndarray | None = None
@@ -492,7 +489,7 @@ class PPOPolicy:
         self.pd, self.filter, self._scale = None, None, residual.scale
         if residual.active and env is not None:  # the PD it was trained on: its gains
             config = env.unwrapped.config
-            check_relative_to(residual.relative_to, config.action_mode)
+            residual.check_action_mode(config.action_mode)
             self.pd = PDPolicy.from_env(env, gains=gains_of(pd_gains))
             self.filter = ResidualFilter(residual.filter_tau, config.ctrl_dt)
             self._scale = residual.scales(config.torque_need, self.pd)

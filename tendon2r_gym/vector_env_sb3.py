@@ -13,7 +13,6 @@ from tendon2r_gym.learned import (
     NO_RESIDUAL,
     Residual,
     ResidualFilter,
-    check_relative_to,
     residual_command,
 )
 from tendon2r_gym.policies import PDPolicy
@@ -38,7 +37,7 @@ class SB3VecEnv(VecEnv):
         self.venv, self.residual = venv, residual
         self.pd = PDPolicy.from_env(venv) if residual.active else None
         self.filter = ResidualFilter(residual.filter_tau, venv.config.ctrl_dt)
-        check_relative_to(residual.relative_to, venv.config.action_mode)
+        residual.check_action_mode(venv.config.action_mode)
         self._starts = np.ones(venv.num_envs, dtype=bool)  # a slot's episode starts
         ranges = venv.config.mechanism_ranges
         self._random_arms = ranges is not None

@@ -284,8 +284,8 @@ def arm_seen_by(model_path: Path) -> str:
 
 def optional_entries(model_path: Path) -> str:
     """Returns the optional observation entries (tendon2r_gym.observation.OPTIONAL) a bundled
-    model observed, as its run recorded its layout ("none" without any), error_rate_log with
-    and "errors in action units" where the errors were (error_units)."""
+    model observed, as its run recorded its layout ("none" without any), then "errors in
+    action units" where its errors were (error_units)."""
     recorded = training_record(model_path)["env_config"]
     names = {name for name, _ in recorded["observation"]}
     shown = [n for n, *_ in OPTIONAL if n in names]

@@ -16,7 +16,7 @@ from typing import Any
 
 from tendon2r_gym import observation
 from tendon2r_gym.env_config import EnvConfig
-from tendon2r_gym.learned import Residual, check_relative_to
+from tendon2r_gym.learned import Residual
 from tendon2r_gym.presets import PPO_CONFIG, load_yaml
 from tendon2r_gym.validation import check_keys, integer, invalid, mapping, number
 
@@ -170,7 +170,7 @@ class Hyperparams:
             if key in self.ppo:
                 schedule(f"ppo.{key}", self.ppo[key])
         env_config = EnvConfig.make(**self.env_kwargs)  # before any worker starts
-        check_relative_to(self.residual_relative_to, env_config.action_mode)
+        self.residual.check_action_mode(env_config.action_mode)
         names = env_config.observation_entries()
         for key in ("hide_from_actor", "hide_from_critic"):
             hidden = tuple(getattr(self, key) or ())
