@@ -64,10 +64,11 @@ from tendon2r_gym.validation import invalid
 #: The generalist bundles (configs/ppo.yaml entries of the same names: the residual, plain PPO,
 #: the residual on pull-only cables), then the ablations (what each changes is in its entry's
 #: comment; the ablation table reads its action mode, network, learning rate, reward, arm
-#: features and evaluation episodes from its run record): the residual generalist with a
-#: decaying learning rate; with its residual relative to each joint's need; trained with CAPS's
-#: smoothness terms; with its action rate also charged in multiples of the task's; at its constant
-#: rate and relative to the range, with action-rate weight 1, that on the
+#: features and evaluation episodes from its run record): the residual generalist observing
+#: its errors in radians (generalist_rad, the generalist before errors in action units); that
+#: with a decaying learning rate; with its residual relative to each joint's need; trained with
+#: CAPS's smoothness terms; with its action rate also charged in multiples of the task's; at its
+#: constant rate and relative to the range, with action-rate weight 1, that on the
 #: registered reward's sigma (1 deg), and that without its error rate and force limit; that
 #: without its residual filter; the plain generalist blind to the arm; the plain generalist
 #: blind to its force limit; the unfiltered residual generalist blind to the arm; an earlier
@@ -78,11 +79,11 @@ from tendon2r_gym.validation import invalid
 #: action-rate term.
 BUNDLES = GENERALISTS
 ABLATIONS = (
+    "generalist_rad",
     "generalist_lin_lr",
     "generalist_need",
     "generalist_caps",
     "generalist_rate_need",
-    "generalist_action_units",
     "generalist_rate1",
     "generalist_coarse",
     "generalist_unscaled",
@@ -464,7 +465,9 @@ def write(result: dict[str, Any], out: Path) -> None:
         "training never uses; sweep arms: results/arm_sweep.md, with their own specialist. "
         "generalist: residual on PD in joint-torque mode, its residual through a first-order "
         "low-pass (PD's command unfiltered; the ablation table gives the time constant), "
-        "seeing the arm's features, the tracking error's rate and its force limit, trained "
+        "seeing the arm's features, the tracking error and its rate in action units (the "
+        "normalized joint torques that close the error and cancel its rate in one control "
+        "step on the arm; error_units action) and its force limit, trained "
         "on the multiscale reward at sigma 0.1 deg with action-rate weight 3; "
         "generalist_scratch: plain PPO (normalized joint torques through a 2 ms action "
         "filter), seeing the arm's features, the tracking error's rate and its force limit; "
@@ -478,14 +481,14 @@ def write(result: dict[str, Any], out: Path) -> None:
         "what it changes, and the ablation table below gives each one's action mode, network, "
         "learning rate, policy smoothing, reward, arm features, evaluation episodes and "
         "training steps): "
-        "generalist_lin_lr, the generalist with its learning rate decaying linearly to 0; "
-        "generalist_need, the generalist with its residual relative to each joint's need; "
-        "generalist_caps, the generalist trained with CAPS's smoothness terms; "
-        "generalist_rate_need, the generalist with its action rate also charged in multiples "
+        "generalist_rad, the generalist observing its error and error rate in radians (the "
+        "generalist before error_units action); "
+        "generalist_lin_lr, generalist_rad with its learning rate decaying linearly to 0; "
+        "generalist_need, generalist_rad with its residual relative to each joint's need; "
+        "generalist_caps, generalist_rad trained with CAPS's smoothness terms; "
+        "generalist_rate_need, generalist_rad with its action rate also charged in multiples "
         "of the rate its arm's reference needs (action_rate_need); "
-        "generalist_action_units, the generalist observing its error and error rate as the "
-        "actions that close and cancel them in one control step (error_units action); "
-        "generalist_rate1, the generalist with action-rate weight 1; generalist_coarse, that "
+        "generalist_rate1, generalist_rad with action-rate weight 1; generalist_coarse, that "
         "on the registered sigma (1 deg), and generalist_unscaled, that without the error's "
         "rate and the force limit (the generalist before them); generalist_unfiltered, "
         "generalist_unscaled without its residual filter; "
