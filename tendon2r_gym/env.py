@@ -79,9 +79,8 @@ class Tendon2REnv(MujocoEnv, EzPickle):
 
     ## Observation Space
     ``Box(-inf, inf, (16 + 2 * preview_steps + n_actions,), float64)`` (2 more with
-    ``observe_error_rate``, 1 with ``observe_force_limit``, one per drawn field with
-    ``observe_arm``), named slices in
-    ``tendon2r_gym.observation``:
+    ``observe_error_rate``, 2 with ``observe_feedforward``, 1 with ``observe_force_limit``,
+    one per drawn field with ``observe_arm``), named slices in ``tendon2r_gym.observation``:
 
     {obs_table}
 
@@ -134,6 +133,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     | `preview_dt` | `0.01` | spacing of the future reference samples (s) |
     | `observe_error_rate` | `False` | observe the tracking error's rate, log-scaled (``error_rate_log``) |
     | `error_units` | `"rad"` | what error_log and error_rate_log log-scale: the error and its rate (``"rad"``), or the normalized joint torques that close the error and cancel its rate on the arm (``"action"``, ``rate_to_action``) |
+    | `observe_feedforward` | `False` | observe the reference's acceleration in normalized joint torques (``feedforward``) |
     | `observe_force_limit` | `False` | observe ln of the arm's force limit, the actions' scale (``force_limit_log``) |
     | `observation_noise` | `(0.0, 0.0)` | std of the measured angles (rad) and speeds (rad/s) |
     | `observation_delay` | `0.0` | age of the measurements (s), a multiple of ctrl_dt |
@@ -192,8 +192,9 @@ class Tendon2REnv(MujocoEnv, EzPickle):
       - the "multiscale" tracking reward (was "log") and the action-rate weight 0.1 (was
         0.01): plain and residual PPO both beat PD on it, with smooth tensions (README, One
         reward); "log" and "quadratic" stay options.
-      - the optional ``observe_error_rate`` and ``observe_force_limit`` (off by default: the
-        registered observation and results are unchanged).
+      - the optional ``observe_error_rate``, ``observe_feedforward`` and
+        ``observe_force_limit`` (off by default: the registered observation and results are
+        unchanged).
       - the optional ``action_rate_need`` reward term (weight 0 by default) and
         ``error_units="action"`` (default "rad"): the registered reward, observation
         and results are unchanged.

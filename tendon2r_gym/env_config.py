@@ -90,6 +90,9 @@ class EnvConfig:
     #: error and cancel its rate on the episode's arm (rate_to_action), so that a policy's
     #: gains on them move the joints alike on every arm.
     error_units: str = "rad"
+    #: Observe the reference's acceleration as the normalized joint torques that give it
+    #: (``feedforward``, after error_rate_log): rate_to_action (ctrl_dt ddq_des).
+    observe_feedforward: bool = False
     #: Observe ln of the force limit max_tendon_force (``force_limit_log``, after
     #: error_rate_log): a normalized action's scale, which ``auto`` sizes per arm.
     observe_force_limit: bool = False
@@ -229,6 +232,7 @@ class EnvConfig:
         set_("observe_error_rate", boolean("observe_error_rate", self.observe_error_rate))
         if self.error_units not in ERROR_UNITS:
             raise invalid("error_units", self.error_units, f"one of {ERROR_UNITS}")
+        set_("observe_feedforward", boolean("observe_feedforward", self.observe_feedforward))
         set_("observe_force_limit", boolean("observe_force_limit", self.observe_force_limit))
         if self.observe_arm and self.feature_ranges is None:
             raise invalid(
@@ -314,10 +318,15 @@ class EnvConfig:
         object.__setattr__(self, "control_authority", (float(authority[0]), float(authority[1])))
         with np.errstate(divide="ignore"):  # a joint no tendon spans: no action moves it
             to_action = inertia / (self.ctrl_dt * max_torque[:, None])
-        if self.error_units == "action" and not np.all(np.isfinite(to_action)):
-            raise invalid(
-                "error_units", self.error_units, "'rad' on an arm with a joint no tendon spans"
-            )
+        if not np.all(np.isfinite(to_action)):
+            if self.error_units == "action":
+                raise invalid(
+                    "error_units", self.error_units, "'rad' on an arm with a joint no tendon spans"
+                )
+            if self.observe_feedforward:
+                raise invalid(
+                    "observe_feedforward", True, "False on an arm with a joint no tendon spans"
+                )
         to_action = tuple(tuple(float(x) for x in row) for row in to_action)
         object.__setattr__(self, "rate_to_action", to_action)
 
@@ -408,7 +417,7 @@ class EnvConfig:
     @property
     def optional_entries(self) -> tuple[str, ...]:
         """Returns the optional entries the observation holds (tendon2r_gym.observation
-        .OPTIONAL names whose flag, observe_error_rate or observe_force_limit, is set)."""
+        .OPTIONAL names whose flag, e.g. observe_error_rate, is set)."""
         return tuple(e[0] for e, flag in observation.OPTIONAL.items() if getattr(self, flag))
 
     @property

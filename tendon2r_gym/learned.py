@@ -54,6 +54,7 @@ MODEL_SETTINGS = (
     "preview_dt",
     "observe_error_rate",
     "error_units",
+    "observe_feedforward",
     "observe_force_limit",
 )
 #: Env config fields a trained model depends on: what it observes, what its actions mean and

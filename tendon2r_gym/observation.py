@@ -5,7 +5,9 @@ The fixed entries come first, so their slices do not depend on ``preview_steps``
 preview of the reference, then the last action (one value per action dimension), which makes
 the action-rate reward term a function of the observed state.  With ``observe_error_rate``,
 the log-scaled rate of the tracking error follows (``error_rate_log``); with
-``observe_force_limit``, the log of the arm's force limit (``force_limit_log``).  With
+``observe_feedforward``, the reference's acceleration in normalized joint torques
+(``feedforward``); with ``observe_force_limit``, the log of the arm's force limit
+(``force_limit_log``).  With
 ``observe_arm`` (random arms, ``mechanism_ranges``), the arm's drawn fields close it, normalized
 over their ranges (``arm_feature_ranges`` if given: one fixed arm, seen as a generalist saw it).
 """
@@ -50,6 +52,14 @@ ERROR_RATE_LOG_SCALE = 0.1
 #: below this fraction of a full action.
 ACTION_LOG_SCALE = 0.1
 
+#: The optional entry of ``observe_feedforward`` (name, size, unit): rate_to_action (ctrl_dt
+#: ddq_des(t + ctrl_dt / 2)), the normalized joint torques that give the joints the
+#: reference's acceleration over the next control step, at the middle of it, through the
+#: arm's inertia at the reference's bias (EnvConfig.rate_to_action; no velocity terms).  A
+#: user computes it from the arm and the reference as the env does; a policy that sees it
+#: needs not learn each arm's inertia to lead the reference.
+FEEDFORWARD = ("feedforward", 2, "1")
+
 #: The optional entry of ``observe_force_limit`` (name, size, unit): ln(F / 1 N) of the arm's
 #: force limit F = max_tendon_force (``auto``: sized per arm and reference, the reset info's
 #: ``max_tendon_force_N``).  A normalized action is a fraction of F (tension) or of a torque
@@ -60,6 +70,7 @@ FORCE_LIMIT = ("force_limit_log", 1, "ln N")
 #: the EnvConfig flag that adds it.
 OPTIONAL: dict[tuple[str, int, str], str] = {
     ERROR_RATE: "observe_error_rate",
+    FEEDFORWARD: "observe_feedforward",
     FORCE_LIMIT: "observe_force_limit",
 }
 
@@ -171,6 +182,11 @@ def table(preview_steps_name: str = "P") -> str:
         f"{ERROR_RATE_LOG_SCALE:g} rad/s; with error_units 'action', as error_log of the "
         "normalized joint torques that cancel it in one control step, rate_to_action "
         f"(dq_des - dq), linear below {ACTION_LOG_SCALE:g}) | {ERROR_RATE[2]} |"
+    )
+    rows.append(
+        "| (observe_feedforward only) the next 2 | the normalized joint torques that give the "
+        "reference's acceleration over the next control step, rate_to_action (ctrl_dt "
+        f"ddq_des(t + ctrl_dt / 2)) (``{FEEDFORWARD[0]}``) | {FEEDFORWARD[2]} |"
     )
     rows.append(
         f"| (observe_force_limit only) the next 1 | ln of the arm's force limit "

@@ -277,9 +277,9 @@ class Task:
     ) -> list[Any]:
         """Returns the observation's entries in the order of tendon2r_gym.observation (q, dq,
         q_des, dq_des, error, error_log, effector_pos, effector_vel, preview, last action, then
-        error_rate_log, force_limit_log and arm if observed), from the joint angles and speeds,
-        the time, :func:`reference_params`, :func:`arm_params` and the last clipped action (one
-        value, or one column of N values, per action dimension)."""
+        error_rate_log, feedforward, force_limit_log and arm if observed), from the joint
+        angles and speeds, the time, :func:`reference_params`, :func:`arm_params` and the last
+        clipped action (one value, or one column of N values, per action dimension)."""
         amp1, amp2, om1, om2, ph1, ph2, bias1, bias2 = ref
         sin, cos = ops.sin, ops.cos
         arg1, arg2 = om1 * t + ph1, om2 * t + ph2
@@ -292,6 +292,8 @@ class Task:
         joints += last_action
         if self.config.observe_error_rate:
             joints += self.error_rate_entries(ops, w1, w2, dqd1, dqd2, arm)
+        if self.config.observe_feedforward:
+            joints += self.feedforward_entries(ops, t, ref, arm)
         if len(arm) > N_ARM_PARAMS:  # force_limit_log and arm, if observed
             joints += arm[N_ARM_PARAMS:]
         return joints
@@ -325,6 +327,20 @@ class Task:
         """Returns ``error_rate_log`` (observe_error_rate) from the joint speeds and the
         reference's: :meth:`_log_entries` of de = dq_des - dq."""
         return self._log_entries(ops, dqd1 - w1, dqd2 - w2, L.ERROR_RATE_LOG_SCALE, arm)
+
+    def feedforward_entries(
+        self, ops: Ops, t: Any, ref: Sequence[Any], arm: Sequence[Any]
+    ) -> list[Any]:
+        """Returns ``feedforward`` (observe_feedforward): rate_to_action (:func:`arm_params`)
+        times ctrl_dt ddq_des(t + ctrl_dt / 2), the normalized joint torques that give the
+        reference's acceleration at the middle of the next control step."""
+        amp1, amp2, om1, om2, ph1, ph2, _, _ = ref
+        r00, r01, r10, r11 = arm[RATE_TO_ACTION]
+        dt = self.config.ctrl_dt
+        mid = t + 0.5 * dt
+        v1 = -amp1 * om1 * om1 * dt * ops.sin(om1 * mid + ph1)
+        v2 = -amp2 * om2 * om2 * dt * ops.sin(om2 * mid + ph2)
+        return [r00 * v1 + r01 * v2, r10 * v1 + r11 * v2]
 
     def _log_entries(
         self, ops: Ops, x1: Any, x2: Any, scale: float, arm: Sequence[Any], per: float = 1.0

@@ -175,10 +175,45 @@ def test_force_limit_entry_is_the_log_of_each_episodes_force_limit():
         gym.make("Tendon2R-v0", observe_force_limit=1.5)
 
 
+def test_feedforward_entry_is_the_references_acceleration_in_action_units():
+    """observe_feedforward adds feedforward = rate_to_action (ctrl_dt ddq_des(t + ctrl_dt / 2))
+    between error_rate_log and force_limit_log; on random arms it follows each episode's arm
+    and reference, and every other entry is as without it."""
+    kw = {"preset": "generalist", "observe_arm": True, "observe_error_rate": True,
+          "observe_force_limit": True, "action_mode": "joint_torque"}  # fmt: skip
+    plain, env = Tendon2REnv(**kw), Tendon2REnv(**kw, observe_feedforward=True)
+    names = [n for n, _ in env.config.observation_layout()]
+    assert names[-4:] == ["error_rate_log", "feedforward", "force_limit_log", "arm"]
+    where = L.optional_slice(L.FEEDFORWARD[0], 3, 2, env.config.optional_entries)
+    assert where.start == L.error_rate_slice(3, 2).stop and where.stop - where.start == 2
+    seen = []
+    for seed in (0, 1):
+        obs, info = env.reset(seed=seed)
+        plain_obs, _ = plain.reset(seed=seed)
+        np.testing.assert_array_equal(np.delete(obs, np.r_[where]), plain_obs)
+        for a in ([0.3, -0.2], [-0.1, 0.5]):
+            obs, plain_obs = env.step(np.array(a))[0], plain.step(np.array(a))[0]
+        np.testing.assert_array_equal(np.delete(obs, np.r_[where]), plain_obs)
+        u = env.unwrapped
+        assert u.reference.to_dict() == info["reference"]
+        assert u.arm.mechanism.to_dict() == info["mechanism"]
+        dt, ref = u.config.ctrl_dt, u.reference
+        mid = u.data.time + dt / 2
+        ddq = -ref.amp_rad * ref.omega_array**2 * np.sin(ref.omega_array * mid + ref.phase_rad)
+        expected = np.array(u.arm.rate_to_action) @ (dt * ddq)
+        assert np.all(np.abs(expected) > 1e-6)
+        np.testing.assert_allclose(obs[where], expected, rtol=1e-9)
+        seen.append(obs[where])
+    assert not np.allclose(*seen)  # a new arm and reference, a new feed-forward
+    with pytest.raises(ValueError, match="observe_feedforward = 'on'"):
+        gym.make("Tendon2R-v0", observe_feedforward="on")
+
+
 def test_the_true_observation_under_sensor_noise_is_that_of_the_true_state():
     """With sensors, reward and info read the measured observation with every state-set entry
     rewritten from the true state: the result equals the observation of the true state."""
-    for kwargs in ({}, {"observe_error_rate": True, "observe_force_limit": True}):
+    observed = ("observe_error_rate", "observe_feedforward", "observe_force_limit")
+    for kwargs in ({}, dict.fromkeys(observed, True)):
         env = Tendon2REnv(observation_noise=[1e-3, 0.1], **kwargs)
         env.reset(seed=0)
         obs = env.step(np.array([0.3, -0.2]))[0]

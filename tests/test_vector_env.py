@@ -52,6 +52,8 @@ def _native(n, **kw):
              "reward_scales": {"action_rate_need": 1.0}}),
      (3, 1, {"preset": "generalist", "action_mode": "joint_torque", "observe_error_rate": True,
              "error_units": "action", "observation_noise": [0, 0.1]}),
+     (3, 1, {"preset": "generalist", "action_mode": "joint_torque", "observe_arm": True,
+             "observe_feedforward": True, "observation_delay": 0.002}),
      (3, 1, {"preset": "pull_only", "mechanism": REAL, "mechanism_ranges": ARMS}),
      (4, 1, {"preset": "real_arm", "mechanism_ranges": "real_arm", "observe_arm": True}),
      (3, 1, {"preset": "real_arm", "mechanism_ranges": GAINS, "observe_arm": True})],
