@@ -64,8 +64,10 @@ from tendon2r_gym.validation import invalid
 #: The generalist bundles (configs/ppo.yaml entries of the same names: the residual, plain PPO,
 #: the residual on pull-only cables), then the ablations (what each changes is in its entry's
 #: comment; the ablation table reads its action mode, network, learning rate, reward, arm
-#: features and evaluation episodes from its run record): the residual generalist observing
-#: its errors in radians (generalist_rad, the generalist before errors in action units); that
+#: features and evaluation episodes from its run record): the residual generalist without the
+#: reference's feed-forward (generalist_action_units, the generalist before
+#: observe_feedforward), and that observing its errors in radians (generalist_rad, the
+#: generalist before errors in action units); that
 #: with a decaying learning rate; with its residual relative to each joint's need; trained with
 #: CAPS's smoothness terms; with its action rate also charged in multiples of the task's; at its
 #: constant rate and relative to the range, with action-rate weight 1, that on the
@@ -79,6 +81,7 @@ from tendon2r_gym.validation import invalid
 #: action-rate term.
 BUNDLES = GENERALISTS
 ABLATIONS = (
+    "generalist_action_units",
     "generalist_rad",
     "generalist_lin_lr",
     "generalist_need",
@@ -467,7 +470,9 @@ def write(result: dict[str, Any], out: Path) -> None:
         "low-pass (PD's command unfiltered; the ablation table gives the time constant), "
         "seeing the arm's features, the tracking error and its rate in action units (the "
         "normalized joint torques that close the error and cancel its rate in one control "
-        "step on the arm; error_units action) and its force limit, trained "
+        "step on the arm; error_units action), the reference's acceleration as the normalized "
+        "joint torques that give it on the arm (observe_feedforward) and its force limit, "
+        "trained "
         "on the multiscale reward at sigma 0.1 deg with action-rate weight 3; "
         "generalist_scratch: plain PPO (normalized joint torques through a 2 ms action "
         "filter), seeing the arm's features, the tracking error's rate and its force limit; "
@@ -481,7 +486,9 @@ def write(result: dict[str, Any], out: Path) -> None:
         "what it changes, and the ablation table below gives each one's action mode, network, "
         "learning rate, policy smoothing, reward, arm features, evaluation episodes and "
         "training steps): "
-        "generalist_rad, the generalist observing its error and error rate in radians (the "
+        "generalist_action_units, the generalist without the reference's feed-forward (the "
+        "generalist before observe_feedforward); "
+        "generalist_rad, that observing its error and error rate in radians (the "
         "generalist before error_units action); "
         "generalist_lin_lr, generalist_rad with its learning rate decaying linearly to 0; "
         "generalist_need, generalist_rad with its residual relative to each joint's need; "
