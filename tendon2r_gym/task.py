@@ -147,6 +147,14 @@ def arm_params(arm: EnvConfig, observed: EnvConfig) -> tuple[float, ...]:
     return (mech.a, mech.b, mech.c, r00, r01, r10, r11, *force, *features)
 
 
+def to_action(arm: Sequence[Any], v1: Any, v2: Any) -> tuple[Any, Any]:
+    """Returns EnvConfig.rate_to_action (:func:`arm_params`' ``RATE_TO_ACTION``) times the
+    joints' speed changes (v1, v2) in one control step: the normalized joint torques that give
+    them."""
+    r00, r01, r10, r11 = arm[RATE_TO_ACTION]
+    return r00 * v1 + r01 * v2, r10 * v1 + r11 * v2
+
+
 def rewards_table() -> str:
     """Returns the docstring list of the reward terms (the env's docstring embeds it)."""
     return "\n".join(f"- ``{k}`` (weight {w:g}): {doc}." for k, (w, doc) in TERMS.items())
@@ -335,12 +343,11 @@ class Task:
         times ctrl_dt ddq_des(t + ctrl_dt / 2), the normalized joint torques that give the
         reference's acceleration at the middle of the next control step."""
         amp1, amp2, om1, om2, ph1, ph2, _, _ = ref
-        r00, r01, r10, r11 = arm[RATE_TO_ACTION]
         dt = self.config.ctrl_dt
         mid = t + 0.5 * dt
         v1 = -amp1 * om1 * om1 * dt * ops.sin(om1 * mid + ph1)
         v2 = -amp2 * om2 * om2 * dt * ops.sin(om2 * mid + ph2)
-        return [r00 * v1 + r01 * v2, r10 * v1 + r11 * v2]
+        return list(to_action(arm, v1, v2))
 
     def _log_entries(
         self, ops: Ops, x1: Any, x2: Any, scale: float, arm: Sequence[Any], per: float = 1.0
@@ -351,9 +358,7 @@ class Task:
         and s = ACTION_LOG_SCALE."""
         if self.config.error_units == "rad":
             return [signed_log(ops, x1, scale), signed_log(ops, x2, scale)]
-        r00, r01, r10, r11 = arm[RATE_TO_ACTION]
-        v1, v2 = x1 / per, x2 / per
-        y1, y2 = r00 * v1 + r01 * v2, r10 * v1 + r11 * v2
+        y1, y2 = to_action(arm, x1 / per, x2 / per)
         return [signed_log(ops, y1, L.ACTION_LOG_SCALE), signed_log(ops, y2, L.ACTION_LOG_SCALE)]
 
     # -- action ----------------------------------------------------------------------------------
