@@ -209,6 +209,23 @@ def test_feedforward_entry_is_the_references_acceleration_in_action_units():
         gym.make("Tendon2R-v0", observe_feedforward="on")
 
 
+@pytest.mark.parametrize(
+    "field, value, allowed",
+    [("error_units", "action", "'rad'"), ("observe_feedforward", True, "False")],
+)
+def test_action_unit_entries_are_refused_on_an_arm_with_a_joint_no_tendon_spans(
+    field: str, value: object, allowed: str
+) -> None:
+    """Both tendons end on link c: no action moves joint B, so an entry in action units (an
+    infinite rate_to_action) is refused at construction, named, and the arm itself is not."""
+    mechanism = {"routing": [[1, 0], [-1, 0]], "max_tendon_force": 5.0}
+    env = Tendon2REnv(mechanism=mechanism)
+    assert np.all(np.isinf(env.config.rate_to_action[1]))
+    assert np.all(np.isfinite(env.config.rate_to_action[0]))
+    with pytest.raises(ValueError, match=rf"{field} = {value!r} .*{allowed} on an arm with a"):
+        Tendon2REnv(mechanism=mechanism, **{field: value})
+
+
 def test_the_true_observation_under_sensor_noise_is_that_of_the_true_state():
     """With sensors, reward and info read the measured observation with every state-set entry
     rewritten from the true state: the result equals the observation of the true state."""
