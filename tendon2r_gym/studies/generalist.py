@@ -65,18 +65,18 @@ from tendon2r_gym.validation import invalid
 #: the residual on pull-only cables), then the ablations (what each changes is in its entry's
 #: comment; the ablation table reads its action mode, network, learning rate, reward, arm
 #: features and evaluation episodes from its run record): the residual generalist without the
-#: reference's feed-forward (generalist_action_units, the generalist before
-#: observe_feedforward), and that observing its errors in radians (generalist_rad, the
-#: generalist before errors in action units); that
-#: with a decaying learning rate; with its residual relative to each joint's need; trained with
-#: CAPS's smoothness terms; with its action rate also charged in multiples of the task's; at its
-#: constant rate and relative to the range, with action-rate weight 1, that on the
-#: registered reward's sigma (1 deg), and that without its error rate and force limit; that
-#: without its residual filter; the plain generalist blind to the arm; the plain generalist
-#: blind to its force limit; the unfiltered residual generalist blind to the arm; an earlier
-#: generalist (tension mode, blind, 64 x 64) and it with the arm's features; the "log" reward
-#: at 3M steps, and on that reward and budget the arm's features seen by both networks, by the
-#: actor only, by the critic only (privileged); the multiscale reward at 3M steps with two
+#: reference's feed-forward (generalist_action_units, the generalist before observe_feedforward),
+#: and that observing its errors in radians (generalist_rad, the generalist before errors in
+#: action units); that with a decaying learning rate; with its residual relative to each joint's
+#: need; trained with CAPS's smoothness terms; with its action rate also charged in multiples of
+#: the task's; at its constant rate and relative to the range, with action-rate weight 1, that on
+#: the registered reward's sigma (1 deg), and that without its error rate and force limit; that
+#: without its residual filter; the plain generalist observing its errors in radians without the
+#: feed-forward (generalist_scratch_rad, the plain generalist before them), and that blind to the
+#: arm and blind to its force limit; the unfiltered residual generalist blind to the arm; an
+#: earlier generalist (tension mode, blind, 64 x 64) and it with the arm's features; the "log"
+#: reward at 3M steps, and on that reward and budget the arm's features seen by both networks, by
+#: the actor only, by the critic only (privileged); the multiscale reward at 3M steps with two
 #: weights of the action-rate term; the pull-only residual in tension mode with a 3x heavier
 #: action-rate term.
 BUNDLES = GENERALISTS
@@ -91,6 +91,7 @@ ABLATIONS = (
     "generalist_coarse",
     "generalist_unscaled",
     "generalist_unfiltered",
+    "generalist_scratch_rad",
     "generalist_scratch_blind",
     "generalist_scratch_unscaled",
     "generalist_blind",
