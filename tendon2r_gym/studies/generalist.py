@@ -77,8 +77,8 @@ from tendon2r_gym.validation import invalid
 #: earlier generalist (tension mode, blind, 64 x 64) and it with the arm's features; the "log"
 #: reward at 3M steps, and on that reward and budget the arm's features seen by both networks, by
 #: the actor only, by the critic only (privileged); the multiscale reward at 3M steps with two
-#: weights of the action-rate term; the pull-only residual in tension mode with a 3x heavier
-#: action-rate term.
+#: weights of the action-rate term; the generalist's own entry on the pull-only cables; the
+#: pull-only residual in tension mode with a 3x heavier action-rate term.
 BUNDLES = GENERALISTS
 ABLATIONS = (
     "generalist_action_units",
@@ -103,6 +103,7 @@ ABLATIONS = (
     "generalist_privileged",
     "generalist_multiscale",
     "generalist_multiscale_smooth",
+    "generalist_pull_only_full",
     "generalist_pull_only_smooth",
 )
 
