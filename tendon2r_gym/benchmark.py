@@ -605,7 +605,8 @@ def benchmark_own_arm(
     learned: dict[str, list[Path]] = {}
     with tqdm(total=len(cfgs) * len(seeds) * 2 + 2, desc="benchmark", unit="task") as bar:
         for label, hp in cfgs.items():
-            exp = Experiment(hp, run_dir / label.replace(" ", "_"), seeds, command)
+            folder = run_dir / label.replace(" ", "_")
+            exp = Experiment.start_or_continue(hp, folder, seeds, command)
             bar.set_postfix_str(f"training {label}")
             exp.train(resume=True)
             learned[label] = [model_files(exp.run_folder(s).best)[0] for s in seeds]

@@ -377,7 +377,7 @@ def finetune_curves(
         tuned = fine_tune(hp)  # scratch: on the same env (action mode, arm slice)
         scratch = tuned.replace(init_from=None, init_log_std=None)
         for label, run_hp in (("fine-tuned", tuned), ("scratch", scratch)):
-            exp = Experiment(run_hp, folder / label, [0], command)
+            exp = Experiment.start_or_continue(run_hp, folder / label, [0], command)
             exp.train(resume=True)
             run = exp.run_folder(0)
             summary = run.read_json(SUMMARY)

@@ -11,6 +11,9 @@ tendon2r_gym.runs) and survives interruption:
   newest readable saved state (a corrupt one is skipped with a warning);
 - a new run never overwrites one that was started: without ``resume``, a folder that holds a
   run is refused (rl_zoo3 numbers its folders instead; here ``--run-dir`` names the run);
+- a command that can be run again (the own-arm benchmark, the studies) trains through
+  :meth:`Experiment.start_or_continue`: its runs continue as they were recorded, and runs of
+  other hyperparameters in its folder are refused;
 - ``summary.json`` adds up steps and wall time over every segment, and command.txt keeps the
   original command with one line per resume.
 """
@@ -82,6 +85,34 @@ class Experiment:
             hp = hp.replace(**overrides)
         seeds = seeds if seeds is not None else [RunFolder(p).seed for p in recorded]
         return cls(hp, Path(base), list(seeds), command, progress_bar)
+
+    @classmethod
+    def start_or_continue(
+        cls, hp: Hyperparams, base: str | Path, seeds: list[int], command: str = ""
+    ) -> Experiment:
+        """Returns the experiment of a command that can be run again (the own-arm benchmark,
+        the studies) to train ``hp`` in ``base``, for ``train(resume=True)``: where runs were
+        started there, with their recorded hyperparameters (a fine-tune's include what it took
+        from its source model) and ``hp``'s budget.  Runs started with other hyperparameters
+        (another entry, or a fine-tune of another source) are refused, naming the folder and
+        the fields: they are not this command's to continue or report."""
+        recorded = seed_dirs(base)
+        if not recorded:
+            return cls(hp, Path(base), list(seeds), command)
+        new = fine_tune(hp).to_dict()
+        runs = [recorded_hyperparams(RunFolder(p)) for p in recorded]
+        for path, run in zip(recorded, runs, strict=True):
+            old = run.to_dict()
+            if differ := sorted(k for k in new if k != "total_timesteps" and new[k] != old.get(k)):
+                raise invalid(
+                    "run_dir",
+                    str(base),
+                    f"a folder without runs of other hyperparameters ({path} differs in "
+                    f"{differ}: remove it, or use another run folder)",
+                )
+        return cls(
+            runs[0].replace(total_timesteps=hp.total_timesteps), Path(base), list(seeds), command
+        )
 
     def run_folder(self, seed: int) -> RunFolder:
         return RunFolder(seed_dir(self.base, seed))
