@@ -477,7 +477,8 @@ def write(result: dict[str, Any], out: Path) -> None:
         "trained "
         "on the multiscale reward at sigma 0.1 deg with action-rate weight 3; "
         "generalist_scratch: plain PPO (normalized joint torques through a 2 ms action "
-        "filter), seeing the arm's features, the tracking error's rate and its force limit; "
+        "filter), seeing the arm's features, the tracking error and its rate in action "
+        "units, the reference's feed-forward and its force limit; "
         "generalist_pull_only: the residual on arms with "
         "three pull-only cables (its preset's), in joint-torque mode, run on the unseen "
         "geometries with those cables (unseen_<i>_pull_only); each bundle runs in the action "
@@ -501,13 +502,16 @@ def write(result: dict[str, Any], out: Path) -> None:
         "on the registered sigma (1 deg), and generalist_unscaled, that without the error's "
         "rate and the force limit (the generalist before them); generalist_unfiltered, "
         "generalist_unscaled without its residual filter; "
-        "generalist_scratch_blind, the plain generalist without the arm's features, and "
+        "generalist_scratch_rad, the plain generalist observing its error and error rate "
+        "in radians, without the feed-forward (the plain generalist before them); "
+        "generalist_scratch_blind, generalist_scratch_rad without the arm's features, and "
         "generalist_scratch_unscaled, it without its force limit; "
         "generalist_blind, generalist_unfiltered without them; generalist_tension, an "
         "earlier generalist (tension mode, blind, 64 x 64), and generalist_observe_arm, it "
         "with the arm's features; generalist_log and "
         "on its reward and budget generalist_arm, generalist_actor_arm and "
         "generalist_privileged; generalist_multiscale and generalist_multiscale_smooth; "
+        "generalist_pull_only_full, the generalist's own entry on the pull-only cables; "
         "generalist_pull_only_smooth.",
         "",
         "## Summary",
