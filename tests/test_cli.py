@@ -121,8 +121,7 @@ def test_benchmark_fine_tunes_the_generalist_on_an_arm_it_covers(tmp_path):
     (label,) = FINETUNED
     row = next(r for r in result["rows"] if r["policy"] == label)
     assert "rms_deg" in row and row["train_steps"] > 0 and row["train_wall_s"] > 0
-    config_file = tmp_path / "runs" / label.replace(" ", "_") / "seed_0" / "config.yaml"
-    config = config_file.read_text()
+    config = (tmp_path / "runs" / label.replace(" ", "_") / "seed_0" / "config.yaml").read_text()
     assert "init_from: generalist" in config
 
 
