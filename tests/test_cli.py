@@ -113,33 +113,23 @@ def test_benchmark_on_your_own_arm(tmp_path):
 
 def test_benchmark_fine_tunes_the_generalist_on_an_arm_it_covers(tmp_path):
     """Inside the generalist's ranges, the own-arm benchmark also fine-tunes it: a row with
-    its steps and wall time, trained from the bundle's weights (its run's config says so)."""
-    result = benchmark_main(
-        ["--env-config", "default", "--train-steps", "256", "--seeds", "0", "--episodes", "1",
-         "--out", str(tmp_path / "out"), "--run-dir", str(tmp_path / "runs")]
-    )  # fmt: skip
+    its steps and wall time, trained from the bundle's weights (its run's config says so, with
+    the settings it took from its source).  Run again (after a crash, or for the report), it
+    continues its runs as they recorded themselves and reports the same rows; a folder whose
+    runs had other hyperparameters is refused, named."""
+    args = ["--env-config", "default", "--train-steps", "256", "--seeds", "0", "--episodes", "1",
+            "--out", str(tmp_path / "out"), "--run-dir", str(tmp_path / "runs")]  # fmt: skip
+    result = benchmark_main(args)
     (label,) = FINETUNED
     row = next(r for r in result["rows"] if r["policy"] == label)
     assert "rms_deg" in row and row["train_steps"] > 0 and row["train_wall_s"] > 0
-    config = (tmp_path / "runs" / label.replace(" ", "_") / "seed_0" / "config.yaml").read_text()
-    assert "init_from: generalist" in config
-
-
-def test_the_own_arm_benchmark_runs_again_on_its_finished_runs(tmp_path):
-    """Run again (after a crash, or for the report), the benchmark continues its runs with
-    what they recorded, the fine-tune's settings from its source included, and reports the
-    same rows; a folder whose runs had other hyperparameters is refused, named."""
-    args = ["--env-config", "default", "--train-steps", "256", "--seeds", "0", "--episodes", "1",
-            "--out", str(tmp_path / "out"), "--run-dir", str(tmp_path / "runs")]  # fmt: skip
-    first = benchmark_main(args)
-    (label,) = FINETUNED
     config_file = tmp_path / "runs" / label.replace(" ", "_") / "seed_0" / "config.yaml"
     config = config_file.read_text()
-    assert "observe_arm: true" in config, "the recorded run has its source's settings"
+    assert "init_from: generalist" in config and "observe_arm: true" in config
     again = benchmark_main(args)
     assert config_file.read_text() == config
     rows = lambda result: {r["policy"]: r.get("rms_deg") for r in result["rows"]}  # noqa: E731
-    assert rows(again) == rows(first)
+    assert rows(again) == rows(result)
     config_file.write_text(config.replace("tracking_sigma_deg: 0.1", "tracking_sigma_deg: 0.2"))
     with pytest.raises(ValueError, match=r"run_dir = .*generalist_fine-tuned.*\['env_kwargs'\]"):
         benchmark_main(args)
