@@ -100,9 +100,8 @@ class Experiment:
         if not recorded:
             return cls(hp, Path(base), list(seeds), command)
         new = fine_tune(hp).to_dict()
-        runs = [recorded_hyperparams(RunFolder(p)) for p in recorded]
-        for path, run in zip(recorded, runs, strict=True):
-            old = run.to_dict()
+        for path in recorded:
+            old = recorded_hyperparams(RunFolder(path)).to_dict()
             if differ := sorted(k for k in new if k != "total_timesteps" and new[k] != old.get(k)):
                 raise invalid(
                     "run_dir",
@@ -110,9 +109,7 @@ class Experiment:
                     f"a folder without runs of other hyperparameters ({path} differs in "
                     f"{differ}: remove it, or use another run folder)",
                 )
-        return cls(
-            runs[0].replace(total_timesteps=hp.total_timesteps), Path(base), list(seeds), command
-        )
+        return cls.resume(base, list(seeds), command, total_timesteps=hp.total_timesteps)
 
     def run_folder(self, seed: int) -> RunFolder:
         return RunFolder(seed_dir(self.base, seed))
