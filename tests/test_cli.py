@@ -70,7 +70,13 @@ def test_a_bad_argument_is_a_one_line_error_with_exit_code_2():
     assert proc.stderr.strip().startswith("error: --episodes = 0 is invalid")
 
 
-def test_benchmark_on_bundled_models(tmp_path):
+def test_benchmark_on_bundled_models(tmp_path, monkeypatch):
+    """Every bundled model loads and runs; the realism section on its first two arms (the
+    real arm and one perturbed: each arm tunes PD, the bulk of the benchmark's time)."""
+    from tendon2r_gym import benchmark
+
+    arms = benchmark.realism_arms()[:2]
+    monkeypatch.setattr(benchmark, "realism_arms", lambda: arms)
     result = benchmark_main(["--episodes", "1", "--out", str(tmp_path)])
     md = (tmp_path / "benchmark.md").read_text()
     assert "| default | pd |" in md and "quoted" in md
@@ -82,6 +88,11 @@ def test_benchmark_on_bundled_models(tmp_path):
     models = [r["model"] for r in result["rows"] if "model" in r]
     assert models and all(m.startswith("tendon2r_gym/data/models/") for m in models), models
     assert json.loads((tmp_path / "benchmark.json").read_text())["rows"]
+    assert [r["arm"] for r in result["realism"]] == [name for name, _ in arms]
+    for row in result["realism"]:
+        policies = ("pd", "pd_tuned", "ct", "ppo", "randomized")
+        assert all(len(row[k]["rms_deg"]) == 2 for k in policies), row
+        assert f"| {row['arm']} |" in md
 
 
 def test_benchmark_on_your_own_arm(tmp_path):
