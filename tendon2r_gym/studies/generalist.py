@@ -62,25 +62,26 @@ from tendon2r_gym.training.hyperparams import LINEAR, Smoothing, linear_start
 from tendon2r_gym.validation import invalid
 
 #: The generalist bundles (configs/ppo.yaml entries of the same names: the residual, plain PPO, the
-#: residual's entry on pull-only cables with action-rate weight 10), then the ablations (what each
-#: changes is in its entry's comment; the ablation table reads its action mode, network, learning
-#: rate, reward, arm features and evaluation episodes from its run record): the residual generalist
-#: without the reference's feed-forward (generalist_action_units, the generalist before
-#: observe_feedforward), and that observing its errors in radians (generalist_rad, the generalist
-#: before errors in action units); that with a decaying learning rate; with its residual relative to
-#: each joint's need; trained with CAPS's smoothness terms; with its action rate also charged in
-#: multiples of the task's; at its constant rate and relative to the range, with action-rate weight
-#: 1, that on the registered reward's sigma (1 deg), and that without its error rate and force
-#: limit; that without its residual filter; the plain generalist observing its errors in radians
-#: without the feed-forward (generalist_scratch_rad, the plain generalist before them), and that
-#: blind to the arm and blind to its force limit; the unfiltered residual generalist blind to the
-#: arm; an earlier generalist (tension mode, blind, 64 x 64) and it with the arm's features; the
-#: "log" reward at 3M steps, and on that reward and budget the arm's features seen by both networks,
-#: by the actor only, by the critic only (privileged); the multiscale reward at 3M steps with two
-#: weights of the action-rate term; on the pull-only cables the generalist's own entry at its
-#: action-rate weight (3), the earlier pull-only generalist (generalist_tension's entry in
-#: joint-torque mode with a 2 ms residual filter, blind to the arm) and that in tension mode without
-#: the filter (generalist_tension's reward with a 3x heavier action-rate term).
+#: residual's entry on pull-only cables with action-rate weight 10 and action_rate_need), then the
+#: ablations (what each changes is in its entry's comment; the ablation table reads its action mode,
+#: network, learning rate, reward, arm features and evaluation episodes from its run record): the
+#: residual generalist without the reference's feed-forward (generalist_action_units, the generalist
+#: before observe_feedforward), and that observing its errors in radians (generalist_rad, the
+#: generalist before errors in action units); that with a decaying learning rate; with its residual
+#: relative to each joint's need; trained with CAPS's smoothness terms; with its action rate also
+#: charged in multiples of the task's; at its constant rate and relative to the range, with
+#: action-rate weight 1, that on the registered reward's sigma (1 deg), and that without its error
+#: rate and force limit; that without its residual filter; the plain generalist observing its errors
+#: in radians without the feed-forward (generalist_scratch_rad, the plain generalist before them),
+#: and that blind to the arm and blind to its force limit; the unfiltered residual generalist blind
+#: to the arm; an earlier generalist (tension mode, blind, 64 x 64) and it with the arm's features;
+#: the "log" reward at 3M steps, and on that reward and budget the arm's features seen by both
+#: networks, by the actor only, by the critic only (privileged); the multiscale reward at 3M steps
+#: with two weights of the action-rate term; on the pull-only cables that without action_rate_need,
+#: the generalist's own entry at its action-rate weight (3), the earlier pull-only generalist
+#: (generalist_tension's entry in joint-torque mode with a 2 ms residual filter, blind to the arm)
+#: and that in tension mode without the filter (generalist_tension's reward with a 3x heavier
+#: action-rate term).
 BUNDLES = GENERALISTS
 ABLATIONS = (
     "generalist_action_units",
@@ -105,6 +106,7 @@ ABLATIONS = (
     "generalist_privileged",
     "generalist_multiscale",
     "generalist_multiscale_smooth",
+    "generalist_pull_only_rate10",
     "generalist_pull_only_full",
     "generalist_pull_only_blind",
     "generalist_pull_only_smooth",
@@ -482,7 +484,8 @@ def write(result: dict[str, Any], out: Path) -> None:
         "generalist_scratch: plain PPO (normalized joint torques through a 2 ms action "
         "filter), seeing the arm's features, the tracking error and its rate in action "
         "units, the reference's feed-forward and its force limit; "
-        "generalist_pull_only: the generalist's entry with action-rate weight 10 on arms with "
+        "generalist_pull_only: the generalist's entry with action-rate weight 10 and the "
+        "action_rate_need term on arms with "
         "three pull-only cables (its preset's), run on the unseen "
         "geometries with those cables (unseen_<i>_pull_only); each bundle runs in the action "
         "mode it trained in, and one that saw the arm's features sees each arm's. A column "
@@ -514,7 +517,8 @@ def write(result: dict[str, Any], out: Path) -> None:
         "with the arm's features; generalist_log and "
         "on its reward and budget generalist_arm, generalist_actor_arm and "
         "generalist_privileged; generalist_multiscale and generalist_multiscale_smooth; "
-        "generalist_pull_only_full, generalist_pull_only at the generalist's action-rate "
+        "generalist_pull_only_rate10, generalist_pull_only without the action_rate_need "
+        "term (on 10M steps); generalist_pull_only_full, that at the generalist's action-rate "
         "weight (3); generalist_pull_only_blind, the earlier pull-only generalist "
         "(generalist_tension's entry in joint-torque mode, action-rate weight 3, 2 ms residual "
         "filter), and generalist_pull_only_smooth, that entry in tension mode without the "
