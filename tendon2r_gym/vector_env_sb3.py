@@ -48,7 +48,8 @@ class SB3VecEnv(VecEnv):
 
     def reset(self) -> np.ndarray:
         seeds = list(self._seeds)
-        self._raw, _ = self.venv.reset(seed=seeds if any(s is not None for s in seeds) else None)
+        self._raw, info = self.venv.reset(seed=seeds if any(s is not None for s in seeds) else None)
+        self.reset_infos = _arm_infos(info, self.num_envs)
         self._reset_seeds()
         self._reset_options()
         self._starts[:] = True
@@ -71,12 +72,14 @@ class SB3VecEnv(VecEnv):
             actions = residual_command(base, actions, scale, self.filter, self._starts)
         obs, rewards, terminated, truncated, info = self.venv.step(actions)
         dones = terminated | truncated
-        infos = [_arm_info(info, i) for i in range(self.num_envs)]
-        for i in range(self.num_envs):  # as SB3's DummyVecEnv: on every step
+        infos = _arm_infos(info, self.num_envs)
+        if np.any(dones):  # as DummyVecEnv: the last step's info, the reset's info apart
+            final = _arm_infos(info["final_info"], self.num_envs)
+            for i in np.flatnonzero(dones):
+                self.reset_infos[i], infos[i] = infos[i], final[i]
+                infos[i]["terminal_observation"] = info["final_obs"][i] * self._mask
+        for i in range(self.num_envs):  # as DummyVecEnv: on every step
             infos[i]["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
-        for i in np.flatnonzero(dones):  # the last step's info, then SB3's terminal observation
-            infos[i].update(_arm_info(info["final_info"], i))
-            infos[i]["terminal_observation"] = info["final_obs"][i] * self._mask
         self._raw, self._starts = obs, dones
         return obs * self._mask, rewards.astype(np.float32), dones, infos
 
@@ -125,10 +128,14 @@ def make_native(
     return VecMonitor(venv)
 
 
-def _arm_info(info: dict[str, Any], i: int) -> dict[str, Any]:
-    """Returns arm i's entries of a Gymnasium vector info (the keys whose mask holds i)."""
-    return {
-        k: (_arm_info(v, i) if isinstance(v, dict) else v[i])
-        for k, v in info.items()
-        if not k.startswith("_") and k not in ("final_obs", "final_info") and info[f"_{k}"][i]
-    }
+def _arm_infos(info: dict[str, Any], n: int) -> list[dict[str, Any]]:
+    """Returns each of the n arms' entries of a Gymnasium vector info (the keys whose mask
+    holds the arm), in the info's key order: one pass over the keys, not over the arms."""
+    infos: list[dict[str, Any]] = [{} for _ in range(n)]
+    for k, v in info.items():
+        if k.startswith("_") or k in ("final_obs", "final_info"):
+            continue
+        rows = _arm_infos(v, n) if isinstance(v, dict) else v
+        for i in np.flatnonzero(info[f"_{k}"]):
+            infos[i][k] = rows[i]
+    return infos
