@@ -10,6 +10,10 @@ import numpy as np
 from tendon2r_gym.rollout import Trace
 
 SATURATION = 0.999  # |normalized command| at or above this counts as saturated
+#: The reset's transient (s): ``settled_rms_deg`` is the RMS error after this much of each
+#: episode, once the reset's noise (reset_noise_scale) has been closed.  At a millidegree, the
+#: first steps after a reset can make most of an episode's RMS.
+SETTLE_S = 0.02
 
 
 def beats(rms_deg: Sequence[float], baseline_rms_deg: Sequence[float]) -> bool:
@@ -71,8 +75,9 @@ def tracking_metrics(traces: Sequence[Trace]) -> dict[str, list[float] | float |
     """Returns per-joint RMS and max error (deg), per-tendon RMS, peak and least tension (N),
     the RMS rate of change of each tension (N/s, smoothness), the steps with a negative
     (pushing) tension and the fraction of saturated steps, over all steps of all episodes,
-    plus per-episode RMS errors."""
+    plus per-episode RMS errors and the RMS error after each episode's first SETTLE_S."""
     err = np.concatenate([t.error_deg for t in traces])
+    settled = np.concatenate([t.error_deg[t.time > t.time[0] + SETTLE_S] for t in traces])
     tension = np.concatenate([t.tendon_tension for t in traces])
     action = np.concatenate([t.action for t in traces])
     per_episode = np.array([np.sqrt(np.mean(t.error_deg**2, axis=0)) for t in traces])
@@ -83,6 +88,7 @@ def tracking_metrics(traces: Sequence[Trace]) -> dict[str, list[float] | float |
     return {
         "rms_deg": np.sqrt(np.mean(err**2, axis=0)).tolist(),
         "max_deg": np.max(np.abs(err), axis=0).tolist(),
+        "settled_rms_deg": np.sqrt(np.mean(settled**2, axis=0)).tolist(),
         "rms_tension_N": np.sqrt(np.mean(tension**2, axis=0)).tolist(),
         "max_tension_N": np.max(np.abs(tension), axis=0).tolist(),
         "min_tension_N": np.min(tension, axis=0).tolist(),

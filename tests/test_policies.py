@@ -67,6 +67,25 @@ def test_ct_follows_each_episodes_reference_under_reference_ranges():
     assert max(ranged) <= 2 * max(max(f) for f in fixed) and max(ranged) < 0.01, (ranged, fixed)
 
 
+def test_settled_rms_leaves_out_the_resets_transient():
+    """settled_rms_deg is the RMS error after each episode's first SETTLE_S: an error only
+    inside that window counts in rms_deg and not there."""
+    from tendon2r_gym.metrics import SETTLE_S
+    from tendon2r_gym.rollout import Trace
+
+    steps, dt = 100, 0.001
+    time = dt * np.arange(1, steps + 1)
+    error = np.zeros((steps, 2))
+    error[time <= time[0] + SETTLE_S, 1] = 0.03
+    error[-1, 0] = 0.01
+    z = np.zeros((steps, 2))
+    trace = Trace(0, time, z, z, error, z, z, z, np.zeros(steps), False)
+    m = tracking_metrics([trace, trace])
+    assert m["settled_rms_deg"][1] == 0.0 < m["rms_deg"][1]
+    after = np.sum(time > time[0] + SETTLE_S)
+    assert m["settled_rms_deg"][0] == pytest.approx(0.01 / np.sqrt(after))
+
+
 def test_pd_action_is_bounded_and_batched():
     env = Tendon2REnv()
     obs, _ = env.reset(seed=0)

@@ -439,6 +439,35 @@ def test_generalist_is_compared_with_the_specialist_of_its_own_action_mode():
     assert generalist.hardest_arms(arms, 1) == ["unseen_0"]
 
 
+def test_generalist_transient_section_shows_whole_and_settled_rms_on_sweep_arms():
+    """The sweep arms' section gives each generalist seed's whole-episode and settled RMS
+    beside the specialist of its action mode; unseen arms and other bundles stay out."""
+    from tendon2r_gym.studies import generalist
+
+    mode = generalist.action_mode_of("generalist")
+    row = lambda rms, settled: {"rms_deg": rms, "settled_rms_deg": settled}  # noqa: E731
+    arms = {
+        "unseen_0": {"rows": {"generalist": row([1.0, 1.0], [0.5, 0.5])}},
+        "sweep_a": {
+            "rows": {
+                "generalist": row([0.0012, 0.0015], [0.0003, 0.0002]),
+                "generalist@1": row([0.0011, 0.0014], [0.0004, 0.0001]),
+                "generalist_scratch": row([0.1, 0.1], [0.1, 0.1]),
+            },
+            "specialist_rms_deg": {mode: [0.0013, 0.0009]},
+        },
+    }
+    bundles = ["generalist", "generalist_scratch", "generalist@1"]
+    lines = generalist.transient_lines(arms, bundles)
+    table = [line for line in lines if line.startswith("| ")]
+    assert table[0].count("whole (settled)") == 2 and "generalist_scratch" not in table[0]
+    assert table[1:] == [
+        "| sweep_a | 0.0013 / 0.0009 | 0.0012 / 0.0015 (0.0003 / 0.0002) "
+        "| 0.0011 / 0.0014 (0.0004 / 0.0001) |"
+    ]
+    assert generalist.transient_lines(arms, ["generalist_scratch"]) == []
+
+
 def test_generalist_summary_holds_every_arm_to_the_smoothness_limits():
     """A median tension rate within the limit can hide arms over it: the summary counts the
     arms where a bundle keeps the smoothness limits (a residual's rate limit for a residual,

@@ -47,6 +47,7 @@ from tendon2r_gym.learned import (
 )
 from tendon2r_gym.metrics import (
     RATE_LIMIT_X_PD,
+    SETTLE_S,
     TENSION_LIMIT_X_PD,
     beats,
     smooth_enough,
@@ -58,32 +59,34 @@ from tendon2r_gym.presets import load_yaml, preset_path
 from tendon2r_gym.runs import RunFolder, command_line, stem_of, training_record, training_summary
 from tendon2r_gym.studies import joints, save_json
 from tendon2r_gym.task import REWARD_SCALES
-from tendon2r_gym.training.hyperparams import LINEAR, Smoothing, linear_start
+from tendon2r_gym.training.hyperparams import LINEAR, Smoothing, linear_schedule
 from tendon2r_gym.validation import invalid
 
 #: The generalist bundles (configs/ppo.yaml entries of the same names: the residual, plain PPO, the
 #: residual's entry on pull-only cables with action-rate weight 10 and action_rate_need), then the
 #: ablations (what each changes is in its entry's comment; the ablation table reads its action mode,
 #: network, learning rate, reward, arm features and evaluation episodes from its run record): the
-#: residual generalist without the reference's feed-forward (generalist_action_units, the generalist
-#: before observe_feedforward), and that observing its errors in radians (generalist_rad, the
-#: generalist before errors in action units); that with a decaying learning rate; with its residual
-#: relative to each joint's need; trained with CAPS's smoothness terms; with its action rate also
-#: charged in multiples of the task's; at its constant rate and relative to the range, with
-#: action-rate weight 1, that on the registered reward's sigma (1 deg), and that without its error
-#: rate and force limit; that without its residual filter; the plain generalist observing its errors
-#: in radians without the feed-forward (generalist_scratch_rad, the plain generalist before them),
-#: and that blind to the arm and blind to its force limit; the unfiltered residual generalist blind
-#: to the arm; an earlier generalist (tension mode, blind, 64 x 64) and it with the arm's features;
-#: the "log" reward at 3M steps, and on that reward and budget the arm's features seen by both
-#: networks, by the actor only, by the critic only (privileged); the multiscale reward at 3M steps
-#: with two weights of the action-rate term; on the pull-only cables that without action_rate_need,
-#: the generalist's own entry at its action-rate weight (3), the earlier pull-only generalist
+#: residual generalist with a decay tail on its learning rate (generalist_decay_tail), the residual
+#: generalist without the reference's feed-forward (generalist_action_units, the generalist before
+#: observe_feedforward), and that observing its errors in radians (generalist_rad, the generalist
+#: before errors in action units); that with a decaying learning rate; with its residual relative to
+#: each joint's need; trained with CAPS's smoothness terms; with its action rate also charged in
+#: multiples of the task's; at its constant rate and relative to the range, with action-rate weight
+#: 1, that on the registered reward's sigma (1 deg), and that without its error rate and force
+#: limit; that without its residual filter; the plain generalist observing its errors in radians
+#: without the feed-forward (generalist_scratch_rad, the plain generalist before them), and that
+#: blind to the arm and blind to its force limit; the unfiltered residual generalist blind to the
+#: arm; an earlier generalist (tension mode, blind, 64 x 64) and it with the arm's features; the
+#: "log" reward at 3M steps, and on that reward and budget the arm's features seen by both networks,
+#: by the actor only, by the critic only (privileged); the multiscale reward at 3M steps with two
+#: weights of the action-rate term; on the pull-only cables that without action_rate_need, the
+#: generalist's own entry at its action-rate weight (3), the earlier pull-only generalist
 #: (generalist_tension's entry in joint-torque mode with a 2 ms residual filter, blind to the arm)
 #: and that in tension mode without the filter (generalist_tension's reward with a 3x heavier
 #: action-rate term).
 BUNDLES = GENERALISTS
 ABLATIONS = (
+    "generalist_decay_tail",
     "generalist_action_units",
     "generalist_rad",
     "generalist_lin_lr",
@@ -495,6 +498,8 @@ def write(result: dict[str, Any], out: Path) -> None:
         "what it changes, and the ablation table below gives each one's action mode, network, "
         "learning rate, policy smoothing, reward, arm features, evaluation episodes and "
         "training steps): "
+        "generalist_decay_tail, the generalist with its learning rate held for 60% of the "
+        "run and then decaying linearly to 0; "
         "generalist_action_units, the generalist without the reference's feed-forward (the "
         "generalist before observe_feedforward); "
         "generalist_rad, that observing its error and error rate in radians (the "
@@ -547,6 +552,7 @@ def write(result: dict[str, Any], out: Path) -> None:
             f"{s['smooth']} of {s['arms']} ({kind}) | {s['beats_pd_smooth']} of {s['arms']} | "
             f"{s['beats_specialist']} of {s['specialist_arms']} |"
         )
+    lines += transient_lines(result["arms"], bundles)
     if result.get("ablation"):
         lines += [
             "",
@@ -603,6 +609,43 @@ def write(result: dict[str, Any], out: Path) -> None:
     (out / "generalist.md").write_text("\n".join(lines) + "\n")
 
 
+def transient_lines(arms: dict[str, Any], bundles: list[str]) -> list[str]:
+    """Returns the section comparing, on the sweep arms, the generalist's (and its seeds')
+    whole-episode RMS with its RMS after the reset's transient (``settled_rms_deg``), beside
+    the specialist's whole-episode RMS (the sweep records no more)."""
+    shown = [b for b in bundles if b.partition(SEED_MARK)[0] == "generalist"]
+    if not shown:
+        return []
+    mode = action_mode_of(shown[0])
+    rows = [
+        (k, a)
+        for k, a in arms.items()
+        if specialist_rms(a, mode) and all("settled_rms_deg" in a["rows"].get(b, {}) for b in shown)
+    ]
+    if not rows:
+        return []
+    lines = [
+        "",
+        "## Sweep arms: the reset's transient",
+        "",
+        f"RMS error (deg, A / B) over whole episodes, and after each episode's first "
+        f"{1000 * SETTLE_S:g} ms (settled: the transient that closes the reset's noise left "
+        f"out; tendon2r_gym.metrics.settled_rms_deg), for the generalist's seeds; the "
+        f"specialist ({mode} mode) over whole episodes, all the sweep records.",
+        "",
+        "| arm | specialist | " + " | ".join(f"{b}: whole (settled)" for b in shown) + " |",
+        "|---|---|" + "---|" * len(shown),
+    ]
+    for k, a in rows:
+        cells = [
+            f"{joints(a['rows'][b]['rms_deg'], 4)} ({joints(a['rows'][b]['settled_rms_deg'], 4)})"
+            for b in shown
+        ]
+        spec = joints(specialist_rms(a, mode), 4)
+        lines.append(f"| {k} | {spec} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def _residual(config: dict[str, Any]) -> str:
     """Returns a run's residual (its recorded hyperparameters) as the ablation table shows it:
     its scale and what the scale is relative to (tendon2r_gym.learned: each command's range,
@@ -632,9 +675,12 @@ def _filter(tau: float) -> str:
 
 def _rate(learning_rate: float | str) -> str:
     """Returns a learning rate as the ablation table shows it: a number, or ``lin_<v>``
-    (rl_zoo3's notation) as a linear decay from v to 0."""
+    (rl_zoo3's notation) as a linear decay from v to 0, ``lin_<v>_after_<f>`` as v then a
+    linear decay to 0 after that fraction of the run."""
     if isinstance(learning_rate, str) and learning_rate.startswith(LINEAR):
-        return f"{linear_start(learning_rate):g}, linear to 0"
+        start, after = linear_schedule(learning_rate)
+        tail = f" after {after:.0%} of the run" if after else ""
+        return f"{start:g}, linear to 0{tail}"
     return f"{learning_rate:g}" if isinstance(learning_rate, float | int) else learning_rate
 
 
