@@ -125,7 +125,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     | `episode_duration` | `2.0` | seconds per episode |
     | `action_mode` | `"tension"` | "tension" (one command per tendon) or "joint_torque" |
     | `action_filter_tau` | `0.0` | time constant (s) of a first-order filter on the command |
-    | `reward_scales` | `{{'tracking': 1, 'ctrl': 0.001, 'action_rate': 0.1, 'action_rate_need': 0, 'divergence': 100}}` | weights |
+    | `reward_scales` | `{{'tracking': 1, 'tracking_quadratic': 0, 'ctrl': 0.001, 'action_rate': 0.1, 'action_rate_need': 0, 'divergence': 100}}` | weights |
     | `tracking_form` | `"multiscale"` | "multiscale", "log" (both bounded) or "quadratic" tracking reward |
     | `tracking_sigma_deg` | `1.0` | error scale of the "multiscale" and "log" tracking rewards (deg) |
     | `reset_noise_scale` | `0.001` | initial-state noise (rad, rad/s) |
@@ -198,6 +198,8 @@ class Tendon2REnv(MujocoEnv, EzPickle):
       - the optional ``action_rate_need`` reward term (weight 0 by default) and
         ``error_units="action"`` (default "rad"): the registered reward, observation
         and results are unchanged.
+      - the optional ``tracking_quadratic`` reward term (weight 0 by default): the registered
+        reward is unchanged.
     """  # noqa: E501
 
     metadata = {"render_modes": ["human", "rgb_array", "depth_array"]}

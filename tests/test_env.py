@@ -545,6 +545,25 @@ def test_action_rate_need_counts_the_rate_in_multiples_of_the_arms_own():
         gym.make("Tendon2R-v0", reward_scales={"action_rate_need": 0.5})
 
 
+def test_tracking_quadratic_is_the_squared_error_in_degrees_and_off_by_default():
+    """The tracking_quadratic term of a step is -weight sum(e^2), e the step's tracking errors
+    in deg; at its default weight 0 the reward is the registered one, bit for bit."""
+    plain = Tendon2REnv()
+    env = Tendon2REnv(reward_scales={"tracking_quadratic": 50.0})
+    plain.reset(seed=5)
+    env.reset(seed=5)
+    for action in ([0.3, -0.2], [-0.1, 0.4]):
+        r0, info0 = plain.step(np.array(action))[1::3]
+        r, info = env.step(np.array(action))[1::3]
+        e = np.asarray(info["tracking_error_deg"])
+        assert info["reward_tracking_quadratic"] == pytest.approx(-50.0 * np.sum(e**2), rel=1e-9)
+        assert info0["reward_tracking_quadratic"] == 0.0
+        assert r == pytest.approx(r0 + info["reward_tracking_quadratic"], abs=1e-12)
+        assert r != r0
+    with pytest.raises(ValueError, match=r"reward_scales.tracking_quadratic = -1"):
+        Tendon2REnv(reward_scales={"tracking_quadratic": -1})
+
+
 def test_control_authority_is_the_speed_a_full_joint_torque_adds_in_one_step():
     """EnvConfig.control_authority against the compiled model: from rest at a q on the
     reference's path, a joint-torque action on joint j alone adds ctrl_dt max_torque_j

@@ -47,7 +47,7 @@ def _native(n, **kw):
              "action_mode": "joint_torque"}),
      (3, 1, {"preset": "generalist", "action_mode": "joint_torque"}),
      (3, 1, {"preset": "generalist", "action_mode": "joint_torque",
-             "reward_scales": {"action_rate_need": 0.01}}),
+             "reward_scales": {"action_rate_need": 0.01, "tracking_quadratic": 100.0}}),
      (3, 1, {"action_mode": "joint_torque", "reference_ranges": RANGES,
              "reward_scales": {"action_rate_need": 1.0}}),
      (3, 1, {"preset": "generalist", "action_mode": "joint_torque", "observe_error_rate": True,
