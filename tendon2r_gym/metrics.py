@@ -16,6 +16,12 @@ SATURATION = 0.999  # |normalized command| at or above this counts as saturated
 SETTLE_S = 0.02
 
 
+def settled(trace: Trace) -> np.ndarray:
+    """Returns which steps of an episode come after its first SETTLE_S (the reset's
+    transient)."""
+    return trace.time > trace.time[0] + SETTLE_S
+
+
 def beats(rms_deg: Sequence[float], baseline_rms_deg: Sequence[float]) -> bool:
     """Returns whether a policy's RMS error is <= the baseline's on every joint (the
     project's "beats PD")."""
@@ -77,7 +83,7 @@ def tracking_metrics(traces: Sequence[Trace]) -> dict[str, list[float] | float |
     (pushing) tension and the fraction of saturated steps, over all steps of all episodes,
     plus per-episode RMS errors and the RMS error after each episode's first SETTLE_S."""
     err = np.concatenate([t.error_deg for t in traces])
-    settled = np.concatenate([t.error_deg[t.time > t.time[0] + SETTLE_S] for t in traces])
+    after = np.concatenate([t.error_deg[settled(t)] for t in traces])
     tension = np.concatenate([t.tendon_tension for t in traces])
     action = np.concatenate([t.action for t in traces])
     per_episode = np.array([np.sqrt(np.mean(t.error_deg**2, axis=0)) for t in traces])
@@ -88,7 +94,7 @@ def tracking_metrics(traces: Sequence[Trace]) -> dict[str, list[float] | float |
     return {
         "rms_deg": np.sqrt(np.mean(err**2, axis=0)).tolist(),
         "max_deg": np.max(np.abs(err), axis=0).tolist(),
-        "settled_rms_deg": np.sqrt(np.mean(settled**2, axis=0)).tolist(),
+        "settled_rms_deg": np.sqrt(np.mean(after**2, axis=0)).tolist(),
         "rms_tension_N": np.sqrt(np.mean(tension**2, axis=0)).tolist(),
         "max_tension_N": np.max(np.abs(tension), axis=0).tolist(),
         "min_tension_N": np.min(tension, axis=0).tolist(),

@@ -5,6 +5,7 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from tendon2r_gym.bundle import bundle_names
@@ -563,3 +564,51 @@ def test_each_bundle_was_trained_with_its_entry(name):
 def test_each_legacy_bundle_still_differs_from_its_entry(name):
     assert name in bundle_names()
     assert any(_entry_differences(name).values()), f"{name} matches its entry: not legacy"
+
+
+def test_transient_share_counts_the_first_settle_s_of_each_episode():
+    """The share of the first SETTLE_S in the squared error is 1 when the error sits there
+    alone and the fraction of those steps when it is even; the reward's share follows its
+    kernels (log kernels weigh the head less than the squared error does)."""
+    from types import SimpleNamespace
+
+    from tendon2r_gym.env_config import EnvConfig
+    from tendon2r_gym.metrics import SETTLE_S
+    from tendon2r_gym.studies.transient import transient_share
+    from tendon2r_gym.task import Task
+
+    time = np.arange(200) * 0.001
+    head = time <= SETTLE_S
+    e = np.where(head[:, None], 0.03, 0.001) * np.ones((1, 2))
+    only_head = SimpleNamespace(time=time, error_deg=np.where(head[:, None], e, 0.0))
+    even = SimpleNamespace(time=time, error_deg=np.full((200, 2), 0.01))
+    mixed = SimpleNamespace(time=time, error_deg=e)
+    task = {"kernels": Task(EnvConfig.make(tracking_sigma_deg=0.1))}
+    assert transient_share([only_head], task) == pytest.approx({"squared_error": 1, "kernels": 1})
+    assert transient_share([even], task)["squared_error"] == pytest.approx(head.mean())
+    assert transient_share([even, only_head], task)["squared_error"] == pytest.approx(
+        (0.01**2 * head.sum() + 0.03**2 * head.sum()) / (0.01**2 * 200 + 0.03**2 * head.sum())
+    )
+    share = transient_share([mixed], task)
+    assert share["kernels"] < share["squared_error"]
+
+
+def test_transient_tracking_cost_is_minus_the_envs_tracking_term():
+    """tracking_cost on an episode's errors equals minus the env's unscaled tracking term at
+    each step (the task's formula, not a copy)."""
+    from types import SimpleNamespace
+
+    import gymnasium as gym
+
+    from tendon2r_gym.studies.transient import tracking_cost
+
+    env = gym.make("Tendon2R-v0", tracking_sigma_deg=0.1, reward_scales={"tracking": 2.0})
+    env.reset(seed=1)
+    errors, rewards = [], []
+    for _ in range(30):
+        info = env.step(np.array([0.2, -0.1]))[4]
+        errors.append(info["tracking_error_deg"])
+        rewards.append(info["reward_tracking"] / 2.0)
+    trace = SimpleNamespace(error_deg=np.array(errors))
+    np.testing.assert_allclose(tracking_cost(env.unwrapped.task, trace), -np.array(rewards),
+                               rtol=1e-9)  # fmt: skip

@@ -189,6 +189,18 @@ def _specialists(sweep: Path) -> dict[str, dict[str, Any]]:
     return out
 
 
+def sweep_arms(sweep: Path) -> dict[str, dict[str, Any]]:
+    """Returns the study's sweep arms, ``sweep_<arm>``: each arm's ``env_kwargs`` (its
+    mechanism and reference) and its specialists' ``specialist_rms_deg`` per action mode."""
+    return {
+        f"sweep_{name}": {
+            "env_kwargs": {k: spec["env_config"][k] for k in ("mechanism", "reference")},
+            "specialist_rms_deg": spec["rms_deg"],
+        }
+        for name, spec in _specialists(sweep).items()
+    }
+
+
 #: The configs/ppo.yaml entry of the sweep's residual specialists (their training steps).
 SPECIALIST_ENTRY = LEARNED["ppo residual"][1]
 
@@ -435,9 +447,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     if PULL_ONLY_PRESET in bundles:
         for i, content in enumerate(drawn):
             arms[f"unseen_{i}_pull_only"] = {"env_kwargs": with_pull_only_cables(content)}
-    for name, spec in _specialists(Path(args.sweep)).items():
-        kwargs = {k: spec["env_config"][k] for k in ("mechanism", "reference")}
-        arms[f"sweep_{name}"] = {"env_kwargs": kwargs, "specialist_rms_deg": spec["rms_deg"]}
+    arms.update(sweep_arms(Path(args.sweep)))
     result: dict[str, Any] = {"command": command, "bundles": bundles, "seeds": seeds, "arms": {}}
     compared = ("generalist", PULL_ONLY_PRESET, "generalist_scratch", *ABLATIONS)
     result["ablation"] = ablation([b for b in compared if b in bundle_names()])

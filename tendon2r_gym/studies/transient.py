@@ -1,0 +1,134 @@
+"""Where a residual's RMS comes from: the reset's transient, in the RMS and in the reward.
+
+On the arm sweep's arms that a bundle covers (results/arm_sweep.json, as the generalist study
+takes them), the bundle runs the study's evaluation episodes.  Per arm: the share of each
+episode's first SETTLE_S (tendon2r_gym.metrics), the steps that close the reset's offset, in
+the squared tracking error (what the RMS adds up), in the bundle's own tracking reward (its
+run's ``tracking_form`` and ``tracking_sigma_deg``) and in the registered one (the sweep's
+specialists trained on it).  A reward that weighs those steps far less than the RMS does
+trains a policy that settles precisely but closes the offset slowly.
+
+    python scripts/transient.py [--bundle generalist] [--out results]
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tendon2r_gym.env_config import EnvConfig
+from tendon2r_gym.evaluation import evaluate
+from tendon2r_gym.learned import in_model_settings
+from tendon2r_gym.metrics import SETTLE_S, settled
+from tendon2r_gym.ops import BATCH
+from tendon2r_gym.rollout import Trace
+from tendon2r_gym.runs import command_line, training_record
+from tendon2r_gym.studies import joints, save_json
+from tendon2r_gym.studies.generalist import action_mode_of, model_of, sweep_arms
+from tendon2r_gym.task import RAD_PER_DEG, Task
+
+#: What a reward's tracking term is read from: the fields of an env config that shape it.
+REWARD_FIELDS = ("tracking_form", "tracking_sigma_deg")
+
+
+def tracking_cost(task: Task, trace: Trace) -> np.ndarray:
+    """Returns minus the task's unscaled tracking term at each step of an episode."""
+    e = trace.error_deg * RAD_PER_DEG
+    none: list[Any] = []
+    terms = task.reward_terms(BATCH, e[:, 0], e[:, 1], none, none, none, np.zeros(len(e), bool))
+    return -np.asarray(terms["tracking"])
+
+
+def transient_share(traces: list[Trace], costs: dict[str, Task]) -> dict[str, float]:
+    """Returns the share of the episodes' first SETTLE_S in their squared error and in each
+    task's tracking cost."""
+    head = [~settled(t) for t in traces]
+    sq = [np.sum(t.error_deg**2, axis=1) for t in traces]
+    out = {"squared_error": _share(sq, head)}
+    for name, task in costs.items():
+        out[name] = _share([tracking_cost(task, t) for t in traces], head)
+    return out
+
+
+def _share(per_step: list[np.ndarray], head: list[np.ndarray]) -> float:
+    total = sum(float(x.sum()) for x in per_step)
+    return sum(float(x[h].sum()) for x, h in zip(per_step, head, strict=True)) / total
+
+
+def reward_of(model: Path) -> dict[str, Any]:
+    """Returns the tracking-reward fields the model's run trained on."""
+    config = training_record(model)["env_config"]
+    return {k: config[k] for k in REWARD_FIELDS}
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    p.add_argument("--bundle", default="generalist", help="a bundle, or NAME@SEED")
+    p.add_argument("--episodes", type=int, default=3, help="evaluation seeds 0..N-1 per arm")
+    p.add_argument("--sweep", default="results/arm_sweep.json", help="the arm sweep's results")
+    p.add_argument("--out", default="results")
+    args = p.parse_args(argv)
+    model = model_of(args.bundle)
+    own = reward_of(model)
+    seeds = list(range(args.episodes))
+    result: dict[str, Any] = {
+        "command": command_line(argv, "python scripts/transient.py"),
+        "bundle": args.bundle,
+        "seeds": seeds,
+        "settle_s": SETTLE_S,
+        "reward": own,
+        "arms": {},
+    }
+    mode = action_mode_of(args.bundle)
+    for name, arm in sweep_arms(Path(args.sweep)).items():
+        kwargs = in_model_settings(model, arm["env_kwargs"])
+        try:
+            metrics, traces = evaluate("ppo", kwargs, seeds, model)
+        except ValueError:  # outside the bundle's ranges
+            continue
+        tasks = {
+            "own_reward": Task(EnvConfig.make(**arm["env_kwargs"], **own)),
+            "registered_reward": Task(EnvConfig.make(**arm["env_kwargs"])),
+        }
+        result["arms"][name] = {
+            "share": transient_share(traces, tasks),
+            "rms_deg": metrics["rms_deg"],
+            "settled_rms_deg": metrics["settled_rms_deg"],
+            "specialist_rms_deg": arm["specialist_rms_deg"].get(mode),
+        }
+    write(result, Path(args.out))
+    return result
+
+
+def write(result: dict[str, Any], out: Path) -> None:
+    save_json(out, "transient", result)
+    own = result["reward"]
+    ms = round(result["settle_s"] * 1000)
+    lines = [
+        "# The reset's transient: its share of the RMS and of the reward",
+        "",
+        f"`{result['command']}`",
+        "",
+        f"Bundle `{result['bundle']}` on the arm sweep's arms it covers, evaluation seeds "
+        f"{result['seeds']}. Share of each "
+        f"episode's first {ms} ms in: the squared tracking error (the RMS metric's sum), the "
+        f"bundle's own tracking reward ({own['tracking_form']}, sigma {own['tracking_sigma_deg']:g}"
+        " deg) and the registered one (multiscale, sigma 1 deg, the specialists'). RMS in deg, "
+        "joint A / B; the specialist's over whole episodes, all the sweep records.",
+        "",
+        f"| arm | first {ms} ms: share of squared error | of own reward | of registered reward "
+        f"| RMS | after {ms} ms | specialist |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name, a in result["arms"].items():
+        s = a["share"]
+        spec = joints(a["specialist_rms_deg"], 4) if a["specialist_rms_deg"] else "-"
+        lines.append(
+            f"| {name} | {s['squared_error']:.2f} | {s['own_reward']:.3f} | "
+            f"{s['registered_reward']:.3f} | {joints(a['rms_deg'], 4)} | "
+            f"{joints(a['settled_rms_deg'], 4)} | {spec} |"
+        )
+    (out / "transient.md").write_text("\n".join(lines) + "\n")
