@@ -412,7 +412,7 @@ class Task:
         dimension), :meth:`rate_need_inverse` of the arm (per action dimension) and
         divergence."""
         e1, e2 = e1 / RAD_PER_DEG, e2 / RAD_PER_DEG
-        squared = -(e1 * e1 + e2 * e2)
+        quadratic = -(e1 * e1 + e2 * e2)
         if self.form == "log":
             u1, u2 = e1 / self.sigma, e2 / self.sigma
             tracking = -(ops.log1p(u1 * u1) + ops.log1p(u2 * u2)) / self.log_norm
@@ -423,7 +423,7 @@ class Task:
                 u1, u2 = e1 * inv, e2 * inv
                 tracking -= (log1p(u1 * u1) + log1p(u2 * u2)) / norm
         else:
-            tracking = squared
+            tracking = quadratic
         effort = rate = rate_need = 0.0  # in action order, as numpy's sum over a few entries
         gain, offset, mapped = self.effort_gain, self.effort_offset, self._effort_mapped
         for x, x0, inv in zip(action, last_action, rate_need_inverse, strict=False):
@@ -435,7 +435,7 @@ class Task:
             rate_need += ops.log1p(r * r)
         return {
             "tracking": tracking,
-            "tracking_quadratic": squared,
+            "tracking_quadratic": quadratic,
             "ctrl": -effort,
             "action_rate": -rate,
             "action_rate_need": -rate_need,
