@@ -58,7 +58,7 @@ def _share(per_step: list[np.ndarray], head: list[np.ndarray]) -> float:
     return sum(float(x[h].sum()) for x, h in zip(per_step, head, strict=True)) / total
 
 
-def reward_of(model: Path) -> dict[str, Any]:
+def tracking_reward_of(model: Path) -> dict[str, Any]:
     """Returns the tracking-reward fields the model's run trained on."""
     config = training_record(model)["env_config"]
     return {k: config[k] for k in REWARD_FIELDS}
@@ -72,7 +72,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--out", default="results")
     args = p.parse_args(argv)
     model = model_of(args.bundle)
-    own = reward_of(model)
+    own = tracking_reward_of(model)
     seeds = list(range(args.episodes))
     result: dict[str, Any] = {
         "command": command_line(argv, "python scripts/transient.py"),
@@ -80,6 +80,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "seeds": seeds,
         "settle_s": SETTLE_S,
         "reward": own,
+        "registered_reward": {k: getattr(EnvConfig, k) for k in REWARD_FIELDS},
         "arms": {},
     }
     mode = action_mode_of(args.bundle)
@@ -105,7 +106,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
 def write(result: dict[str, Any], out: Path) -> None:
     save_json(out, "transient", result)
-    own = result["reward"]
+    own, registered = result["reward"], result["registered_reward"]
     ms = round(result["settle_s"] * 1000)
     lines = [
         "# The reset's transient: its share of the RMS and of the reward",
@@ -116,7 +117,8 @@ def write(result: dict[str, Any], out: Path) -> None:
         f"{result['seeds']}. Share of each "
         f"episode's first {ms} ms in: the squared tracking error (the RMS metric's sum), the "
         f"bundle's own tracking reward ({own['tracking_form']}, sigma {own['tracking_sigma_deg']:g}"
-        " deg) and the registered one (multiscale, sigma 1 deg, the specialists'). RMS in deg, "
+        f" deg) and the registered one ({registered['tracking_form']}, sigma "
+        f"{registered['tracking_sigma_deg']:g} deg, the specialists'). RMS in deg, "
         "joint A / B; the specialist's over whole episodes, all the sweep records.",
         "",
         f"| arm | first {ms} ms: share of squared error | of own reward | of registered reward "
