@@ -612,3 +612,29 @@ def test_transient_tracking_cost_is_minus_the_envs_tracking_term():
     trace = SimpleNamespace(error_deg=np.array(errors))
     np.testing.assert_allclose(tracking_cost(env.unwrapped.task, trace), -np.array(rewards),
                                rtol=1e-9)  # fmt: skip
+
+
+def test_transient_study_end_to_end(tmp_path):
+    """On a one-arm sweep the study writes the arm's shares (each in [0, 1], the kernels'
+    below the squared error's), its RMS beside the specialist's of its action mode and its
+    effort and smoothness against PD; an arm outside the bundle's ranges is left out."""
+    from tendon2r_gym.studies import transient
+    from tendon2r_gym.studies.generalist import action_mode_of
+
+    sweep = json.loads((Path(__file__).parents[1] / "results/arm_sweep.json").read_text())
+    keep = {k: a for k, a in sweep["arms"].items() if a["arm"] in ("course_2", "pull_only")}
+    path = tmp_path / "sweep.json"
+    path.write_text(json.dumps({**sweep, "arms": keep}))
+    out = transient.main(["--episodes", "1", "--sweep", str(path), "--out", str(tmp_path)])
+    assert list(out["arms"]) == ["sweep_course_2"]
+    arm = out["arms"]["sweep_course_2"]
+    share = arm["share"]
+    assert 0 < share["own_reward"] < share["squared_error"] <= 1
+    assert 0 < share["registered_reward"] <= 1
+    mode = action_mode_of(out["bundle"])
+    (specialist,) = [a["ppo residual"]["rms_deg"] for a in keep.values()
+                     if a["arm"] == "course_2" and a["action_mode"] == mode]  # fmt: skip
+    assert arm["specialist_rms_deg"] == specialist
+    assert arm["tension_x_pd"] > 0 and arm["tension_rate_x_pd"] > 0
+    text = (tmp_path / "transient.md").read_text()
+    assert out["command"] in text and "| sweep_course_2 | " in text

@@ -22,7 +22,7 @@ import numpy as np
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.evaluation import evaluate
 from tendon2r_gym.learned import in_model_settings
-from tendon2r_gym.metrics import SETTLE_S, settled
+from tendon2r_gym.metrics import SETTLE_S, settled, smoothness_x_pd
 from tendon2r_gym.ops import BATCH
 from tendon2r_gym.rollout import Trace
 from tendon2r_gym.runs import command_line, training_record
@@ -94,10 +94,14 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             "own_reward": Task(EnvConfig.make(**arm["env_kwargs"], **own)),
             "registered_reward": Task(EnvConfig.make(**arm["env_kwargs"])),
         }
+        pd_metrics, _ = evaluate("pd", arm["env_kwargs"], seeds)
+        tension_x_pd, rate_x_pd = smoothness_x_pd(metrics, pd_metrics)
         result["arms"][name] = {
             "share": transient_share(traces, tasks),
             "rms_deg": metrics["rms_deg"],
             "settled_rms_deg": metrics["settled_rms_deg"],
+            "tension_x_pd": tension_x_pd,
+            "tension_rate_x_pd": rate_x_pd,
             "specialist_rms_deg": arm["specialist_rms_deg"].get(mode),
         }
     write(result, Path(args.out))
@@ -119,11 +123,12 @@ def write(result: dict[str, Any], out: Path) -> None:
         f"bundle's own tracking reward ({own['tracking_form']}, sigma {own['tracking_sigma_deg']:g}"
         f" deg) and the registered one ({registered['tracking_form']}, sigma "
         f"{registered['tracking_sigma_deg']:g} deg, the specialists'). RMS in deg, "
-        "joint A / B; the specialist's over whole episodes, all the sweep records.",
+        "joint A / B; the specialist's over whole episodes, all the sweep records. The "
+        "bundle's RMS tension and RMS tension rate as multiples of PD's on the same episodes.",
         "",
         f"| arm | first {ms} ms: share of squared error | of own reward | of registered reward "
-        f"| RMS | after {ms} ms | specialist |",
-        "|---|---|---|---|---|---|---|",
+        f"| RMS | after {ms} ms | specialist | tension, tension rate x PD |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for name, a in result["arms"].items():
         s = a["share"]
@@ -131,6 +136,7 @@ def write(result: dict[str, Any], out: Path) -> None:
         lines.append(
             f"| {name} | {s['squared_error']:.2f} | {s['own_reward']:.3f} | "
             f"{s['registered_reward']:.3f} | {joints(a['rms_deg'], 4)} | "
-            f"{joints(a['settled_rms_deg'], 4)} | {spec} |"
+            f"{joints(a['settled_rms_deg'], 4)} | {spec} | "
+            f"{a['tension_x_pd']:.2f}, {a['tension_rate_x_pd']:.2f} |"
         )
     (out / "transient.md").write_text("\n".join(lines) + "\n")
