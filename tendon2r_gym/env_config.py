@@ -39,8 +39,16 @@ from tendon2r_gym.model import build_model
 from tendon2r_gym.presets import SECTIONS, load_preset, merge_env_kwargs
 from tendon2r_gym.reference import Reference, ReferenceRanges
 from tendon2r_gym.stability import check_stability
-from tendon2r_gym.task import ERROR_UNITS, REWARD_SCALES, TRACKING_FORMS
-from tendon2r_gym.validation import boolean, check_keys, integer, invalid, mapping, number
+from tendon2r_gym.task import ERROR_UNITS, MAX_REWARD_WEIGHT, REWARD_SCALES, TRACKING_FORMS
+from tendon2r_gym.validation import (
+    boolean,
+    check_keys,
+    integer,
+    invalid,
+    mapping,
+    number,
+    pair,
+)
 
 #: ``max_tendon_force: auto`` is this many times the peak force that inverse dynamics of the
 #: reference needs: PD's feedback and the start-up transient need room above feed-forward.
@@ -194,7 +202,7 @@ class EnvConfig:
         set_(
             "reward_scales",
             {
-                k: number(f"reward_scales.{k}", scales.get(k, default), 0.0)
+                k: number(f"reward_scales.{k}", scales.get(k, default), 0.0, MAX_REWARD_WEIGHT)
                 for k, default in REWARD_SCALES.items()
             },
         )
@@ -215,13 +223,9 @@ class EnvConfig:
         set_("reset_noise_scale", number("reset_noise_scale", self.reset_noise_scale, 0.0, 0.5))
         set_("preview_steps", integer("preview_steps", self.preview_steps, 0, 100))
         set_("preview_dt", number("preview_dt", self.preview_dt, 0.0, 1.0, lo_open=True))
-        noise = self.observation_noise
-        allowed = "[angle std (rad), speed std (rad/s)], two finite numbers >= 0"
-        if isinstance(noise, (str, bytes, Mapping)) or not isinstance(noise, Sequence):
-            raise invalid("observation_noise", noise, allowed)
-        if len(noise) != 2:
-            raise invalid("observation_noise", noise, allowed)
-        set_("observation_noise", tuple(number("observation_noise", v, 0.0) for v in noise))
+        noise = pair("observation_noise", self.observation_noise, 0.0, 1e3,
+                     "angle std (rad), speed std (rad/s)")  # fmt: skip
+        set_("observation_noise", noise)
         delay = number("observation_delay", self.observation_delay, 0.0, 1.0)
         set_("observation_delay", delay)
         delays = {"observation_delay": delay, "mechanism.motor_delay": self.mechanism.motor_delay}

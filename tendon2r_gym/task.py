@@ -93,6 +93,10 @@ TERMS: dict[str, tuple[float, str]] = {
     ),
 }
 REWARD_SCALES: dict[str, float] = {name: weight for name, (weight, _) in TERMS.items()}
+#: The largest weight a term may have: every unscaled term is at most about 1e5 in size
+#: (``tracking_quadratic`` at 180 deg off on both joints is 6.5e4), so a weighted reward stays
+#: far from float32's range (3.4e38) and from VecNormalize's variance overflowing.
+MAX_REWARD_WEIGHT = 1e6
 TRACKING_FORMS = ("quadratic", "log", "multiscale")
 #: What ``error_log`` and ``error_rate_log`` log-scale (EnvConfig.error_units): "rad", the
 #: tracking error (rad) and its rate (rad/s), linear below ERROR_LOG_SCALE and

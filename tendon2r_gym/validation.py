@@ -87,10 +87,15 @@ def check_keys(where: str, given: Iterable[str], allowed: Iterable[str]) -> None
 
 
 def pair(
-    field: str, value: Any, lo: float = -math.inf, hi: float = math.inf
+    field: str,
+    value: Any,
+    lo: float = -math.inf,
+    hi: float = math.inf,
+    names: str = "joint A, joint B",
 ) -> tuple[float, float]:
-    """Returns ``value`` as (joint A, joint B) floats, each finite and in [lo, hi]."""
-    allowed = f"[joint A, joint B], two finite numbers each in [{lo:g}, {hi:g}]"
+    """Returns ``value`` (a list, tuple or numpy array of two) as two floats, each finite and in
+    [lo, hi]; ``names`` says what the two are in the error."""
+    allowed = f"[{names}], two finite numbers each in [{lo:g}, {hi:g}]"
     if isinstance(value, (str, bytes, Mapping)) or not isinstance(value, Iterable):
         raise invalid(field, value, allowed)
     items = list(value)

@@ -165,11 +165,15 @@ class Tendon2RVectorEnv(VectorEnv):
             mask = np.asarray(options["reset_mask"], dtype=bool)
             if mask.shape != (n,):
                 raise invalid("options['reset_mask']", options["reset_mask"], f"{n} booleans")
-        if isinstance(seed, (list, tuple)):
+        if isinstance(seed, (list, tuple, np.ndarray)):
             if len(seed) != n:
                 raise invalid("seed", seed, f"None, an int, or a list of {n} ints or None")
-            seeds = list(seed)
+            seeds = [
+                None if s is None else integer(f"seed[{i}]", s, 0, 2**63)
+                for i, s in enumerate(seed)
+            ]
         else:
+            seed = None if seed is None else integer("seed", seed, 0, 2**63 - n)
             seeds = [None if seed is None else seed + i for i in range(n)]
         ids = np.flatnonzero(mask)
         for i in ids:

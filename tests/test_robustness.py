@@ -62,6 +62,10 @@ BAD_ENV_KWARGS = [
     ({"ctrl_dt": 0.01, "episode_duration": 0.005}, r"episode_duration = 0.005 is invalid"),
     ({"episode_duration": -1}, r"episode_duration = -1 is invalid"),
     ({"reward_scales": {"tracking": -1}}, r"reward_scales.tracking = -1 is invalid"),
+    ({"reward_scales": {"ctrl": 1e308}}, r"reward_scales.ctrl = 1e\+308 is invalid.*1e\+06\]"),
+    ({"observation_noise": [1e-4]}, r"observation_noise = \[0.0001\] is invalid"),
+    ({"observation_noise": np.array([1e-4, np.inf])}, r"observation_noise = array"),
+    ({"mechanism": {"motor_tau": 1e-4}}, r"Mechanism.motor_tau = 0.0001 is invalid; allowed: >="),
     ({"reward_scales": [1, 2]}, r"reward_scales = \[1, 2\] is invalid"),
     ({"tracking_form": "cubic"}, r"tracking_form = 'cubic' is invalid"),
     ({"tracking_sigma_deg": 0}, r"tracking_sigma_deg = 0 is invalid"),
@@ -114,12 +118,38 @@ def test_bad_env_kwargs_raise_a_clear_error_at_construction(kwargs, match, monke
         {"mechanism": {"routing": np.array([[1, 1], [-1, 1]])}},
         {"reference": {"amp_deg": np.array([10.0, 5.0])}},
         {"fit_to_workspace": np.bool_(True)},
+        {"observation_noise": np.array([1e-4, 0.05])},
+        {"reference": {"freq_hz": np.array([1.0, 2.0])}, "reward_scales": {"ctrl": np.float32(1)}},
     ],
 )
 def test_numpy_numbers_are_numbers(kwargs):
     env = gym.make("Tendon2R-v0", **kwargs)
     obs, _ = env.reset(seed=0)
     assert np.isfinite(obs).all()
+
+
+def test_the_largest_reward_weights_give_a_finite_reward():
+    """Every weight at its bound, from a start far off the reference: the reward is finite."""
+    from tendon2r_gym.task import MAX_REWARD_WEIGHT, REWARD_SCALES
+
+    scales = dict.fromkeys(REWARD_SCALES, MAX_REWARD_WEIGHT)
+    env = gym.make("Tendon2R-v0", reward_scales=scales, action_mode="joint_torque")
+    env.reset(seed=0)
+    for _ in range(20):
+        _, reward, *_ = env.step(env.action_space.high)
+        assert np.isfinite(reward) and np.isfinite(np.float32(reward))
+
+
+def test_the_vector_env_takes_numpy_seeds():
+    from tendon2r_gym.vector_env import Tendon2RVectorEnv
+
+    envs = Tendon2RVectorEnv(2)
+    a, _ = envs.reset(seed=np.array([3, 4]))
+    b, _ = envs.reset(seed=[3, 4])
+    c, _ = envs.reset(seed=np.int64(3))
+    assert np.array_equal(a, b) and np.array_equal(a, c)
+    with pytest.raises(ValueError, match=r"seed\[1\] = 'x' is invalid"):
+        envs.reset(seed=[3, "x"])
 
 
 def test_float32_ctrl_dt_keeps_its_step_count():
@@ -150,8 +180,8 @@ def _limit(field: str, integrator: str) -> float:
     """The largest value of ``field`` the criterion accepts on the default mechanism."""
     mech = Mechanism(max_tendon_force=0.5, integrator=integrator, **{field: 1.0})
     rate = rates(build_model(mech), mech)[field] * mech.sim_dt
-    damp_max, stiff_max, _ = LIMITS[integrator]
-    return (stiff_max / rate) ** 2 if field == "tendon_stiffness" else damp_max / rate
+    limits = LIMITS[integrator]
+    return (limits.stiffness / rate) ** 2 if field == "tendon_stiffness" else limits.damping / rate
 
 
 def _diverges(mech: Mechanism) -> bool:
@@ -187,6 +217,58 @@ def test_stability_criterion_on_both_sides(field, integrator):
     with pytest.raises(ValueError, match=rf"Mechanism.{field} = .* is invalid; allowed: <= "):
         gym.make("Tendon2R-v0", mechanism=above)
     assert _diverges(Mechanism(max_tendon_force=0.5, **above)), "the refused value diverges"
+
+
+#: The real_arm preset's cables and motors, without its lag and delays.
+ELASTIC = {"routing": "n_plus_1", "pull_only": True, "pretension": 0.02,
+           "tendon_elasticity": 400.0, "motor_mass": 0.002}  # fmt: skip
+
+
+def _drive_diverges(mech: Mechanism) -> bool:
+    """Whether 2 s of the motors held at half their range, from a moving start, diverge."""
+    m = build_model(mech)
+    d = mujoco.MjData(m)
+    d.qpos[:2], d.qvel[:2], d.ctrl[:] = (0.3, -0.4), (5.0, -5.0), 0.5
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for _ in range(2000):
+            mujoco.mj_step(m, d)
+            state = np.concatenate([d.qvel, d.act])
+            bad = d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number
+            if bad or not np.all(np.abs(state) < 1e4):
+                return True
+    return False
+
+
+@pytest.mark.parametrize("integrator", ["RK4", "Euler"])
+def test_stability_criterion_covers_the_motor_lag_and_the_cable_damping(integrator):
+    """The realism fields' own states: the motor filter's lag (RK4 integrates it explicitly)
+    and a series-elastic cable's damping across its spool."""
+    base = Mechanism(integrator=integrator, **ELASTIC)
+    r = rates(build_model(base.ideal()), Mechanism(integrator=integrator, tendon_damping=1.0,
+                                                   motor_tau=1.0, **ELASTIC))  # fmt: skip
+    limits, dt = LIMITS[integrator], base.sim_dt
+    cases = [("tendon_damping", limits.cable_damping / (r["tendon_damping"] * dt), 2.0)]
+    if integrator == "RK4":  # the lag's rate is 1 / motor_tau: its limit is a least value
+        cases.append(("motor_tau", dt / limits.lag * r["motor_tau"], 0.5))
+    for field, limit, outside in cases:
+        inside = {**ELASTIC, "integrator": integrator, field: limit / outside}
+        env = gym.make("Tendon2R-v0", mechanism=inside)
+        env.reset(seed=0)
+        for _ in range(300):
+            *_, terminated, _, _ = env.step(env.action_space.sample())
+            assert not terminated, (field, inside[field])
+        above = {**ELASTIC, "integrator": integrator, field: limit * outside}
+        with pytest.raises(ValueError, match=rf"Mechanism.{field} = .* is invalid; allowed: "):
+            gym.make("Tendon2R-v0", mechanism=above)
+        assert _drive_diverges(Mechanism(**above)), f"the refused {field} diverges"
+
+
+def test_the_motor_lag_is_exact_outside_rk4():
+    for integrator in ("Euler", "implicitfast"):
+        mech = {**ELASTIC, "integrator": integrator, "motor_tau": 1e-5}
+        gym.make("Tendon2R-v0", mechanism=mech)
+        assert not _drive_diverges(Mechanism(**mech))
 
 
 def test_implicitfast_integrates_damping_that_rk4_cannot():
