@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 export MUJOCO_GL ?= egl
 
-.PHONY: venv test lint wheel-smoke benchmark speed learnability view clean
+.PHONY: venv test lint properties wheel-smoke benchmark speed learnability view clean
 
 # The venv is rebuilt only when pyproject.toml changes (torch is a large download).
 $(BIN)/activate: pyproject.toml
@@ -19,6 +19,10 @@ test: venv
 	$(BIN)/ruff check tendon2r_gym scripts tests
 	$(BIN)/python -m pytest -q -n auto
 	$(MAKE) wheel-smoke
+
+# The property-based tests' long run (CI runs 25 draws per property; this runs 1000).
+properties: venv
+	HYPOTHESIS_PROFILE=long $(BIN)/python -m pytest -q tests/test_properties.py
 
 lint: venv
 	$(BIN)/ruff check tendon2r_gym scripts tests

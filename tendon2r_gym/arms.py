@@ -233,6 +233,8 @@ class MechanismRanges:
         """Reads ``course``, ``real_arm``, a mapping ``{field: [lo, hi]}``, or a list of these
         merged in order (a later range of a field replaces an earlier one), e.g. ``[real_arm,
         {pd_bandwidth_hz: [12, 47]}]``."""
+        if isinstance(value, np.ndarray):  # an array of names is a list of them
+            value = value.tolist()
         if isinstance(value, list | tuple) and not isinstance(value, str):
             if not value:
                 raise invalid("mechanism_ranges", value, f"at least one of {DRAWABLE}")
@@ -312,7 +314,7 @@ class MechanismRanges:
 def reference_ranges(value: Any) -> ReferenceRanges:
     """Reads ``reference_ranges``: ``course`` (the course's amplitudes, frequencies and biases
     of ArmRanges, both joints, any phase) or a mapping of ReferenceRanges fields."""
-    if value == COURSE_NAME:
+    if isinstance(value, str) and value == COURSE_NAME:
         return ReferenceRanges(
             amp_deg=(COURSE.amp_deg,) * 2,
             freq_hz=(COURSE.freq_hz,) * 2,

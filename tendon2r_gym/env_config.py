@@ -43,6 +43,7 @@ from tendon2r_gym.task import ERROR_UNITS, MAX_REWARD_WEIGHT, REWARD_SCALES, TRA
 from tendon2r_gym.validation import (
     boolean,
     check_keys,
+    choice,
     integer,
     invalid,
     mapping,
@@ -193,8 +194,7 @@ class EnvConfig:
         if abs(n_sub * sim_dt - self.ctrl_dt) > 1e-6 * self.ctrl_dt:
             raise invalid("ctrl_dt", self.ctrl_dt, f"an integer multiple of sim_dt = {sim_dt} s")
         set_("ctrl_dt", n_sub * sim_dt)
-        if self.action_mode not in ACTION_MODES:
-            raise invalid("action_mode", self.action_mode, f"one of {ACTION_MODES}")
+        choice("action_mode", self.action_mode, ACTION_MODES)
         set_("action_filter_tau", number("action_filter_tau", self.action_filter_tau, 0.0, 1.0))
         set_("episode_duration", number("episode_duration", self.episode_duration, self.ctrl_dt))
         scales = mapping("reward_scales", self.reward_scales)
@@ -214,8 +214,7 @@ class EnvConfig:
                 f"0 in action_mode {self.action_mode!r} (a joint's torque rate is the scale; "
                 "use action_mode 'joint_torque')",
             )
-        if self.tracking_form not in TRACKING_FORMS:
-            raise invalid("tracking_form", self.tracking_form, f"one of {TRACKING_FORMS}")
+        choice("tracking_form", self.tracking_form, TRACKING_FORMS)
         set_(
             "tracking_sigma_deg",
             number("tracking_sigma_deg", self.tracking_sigma_deg, 0.0, 90.0, lo_open=True),
@@ -234,8 +233,7 @@ class EnvConfig:
                 raise invalid(name, value, f"a multiple of ctrl_dt = {self.ctrl_dt} s")
         set_("observe_arm", boolean("observe_arm", self.observe_arm))
         set_("observe_error_rate", boolean("observe_error_rate", self.observe_error_rate))
-        if self.error_units not in ERROR_UNITS:
-            raise invalid("error_units", self.error_units, f"one of {ERROR_UNITS}")
+        choice("error_units", self.error_units, ERROR_UNITS)
         set_("observe_feedforward", boolean("observe_feedforward", self.observe_feedforward))
         set_("observe_force_limit", boolean("observe_force_limit", self.observe_force_limit))
         if self.observe_arm and self.feature_ranges is None:

@@ -114,7 +114,7 @@ class Mechanism:
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
         for name, hi in LIMITS.items():
             set_(name, number(f"Mechanism.{name}", getattr(self, name), 0.0, hi, lo_open=True))
-        if self.max_tendon_force != AUTO:
+        if not (isinstance(self.max_tendon_force, str) and self.max_tendon_force == AUTO):
             set_(
                 "max_tendon_force",
                 _positive_or_auto("max_tendon_force", self.max_tendon_force),
@@ -152,7 +152,7 @@ class Mechanism:
             raise _fail(
                 "link_radius", self.link_radius, f"< the smaller pulley radius {min(r1, r2)}"
             )
-        if self.integrator not in INTEGRATORS:
+        if not isinstance(self.integrator, str) or self.integrator not in INTEGRATORS:
             raise _fail("integrator", self.integrator, f"one of {INTEGRATORS}")
         rng = self.joint_range_deg
         allowed = "(lo, hi) with -180 < lo < hi < 180 (deg)"

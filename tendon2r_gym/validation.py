@@ -44,7 +44,7 @@ def number(
     x = float(value)
     if not math.isfinite(x) or x < lo or x > hi or (lo_open and x == lo) or (hi_open and x == hi):
         raise invalid(field, value, allowed)
-    return x
+    return x + 0.0  # -0.0 is 0.0
 
 
 def integer(field: str, value: Any, lo: int, hi: int) -> int:
@@ -62,6 +62,16 @@ def boolean(field: str, value: Any) -> bool:
     if not isinstance(value, (bool, np.bool_)):
         raise invalid(field, value, "true or false")
     return bool(value)
+
+
+def choice(field: str, value: Any, allowed: Iterable[Any]) -> Any:
+    """Returns ``value`` if it is one of ``allowed`` (compared by type and equality: an array,
+    a list or ``1`` for ``True`` is not a choice), or raises."""
+    options = tuple(allowed)
+    same = lambda o: isinstance(value, type(o)) and isinstance(value, bool) == isinstance(o, bool)  # noqa: E731
+    if not any(same(o) and value == o for o in options):
+        raise invalid(field, value, f"one of {options}")
+    return value
 
 
 def mapping(field: str, value: Any) -> dict[str, Any]:
