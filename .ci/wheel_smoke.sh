@@ -14,6 +14,44 @@ site=$("$work/venv/bin/python" -c "import sysconfig; print(sysconfig.get_paths()
 echo "$deps" > "$site/test_venv_deps.pth"  # dependencies only: .pth files there are not run
 "$work/venv/bin/python" -m pip install --quiet --no-deps --no-index "$work"/dist/*.whl
 cd "$work"
+
+# The core install: the wheel's own requirements name no torch, Stable-Baselines3 or plotting
+# package, and the env, PD and computed torque run with those packages made unimportable.
+"$work/venv/bin/python" - <<'PY'
+from importlib.metadata import requires
+
+core = [r for r in requires("tendon2r_gym") if "extra ==" not in r]
+heavy = ("torch", "stable-baselines3", "matplotlib", "tensorboard")
+assert not [r for r in core if r.startswith(heavy)], core
+print("core requirements:", core)
+PY
+MUJOCO_GL=egl "$work/venv/bin/python" - <<'PY'
+import sys
+
+BLOCKED = ("torch", "stable_baselines3", "matplotlib", "tensorboard", "triton")
+
+
+class Block:  # what a core install lacks cannot be imported
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in BLOCKED:
+            raise ModuleNotFoundError(f"No module named {name!r} (core install)", name=name)
+
+
+sys.meta_path.insert(0, Block())
+import gymnasium as gym
+
+import tendon2r_gym  # noqa: F401
+from tendon2r_gym.policies import ComputedTorquePolicy, PDPolicy
+
+env = gym.make("Tendon2R-v0")
+obs, _ = env.reset(seed=0)
+for policy in (PDPolicy.from_env(env), ComputedTorquePolicy.from_env(env)):
+    action, _ = policy.predict(obs)
+    obs, *_ = env.step(action)
+assert not [m for m in sys.modules if m.split(".")[0] in BLOCKED]
+print("core install: gym.make, PD and CT work without", ", ".join(BLOCKED))
+PY
+
 MUJOCO_GL=egl "$work/venv/bin/python" - "$repo" <<'PY'
 import sys
 from pathlib import Path
