@@ -302,6 +302,10 @@ def tune_pd_main(argv: list[str] | None = None) -> dict[str, Any]:
 
 
 # -- tendon2r-view / tendon2r-export / tendon2r-bundle -------------------------------------------
+#: The largest side (px) of an image ``tendon2r-view`` renders (the env's render limit).
+MAX_IMAGE_SIDE = 16384
+
+
 @dataclass
 class ViewArgs:
     """A static view of a mechanism (the reports' task 3): MuJoCo's passive viewer, or a PNG.
@@ -312,9 +316,9 @@ class ViewArgs:
 
     env_config: str = arg("default", "preset name or experiment file")
     save: str | None = arg(None, "write a PNG instead of opening the viewer")
-    q_deg: list[float] = arg([20.0, -35.0], "pose (deg)")
-    width: int = arg(800, "PNG width (px)")
-    height: int = arg(600, "PNG height (px)")
+    q_deg: list[float] = arg([20.0, -35.0], "pose: joint A and joint B (deg, in the joint range)")
+    width: int = arg(800, f"PNG width (px, 1 to {MAX_IMAGE_SIDE})")
+    height: int = arg(600, f"PNG height (px, 1 to {MAX_IMAGE_SIDE})")
 
 
 def view_main(argv: list[str] | None = None) -> Path | None:
@@ -323,12 +327,17 @@ def view_main(argv: list[str] | None = None) -> Path | None:
 
     from tendon2r_gym.env_config import EnvConfig
     from tendon2r_gym.model import CAMERA, build_model
+    from tendon2r_gym.validation import integer, pair
 
     args = parse(ViewArgs, argv)
-    model = build_model(EnvConfig.make(args.env_config).mechanism)
+    integer("--width", args.width, 1, MAX_IMAGE_SIDE)
+    integer("--height", args.height, 1, MAX_IMAGE_SIDE)
+    mech = EnvConfig.make(args.env_config).mechanism
+    q_deg = pair("--q-deg", args.q_deg, *mech.joint_range_deg)
+    model = build_model(mech)
     model.vis.global_.offwidth, model.vis.global_.offheight = args.width, args.height
     data = mujoco.MjData(model)
-    data.qpos[:] = np.radians(args.q_deg)
+    data.qpos[:2] = np.radians(q_deg)  # the arm's joints (elastic cables' spools follow)
     mujoco.mj_forward(model, data)  # positions only: the mechanism is shown, not simulated
     if args.save:
         import imageio.v2 as imageio

@@ -1,4 +1,5 @@
-"""tendon2r-export writes the model the env steps, for every preset and every realism field."""
+"""tendon2r-export writes the model the env steps, for every preset and every realism field;
+tendon2r-view refuses a bad pose or image size, naming the flag."""
 
 import xml.etree.ElementTree as ET
 
@@ -9,7 +10,7 @@ import pytest
 import yaml
 
 import tendon2r_gym  # noqa: F401  (registers Tendon2R-v0)
-from tendon2r_gym.cli import export_main
+from tendon2r_gym.cli import export_main, view_main
 from tendon2r_gym.presets import list_presets, load_yaml, merge_env_kwargs, preset_path
 from tendon2r_gym.realism import PERTURBATIONS, Drive
 
@@ -122,3 +123,33 @@ def test_export_of_every_realism_field_is_the_env_model(tmp_path, field):
         assert PYTHON_SIDE[field] in text.split("-->")[0]
     else:
         assert changed, f"{field} is not in the exported model"
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["--q-deg", "10", "20", "30"],
+        ["--q-deg", "10"],
+        ["--q-deg", "10", "nan"],
+        ["--q-deg", "inf", "0"],
+        ["--q-deg", "0", "95"],
+        ["--width", "0"],
+        ["--height", "20000"],
+    ],
+)
+def test_view_refuses_bad_pose_and_size(tmp_path, argv):
+    flag = argv[0]
+    with pytest.raises(ValueError, match=f"^{flag} = .* is invalid; allowed: "):
+        view_main([*argv, "--save", str(tmp_path / "view.png")])
+    assert not (tmp_path / "view.png").exists()
+
+
+def test_view_renders_an_elastic_arm(tmp_path):
+    """The real_arm's spools follow its two joints in qpos: a pose sets the joints only."""
+    import imageio.v2 as imageio
+
+    out = view_main(
+        ["--env-config", "real_arm", "--q-deg", "10", "-20", "--width", "64", "--height", "48",
+         "--save", str(tmp_path / "view.png")]
+    )  # fmt: skip
+    assert imageio.imread(out).shape[:2] == (48, 64)
