@@ -5,7 +5,7 @@
     tendon2r-benchmark  PD vs CT vs PPO table; on your own arm with --env-config
     tendon2r-tune-pd    PD's bandwidth for your arm (a lagging one needs lower gains)
     tendon2r-view       a picture (or MuJoCo's viewer) of a mechanism
-    tendon2r-export     the MJCF XML of a mechanism
+    tendon2r-export     the MJCF XML of the model the env steps
     tendon2r-bundle     copy finished runs into the bundled models
 
 Ctrl-C during a command exits with code 130 after saving what it was doing.
@@ -31,6 +31,7 @@ from tendon2r_gym.training.hyperparams import VEC_ENVS
 from tendon2r_gym.tuning import SCANS
 
 if typing.TYPE_CHECKING:
+    from tendon2r_gym.env_config import EnvConfig
     from tendon2r_gym.training import Experiment
 
 A = TypeVar("A")
@@ -301,6 +302,10 @@ def tune_pd_main(argv: list[str] | None = None) -> dict[str, Any]:
 
 
 # -- tendon2r-view / tendon2r-export / tendon2r-bundle -------------------------------------------
+#: The largest side (px) of an image ``tendon2r-view`` renders (the env's render limit).
+MAX_IMAGE_SIDE = 16384
+
+
 @dataclass
 class ViewArgs:
     """A static view of a mechanism (the reports' task 3): MuJoCo's passive viewer, or a PNG.
@@ -311,9 +316,9 @@ class ViewArgs:
 
     env_config: str = arg("default", "preset name or experiment file")
     save: str | None = arg(None, "write a PNG instead of opening the viewer")
-    q_deg: list[float] = arg([20.0, -35.0], "pose (deg)")
-    width: int = arg(800, "PNG width (px)")
-    height: int = arg(600, "PNG height (px)")
+    q_deg: list[float] = arg([20.0, -35.0], "pose: joint A and joint B (deg, in the joint range)")
+    width: int = arg(800, f"PNG width (px, 1 to {MAX_IMAGE_SIDE})")
+    height: int = arg(600, f"PNG height (px, 1 to {MAX_IMAGE_SIDE})")
 
 
 def view_main(argv: list[str] | None = None) -> Path | None:
@@ -322,12 +327,17 @@ def view_main(argv: list[str] | None = None) -> Path | None:
 
     from tendon2r_gym.env_config import EnvConfig
     from tendon2r_gym.model import CAMERA, build_model
+    from tendon2r_gym.validation import integer, pair
 
     args = parse(ViewArgs, argv)
-    model = build_model(EnvConfig.make(args.env_config).mechanism)
+    integer("--width", args.width, 1, MAX_IMAGE_SIDE)
+    integer("--height", args.height, 1, MAX_IMAGE_SIDE)
+    mech = EnvConfig.make(args.env_config).mechanism
+    q_deg = pair("--q-deg", args.q_deg, *mech.joint_range_deg)
+    model = build_model(mech)
     model.vis.global_.offwidth, model.vis.global_.offheight = args.width, args.height
     data = mujoco.MjData(model)
-    data.qpos[:] = np.radians(args.q_deg)
+    data.qpos[:2] = np.radians(q_deg)  # the arm's joints (elastic cables' spools follow)
     mujoco.mj_forward(model, data)  # positions only: the mechanism is shown, not simulated
     if args.save:
         import imageio.v2 as imageio
@@ -349,13 +359,55 @@ def view_main(argv: list[str] | None = None) -> Path | None:
 
 @dataclass
 class ExportArgs:
-    """Write the MJCF XML of a mechanism (loads with MjModel.from_xml_path and the viewer).
+    """Write the MJCF XML of the model Tendon2R-v0 steps for an env config: MuJoCo's
+    MjModel.from_xml_path compiles it to the env's own MjModel, every number exactly.
 
-    tendon2r-export --env-config default --out build/default.xml
+    tendon2r-export --env-config real_arm --out build/real_arm.xml
+
+    The XML holds the geometry, the masses and inertias (density_scale), the joints' damping
+    (extra_joint_damping), the cables (tendon_elasticity with their rest and slack lengths,
+    tendon_damping, tendon_friction), the motors' spools (motor_mass), gains and lag
+    (motor_tau), the time step and the integrator.  Each actuator's ctrl is its motor's
+    normalized command in [-1, 1]; the env applies an action for ctrl_dt / sim_dt steps.
+
+    What the env does in its Python step is not in the XML (its top comment lists this
+    config's values): motor_delay (each command held back whole control steps),
+    observation_noise and observation_delay (what the policy observes), action_filter_tau and
+    action_mode joint_torque (what an action becomes), the reset to rest (cables at their rest
+    tension, motor lags at the rest command), and with mechanism_ranges the new arm of every
+    episode (the XML is the config's nominal arm).
     """
 
     env_config: str = arg("default", "preset name or experiment file")
     out: str | None = arg(None, "output file (default build/<name>.xml)")
+
+
+def export_note(cfg: EnvConfig, name: str) -> str:
+    """Returns the exported XML's top comment: its env config, how the env steps the model,
+    and what of ``cfg`` the env does in Python (ExportArgs)."""
+    mech = cfg.mechanism
+    lines = [
+        f"Tendon2R-v0's model of {name} (tendon2r-export), exactly as the env steps it.",
+        "ctrl: each motor's normalized command in [-1, 1]; an action holds it for ctrl_dt "
+        f"{cfg.ctrl_dt:g} s = {cfg.n_substeps} x timestep.",
+    ]
+    python = []
+    if mech.motor_delay > 0:
+        python.append(f"motor_delay {mech.motor_delay:g} s = {cfg.delay_steps} x ctrl_dt")
+    if cfg.sensed:
+        noise, delay = list(cfg.observation_noise), cfg.observation_delay
+        python.append(f"observation_noise {noise}, observation_delay {delay:g} s")
+    if cfg.action_filter_tau > 0:
+        python.append(f"action_filter_tau {cfg.action_filter_tau:g} s")
+    if cfg.action_mode != "tension":
+        python.append(f"action_mode {cfg.action_mode}")
+    if mech.elastic or mech.motor_tau > 0:
+        python.append("the reset to rest (tendon2r_gym.realism.Drive.settle)")
+    if cfg.mechanism_ranges is not None:
+        python.append("mechanism_ranges: a new arm every episode; this is the nominal one")
+    if python:
+        lines += ["The env does in Python, not in this file:", *(f"  {p}" for p in python)]
+    return "\n".join(lines)
 
 
 def export_main(argv: list[str] | None = None) -> Path:
@@ -363,10 +415,12 @@ def export_main(argv: list[str] | None = None) -> Path:
     from tendon2r_gym.model import to_xml
 
     args = parse(ExportArgs, argv)
-    mech = EnvConfig.make(args.env_config).mechanism
-    out = Path(args.out or f"build/{Path(args.env_config).stem}.xml")
+    cfg = EnvConfig.make(args.env_config)
+    name = Path(args.env_config).stem
+    out = Path(args.out or f"build/{name}.xml")
+    xml = to_xml(cfg.mechanism, export_note(cfg, name))
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(to_xml(mech))
+    out.write_text(xml)
     print("wrote", out)
     return out
 

@@ -15,6 +15,11 @@ pulleys, not stretch); ``motor_tau`` a first-order filter (dyntype filter, filte
 RK4; actearly).  ``motor_delay`` is not in the model: the envs hold each command back by whole
 control steps (tendon2r_gym.realism.CommandDelay).
 
+Every field is set on the spec (``build_spec``; the cables' rest lengths by compiling it once),
+and the envs step ``build_model``'s compilation of it as it is.  ``to_xml`` (``tendon2r-export``)
+writes the spec as MJCF that MuJoCo compiles to that model exactly; what MJCF cannot hold, the
+envs do in Python (``tendon2r-export --help`` lists it).
+
 Each spatial tendon runs: wall anchor -> wraps ``pulley1`` -> guide site on link c (on the common
 tangent of the two pulleys for that tendon's sides, so the path is a true belt path) -> wraps
 ``pulley2`` -> end site at the tip.  A tendon is anchored on the wall at z = s1 * R1/2 and ends on
@@ -26,6 +31,7 @@ moment arm changes sign and the moment-arm matrix loses rank.
 from __future__ import annotations
 
 import math
+import re
 
 import mujoco
 import numpy as np
@@ -94,7 +100,9 @@ def spool_gap(mech: Mechanism) -> float:
 
 
 def build_spec(mech: Mechanism) -> mujoco.MjSpec:
-    """Returns the MjSpec of the mechanism (compile it with ``build_model``)."""
+    """Returns the MjSpec of the mechanism with every field of it set on the spec, the
+    cables' rest lengths included (measured by compiling it once): ``build_model`` compiles
+    it, ``to_xml`` writes it."""
     spec = mujoco.MjSpec()
     spec.modelname = "tendon2r"
     spec.option.timestep = mech.sim_dt
@@ -198,6 +206,9 @@ def build_spec(mech: Mechanism) -> mujoco.MjSpec:
         for i, (s1, _) in enumerate(sides):
             spool = world.add_body(name=spool_name(i), pos=[-spool_gap(mech), 0.0, s1 * r1])
             spool.explicitinertial = True
+            # At the spool's centre.  Left unset, MuJoCo 4.0 compiles it at the spool's pos
+            # once more, and its XML leaves the inertial out, or its pos, which loading needs.
+            spool.ipos = [0.0, 0.0, 0.0]
             spool.mass = mech.motor_mass
             spool.inertia = [mech.motor_mass * 1e-4] * 3
             spool.add_joint(name=spool_name(i), type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[1, 0, 0])
@@ -255,6 +266,11 @@ def build_spec(mech: Mechanism) -> mujoco.MjSpec:
         for i, (_, s2) in enumerate(sides):
             path = spec.add_tendon(name=f"path{i + 1}", frictionloss=mech.tendon_friction)
             _wrap_path(path, i, s2)
+    if mech.elastic:  # each cable is at rest at its length with the arm and spools at 0
+        rest = _compile(spec, mech).tendon_length0
+        for i in range(mech.n_tendons):
+            slack = 0.0 if mech.pull_only else rest[i]  # pull-only: no push below the rest
+            spec.tendon(tendon_name(i)).springlength = [slack, rest[i]]
     return spec
 
 
@@ -285,17 +301,16 @@ def motor_name(i: int) -> str:
 
 
 def build_model(mech: Mechanism) -> mujoco.MjModel:
-    """Returns the compiled MuJoCo model of the mechanism; a mechanism MuJoCo cannot compile
-    (a massless link, degenerate inertia) raises a ValueError naming the mass fields."""
+    """Returns the compiled MuJoCo model of the mechanism: ``build_spec(mech)`` compiled; a
+    mechanism MuJoCo cannot compile (a massless link, degenerate inertia) raises a ValueError
+    naming the mass fields."""
+    return _compile(build_spec(mech), mech)
+
+
+def _compile(spec: mujoco.MjSpec, mech: Mechanism) -> mujoco.MjModel:
+    """Returns ``spec`` compiled, or raises a ValueError naming the mechanism's mass fields."""
     try:
-        spec = build_spec(mech)
-        model = spec.compile()
-        if mech.elastic:  # each cable is at rest at its length with the arm and spools at 0
-            for i in range(mech.n_tendons):
-                rest = model.tendon_length0[i]
-                spec.tendon(tendon_name(i)).springlength = [0.0 if mech.pull_only else rest, rest]
-            model = spec.compile()
-        return model
+        return spec.compile()
     except ValueError as e:  # MuJoCo's compiler message names its element, not our field
         fields = {k: getattr(mech, k) for k in ("density", "link_radius", "pulley_thickness")}
         raise invalid(
@@ -306,8 +321,19 @@ def build_model(mech: Mechanism) -> mujoco.MjModel:
         ) from None
 
 
-def to_xml(mech: Mechanism) -> str:
-    """Returns the MJCF XML of the mechanism."""
+def to_xml(mech: Mechanism, comment: str = "") -> str:
+    """Returns the MJCF XML of ``build_spec(mech)``, which ``mujoco.MjModel.from_xml_string``
+    compiles to ``build_model(mech)`` exactly (tests/test_export.py compares every array and
+    trajectory), with ``comment`` at its top (a ``--``, which XML forbids in a comment, is
+    written ``- -``).
+
+    The spec is saved as written (``compiler.savecompiled`` false): every number exactly, and
+    each element in the notation this module writes it in (``savecanonical`` false: fromto,
+    not pos and quat).  Saved as compiled, MuJoCo 4.0 rounds every number to 6 digits: the
+    default arm's trajectory moved by 3.6e-5 rad in 1000 steps."""
     spec = build_spec(mech)
-    spec.compile()
+    _compile(spec, mech)
+    spec.compiler.savecompiled = False
+    spec.compiler.savecanonical = False
+    spec.comment = re.sub(r"-(?=-|$)", "- ", comment)
     return spec.to_xml()
