@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 export MUJOCO_GL ?= egl
 
-.PHONY: venv test lint properties wheel-smoke benchmark speed learnability view clean
+.PHONY: venv test research-test lint properties wheel-smoke benchmark speed learnability view clean
 
 # The venv is rebuilt only when pyproject.toml changes (torch is a large download).
 $(BIN)/activate: pyproject.toml
@@ -16,16 +16,20 @@ $(BIN)/activate: pyproject.toml
 venv: $(BIN)/activate
 
 test: venv
-	$(BIN)/ruff check tendon2r_gym scripts tests
-	$(BIN)/python -m pytest -q -n auto
+	$(BIN)/ruff check tendon2r_gym scripts tests research
+	$(BIN)/python -m pytest -q -n auto tests research/tests
 	$(MAKE) wheel-smoke
+
+# The research folder's own tests (make test runs them too).
+research-test: venv
+	$(BIN)/python -m pytest -q -n auto research/tests
 
 # The property-based tests' long run (CI runs 25 draws per property; this runs 1000).
 properties: venv
 	HYPOTHESIS_PROFILE=long $(BIN)/python -m pytest -q tests/test_properties.py
 
 lint: venv
-	$(BIN)/ruff check tendon2r_gym scripts tests
+	$(BIN)/ruff check tendon2r_gym scripts tests research
 
 # Non-editable install: build the wheel, install it into a fresh venv that borrows the test
 # venv's dependencies (no download), and use it from outside the checkout.
@@ -36,11 +40,11 @@ benchmark: venv
 	$(BIN)/tendon2r-benchmark
 
 speed: venv
-	$(BIN)/python scripts/bench_speed.py
-	$(BIN)/python scripts/timestep_study.py
+	$(BIN)/python -m research.studies.speed
+	$(BIN)/python -m research.studies.timestep
 
 learnability: venv
-	$(BIN)/python scripts/learnability.py
+	$(BIN)/python -m research.studies.learnability
 
 view: venv
 	$(BIN)/tendon2r-view --save results/default.png

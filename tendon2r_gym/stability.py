@@ -22,12 +22,13 @@ true inertia is the nominal one times ``density_scale`` (every mass is a geom's 
 its volume).
 
 A run is accepted if lambda * sim_dt, omega * sim_dt and the lag rate * sim_dt stay below the
-integrator's limits in :data:`LIMITS`.  ``python scripts/stability_limits.py`` measures them on
-the compiled default mechanism at sim_dt = 1 ms (bisection on each parameter until a 2 s episode
-diverges); the limits are set 20% below: for RK4 divergence started at lambda dt = 4.9-5.2 and
-omega dt = 3.4; for Euler at 4.4 (tendon damping) and 1.9; for implicitfast at omega dt = 1.9;
-for implicit at 1.0.  MuJoCo's implicit integrators (and Euler for joint damping) integrate
-damping implicitly: it diverges there only at values thousands of times larger.
+integrator's limits in :data:`LIMITS`.  The study ``python -m research.studies.stability_limits``
+(in the repository) measures them on the compiled default mechanism at sim_dt = 1 ms (bisection
+on each parameter until a 2 s episode diverges); the limits are set 20% below: for RK4
+divergence started at lambda dt = 4.9-5.2 and omega dt = 3.4; for Euler at 4.4 (tendon damping)
+and 1.9; for implicitfast at omega dt = 1.9; for implicit at 1.0.  MuJoCo's implicit
+integrators (and Euler for joint damping) integrate damping implicitly: it diverges there only
+at values thousands of times larger.
 """
 
 from __future__ import annotations
@@ -53,7 +54,7 @@ class Limits(NamedTuple):
     lag: float  #: the motor lag's rate (filterexact, outside RK4: exact, never unstable)
 
 
-#: Measured divergence (``python scripts/stability_limits.py``) of cable damping: RK4 at rate x
+#: Measured divergence (research.studies.stability_limits) of cable damping: RK4 at rate x
 #: sim_dt 3.6, Euler at 2.0 (implicitfast and implicit integrate it); of the motor lag: RK4 at
 #: 2.79, the edge of RK4's stability on the negative real axis (2.785).  Each limit is 20% below.
 LIMITS: dict[str, Limits] = {

@@ -452,7 +452,7 @@ class Tendon2RVectorEnv(VectorEnv):
         self.batch = None
 
 
-#: Arms per MuJoCo batch thread by default.  On 2 cores (python scripts/bench_speed.py, columns
+#: Arms per MuJoCo batch thread by default.  On 2 cores (python -m research.studies.speed, columns
 #: native_1thread and native_2threads of results/speed.md), a second thread pays from 16 arms
 #: on; at 8 arms and fewer, one and two threads differ by less than the noise between runs.
 ARMS_PER_THREAD = 8

@@ -166,10 +166,10 @@ def test_benchmark_runs_a_model_in_the_action_mode_it_trained_in(tmp_path, monke
     """A bundle trained in joint-torque mode with an action filter runs on the preset's arm,
     reference and episodes in those settings, in the benchmark and in the generalist study,
     and its rows say so; PD's rows stay in the env's settings."""
+    from research.studies import generalist as generalist_study
     from tendon2r_gym.benchmark import shown_policy
     from tendon2r_gym.evaluation import evaluate
     from tendon2r_gym.learned import settings_on
-    from tendon2r_gym.studies import generalist as generalist_study
     from tendon2r_gym.training import Experiment, Hyperparams
 
     env = {"preset": "default", "episode_duration": 0.05}

@@ -1,7 +1,7 @@
 """Speed benchmark (not a test): raw physics vs env.step, against Gymnasium's Reacher-v5 in the
 same run; vector envs; PPO training throughput; peak memory.
 
-    python scripts/bench_speed.py            # writes results/speed.md and results/speed.json
+    python -m research.studies.speed            # writes results/speed.md and results/speed.json
 """
 
 from __future__ import annotations
@@ -297,7 +297,7 @@ def ppo_throughput(setup: dict[str, Any], timesteps: int, eval_freq: int) -> dic
 
     with tempfile.TemporaryDirectory() as tmp:
         code = (
-            "import json, sys; from tendon2r_gym.studies.speed import _train_child; "
+            "import json, sys; from research.studies.speed import _train_child; "
             "_train_child(json.loads(sys.argv[1]))"
         )
         arg = json.dumps({"setup": setup, "timesteps": timesteps, "eval_freq": eval_freq,
@@ -459,7 +459,7 @@ def main(argv: list[str] | None = None) -> dict:
         print("\n".join(lines), flush=True)
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
-        command = command_line(argv, "python scripts/bench_speed.py")
+        command = command_line(argv, "python -m research.studies.speed")
         (out / "speed_compare.json").write_text(json.dumps({"command": command, **cmp}, indent=1))
         (out / "speed_compare.md").write_text(
             f"# Speed of checkouts\n\nProduced by `{command}` (best of {args.repeats}, "
@@ -467,7 +467,7 @@ def main(argv: list[str] | None = None) -> dict:
         )
         if args.only_compare:
             return cmp
-    command = command_line(argv, "python scripts/bench_speed.py")
+    command = command_line(argv, "python -m research.studies.speed")
     result: dict = {"mujoco": mujoco.__version__, "gymnasium": gym.__version__}
     # Every timing is the best of --repeats, taken in rounds over all the settings, so that a
     # burst of load from elsewhere costs one repeat of each setting, not every repeat of one.

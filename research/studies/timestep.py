@@ -1,6 +1,6 @@
 """Integrator / time-step study under PD control, against a fine RK4 reference.
 
-    python scripts/timestep_study.py        # writes results/timestep_study.md and .json
+    python -m research.studies.timestep        # writes results/timestep_study.md and .json
 
 For each preset, integrator and sim_dt: the max joint-angle deviation (deg) from RK4 at
 sim_dt = 2e-5 s over one episode with the same PD policy, and the physics cost per simulated
@@ -87,7 +87,7 @@ def main(argv: list[str] | None = None) -> dict:
     lines = [
         "# Time-step study",
         "",
-        "Produced by `python scripts/timestep_study.py`. Max "
+        "Produced by `python -m research.studies.timestep`. Max "
         f"joint deviation from RK4 at {REFERENCE[1]} s over a 2 s PD episode; cost of "
         "`mj_step` per simulated second on this machine.",
         "",

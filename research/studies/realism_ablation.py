@@ -1,7 +1,8 @@
 """What the randomized residual sees, its network and its PD: finished real-arm runs on the
 realism section's arms.
 
-    python scripts/realism_ablation.py --runs runs/real_arm/seed_0 runs/real_arm_blind/seed_0
+    python -m research.studies.realism_ablation \
+        --runs runs/real_arm/seed_0 runs/real_arm_blind/seed_0
     # results/realism_ablation.md and .json
 
 Each run (a folder written by ``tendon2r-train``, e.g. of the configs/ppo.yaml entries
@@ -22,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from research.studies import joints, save_json
 from tendon2r_gym.arms import CONTROLLER, GAIN_UNITS, MechanismRanges
 from tendon2r_gym.benchmark import TUNE_EPISODES, on_its_pd, realism_arms
 from tendon2r_gym.env_config import EnvConfig
@@ -30,7 +32,6 @@ from tendon2r_gym.gains import gains_of, true_phase_per_hz
 from tendon2r_gym.learned import trained_on_drawn_gains
 from tendon2r_gym.metrics import beats, worst_ratio
 from tendon2r_gym.runs import BEST_METRICS, CONFIG, SUMMARY, RunFolder, command_line
-from tendon2r_gym.studies import joints, save_json
 from tendon2r_gym.tuning import tune_pd
 from tendon2r_gym.validation import invalid
 
@@ -70,7 +71,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     )
     p.add_argument("--out", default="results")
     args = p.parse_args(argv)
-    command = command_line(argv, "python scripts/realism_ablation.py")
+    command = command_line(argv, "python -m research.studies.realism_ablation")
     runs = [RunFolder(Path(r)) for r in args.runs]
     records = [_record(run) for run in runs]  # every folder checked before any evaluation
     seeds = list(range(args.episodes))

@@ -1,7 +1,8 @@
-"""Studies and benchmarks behind results/: speed, time step, actuation map, learnability,
-the arm sweep, sensitivity and the generalists.
+"""Studies and benchmarks behind the research results: speed, time step, actuation map,
+learnability, the arm sweep, sensitivity, the realism ablation and the generalists.
 
-Each module has a ``main(argv)`` and a thin wrapper in scripts/.
+Each module has a ``main(argv)``: ``python -m research.studies.<name> --help`` from the
+repository's root.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Generalist study: does one policy, trained across random arms, track arms it never saw?
 
-    python scripts/generalist.py                       # results/generalist.md and .json
-    python scripts/generalist.py --n-arms 2 --episodes 1 --out /tmp/x      # smoke
+    python -m research.studies.generalist                       # results/generalist.md and .json
+    python -m research.studies.generalist --n-arms 2 --episodes 1 --out /tmp/x      # smoke
 
 Arms: ``--n-arms`` arms drawn with ``--arm-seed`` from the course's ranges by
 tendon2r_gym.arms.draw_arms (training never draws from this generator: its arms come from the
@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from research.studies import joints, save_json
 from tendon2r_gym.arms import GEOMETRY, draw_arms
 from tendon2r_gym.benchmark import GENERALISTS, LEARNED
 from tendon2r_gym.bundle import bundle_meta, bundle_names, bundled_model
@@ -57,7 +58,6 @@ from tendon2r_gym.metrics import (
 from tendon2r_gym.observation import OPTIONAL, layout_mask
 from tendon2r_gym.presets import load_yaml, preset_path
 from tendon2r_gym.runs import RunFolder, command_line, stem_of, training_record, training_summary
-from tendon2r_gym.studies import joints, save_json
 from tendon2r_gym.task import REWARD_SCALES
 from tendon2r_gym.training.hyperparams import LINEAR, Smoothing, linear_schedule
 from tendon2r_gym.validation import invalid
@@ -434,7 +434,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     )  # fmt: skip
     p.add_argument("--out", default="results")
     args = p.parse_args(argv)
-    command = command_line(argv, "python scripts/generalist.py")
+    command = command_line(argv, "python -m research.studies.generalist")
     shipped = [b for b in BUNDLES if b in bundle_names()]
     ablations = [b for b in ABLATIONS if b in bundle_names()]
     default = [*shipped, *other_seeds(shipped), *ablations]
@@ -741,3 +741,7 @@ def finetune_lines(curves: dict[str, Any]) -> list[str]:
                 f"{verdict(row['scratch'])} |"
             )
     return lines
+
+
+if __name__ == "__main__":
+    main()

@@ -1,6 +1,6 @@
 """A small rl_zoo3 Optuna search with workers sharing one study through a storage.
 
-    python scripts/optuna_search.py --workers 2 --trials 4 --steps 30000
+    python -m research.studies.optuna_search --workers 2 --trials 4 --steps 30000
 
 starts ``--workers`` copies of the zoo's own command on this machine:
 
@@ -53,7 +53,7 @@ def main(argv: list[str] | None = None) -> dict:
     args = p.parse_args(argv)
     from tendon2r_gym.runs import command_line
 
-    command = command_line(argv, "python scripts/optuna_search.py")
+    command = command_line(argv, "python -m research.studies.optuna_search")
     Path(args.storage).parent.mkdir(parents=True, exist_ok=True)
     env = {**os.environ, "MUJOCO_GL": "egl", "OMP_NUM_THREADS": "1"}
     workers = [subprocess.Popen(zoo_command(args, seed), env=env) for seed in range(args.workers)]

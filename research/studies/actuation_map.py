@@ -2,7 +2,7 @@
 with the preset's reference path on top.  Why mirror-image routings cannot drive both joints,
 and why pull-only tendons need three.
 
-    python scripts/actuation_map.py --env-config default --out results/actuation_map.png
+    python -m research.studies.actuation_map --env-config default --out results/actuation_map.png
 
 cond(J) near 1 means the tendons drive both joints equally well.  The margin (deg) is pi minus
 the largest angular gap between the moment-arm rows: > 0 where pull-only tendons can produce

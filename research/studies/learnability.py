@@ -1,7 +1,7 @@
 """Learnability study: which env defaults make plain PPO (no PD inside) learn from scratch.
 
-    python scripts/learnability.py                      # results/learnability.md and .json
-    python scripts/learnability.py --steps 2048 --seeds 0 --rows defaults --out /tmp/x  # smoke
+    python -m research.studies.learnability                      # results/learnability.md and .json
+    python -m research.studies.learnability --steps 2048 --seeds 0 --rows defaults --out x  # smoke
 
 Each row is the ``default_scratch`` entry of configs/ppo.yaml (which uses the registered env's
 defaults) with one change: the landed value of one choice.  Every row trains one run per seed
@@ -25,7 +25,7 @@ if TYPE_CHECKING:
 
 import numpy as np
 
-from tendon2r_gym.studies import joints, save_json
+from research.studies import joints, save_json
 
 #: Row name -> (what changes, env kwargs, hyperparameter changes).  Rows start from
 #: ``default_scratch`` unless their hyperparameter changes name another ``entry``.
@@ -163,7 +163,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     args = p.parse_args(argv)
     from tendon2r_gym.runs import command_line
 
-    command = command_line(argv, "python scripts/learnability.py")
+    command = command_line(argv, "python -m research.studies.learnability")
     if args.render:  # re-render the tables of an earlier run's JSON (no training)
         old = json.loads(Path(args.render).read_text())
         program, *rest = shlex.split(old["command"])  # its program name, unquoted

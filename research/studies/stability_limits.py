@@ -1,6 +1,6 @@
 """Where each integrator starts to diverge: the measurement behind tendon2r_gym.stability.LIMITS.
 
-    python scripts/stability_limits.py        # prints, per integrator and field, the threshold
+    python -m research.studies.stability_limits   # per integrator and field, the threshold
 
 For each integrator and each of joint_damping, tendon_damping and tendon_stiffness, bisects (in
 log scale) the smallest value at which a 2 s unactuated episode of the default mechanism at

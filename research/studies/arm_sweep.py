@@ -1,7 +1,7 @@
 """Arm sweep: does learning hold off the presets it was tuned on?
 
-    python scripts/arm_sweep.py                  # results/arm_sweep.md and .json
-    python scripts/arm_sweep.py --arms default --train-steps 2048 --out /tmp/x   # smoke
+    python -m research.studies.arm_sweep                  # results/arm_sweep.md and .json
+    python -m research.studies.arm_sweep --arms default --train-steps 2048 --out /tmp/x   # smoke
 
 Arms: the bundled presets, the example arm (configs/examples/my_arm.yaml) and ``--n-random``
 arms drawn with ``--arm-seed`` from the course's ranges by tendon2r_gym.arms.draw_arms.  Each
@@ -25,6 +25,7 @@ from typing import Any
 
 import yaml
 
+from research.studies import joints, save_json
 from tendon2r_gym.arms import draw_arms
 from tendon2r_gym.benchmark import benchmark_own_arm
 from tendon2r_gym.env_config import ACTION_MODES, EnvConfig
@@ -37,7 +38,6 @@ from tendon2r_gym.metrics import (
 )
 from tendon2r_gym.presets import load_yaml, preset_path
 from tendon2r_gym.runs import command_line
-from tendon2r_gym.studies import joints, save_json
 from tendon2r_gym.validation import invalid
 
 PRESETS = ("default", "report_002", "pull_only")
@@ -102,7 +102,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         help="train only this PPO row; the other's cells come from --out's arm_sweep.json",
     )  # fmt: skip
     args = p.parse_args(argv)
-    command = command_line(argv, "python scripts/arm_sweep.py")
+    command = command_line(argv, "python -m research.studies.arm_sweep")
     out, runs = Path(args.out), Path(args.run_dir)
     earlier = _earlier(out, args.only)
     paths = arm_files(runs / "arms", args.n_random, args.arm_seed, tuple(args.action_modes))

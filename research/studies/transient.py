@@ -8,7 +8,7 @@ run's ``tracking_form`` and ``tracking_sigma_deg``) and in the registered one (t
 specialists trained on it).  A reward that weighs those steps far less than the RMS does
 trains a policy that settles precisely but closes the offset slowly.
 
-    python scripts/transient.py [--bundle generalist] [--out results]
+    python -m research.studies.transient [--bundle generalist] [--out results]
 """
 
 from __future__ import annotations
@@ -19,6 +19,8 @@ from typing import Any
 
 import numpy as np
 
+from research.studies import joints, save_json
+from research.studies.generalist import action_mode_of, model_of, sweep_arms
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.evaluation import evaluate
 from tendon2r_gym.learned import in_model_settings
@@ -26,8 +28,6 @@ from tendon2r_gym.metrics import SETTLE_S, settled, smoothness_x_pd
 from tendon2r_gym.ops import BATCH
 from tendon2r_gym.rollout import Trace
 from tendon2r_gym.runs import command_line, training_record
-from tendon2r_gym.studies import joints, save_json
-from tendon2r_gym.studies.generalist import action_mode_of, model_of, sweep_arms
 from tendon2r_gym.task import RAD_PER_DEG, Task
 
 #: What a reward's tracking term is read from: the fields of an env config that shape it.
@@ -75,7 +75,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     own = tracking_reward_of(model)
     seeds = list(range(args.episodes))
     result: dict[str, Any] = {
-        "command": command_line(argv, "python scripts/transient.py"),
+        "command": command_line(argv, "python -m research.studies.transient"),
         "bundle": args.bundle,
         "seeds": seeds,
         "settle_s": SETTLE_S,
@@ -140,3 +140,7 @@ def write(result: dict[str, Any], out: Path) -> None:
             f"{a['tension_x_pd']:.2f}, {a['tension_rate_x_pd']:.2f} |"
         )
     (out / "transient.md").write_text("\n".join(lines) + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from research.studies import learnability, speed
 from tendon2r_gym.bundle import bundle_names
 from tendon2r_gym.mechanism import Mechanism
-from tendon2r_gym.studies import learnability, speed
 
 RESULTS = Path(__file__).resolve().parent.parent / "results"
 
@@ -63,7 +63,8 @@ def test_learnability_rows_change_what_they_say():
 
 def test_default_time_step_is_the_study_recommendation():
     """Mechanism's default integrator and sim_dt are what results/timestep_study.json chose
-    (re-run scripts/timestep_study.py after changing the model, then update the default)."""
+    (re-run python -m research.studies.timestep after changing the model, then update the
+    default)."""
     chosen = json.loads((RESULTS / "timestep_study.json").read_text())["recommended"]
     mech = Mechanism()
     assert (mech.integrator.lower(), mech.sim_dt) == (
@@ -73,9 +74,9 @@ def test_default_time_step_is_the_study_recommendation():
 
 
 def test_random_course_arms_are_valid_and_seeded(tmp_path):
+    from research.studies import arm_sweep
     from tendon2r_gym.arms import COURSE, draw_arms
     from tendon2r_gym.env_config import EnvConfig
-    from tendon2r_gym.studies import arm_sweep
 
     arms = draw_arms(3, 4)
     assert arms == draw_arms(3, 4) and arms != draw_arms(4, 4)
@@ -95,7 +96,7 @@ def test_random_course_arms_are_valid_and_seeded(tmp_path):
 def test_arm_sweep_summary_counts_push_pull_arms_in_tension_mode(tmp_path):
     """The summary's push-pull line counts plain PPO in tension mode on arms whose tendons
     push and pull, and never a pull-only arm or the joint-torque mode."""
-    from tendon2r_gym.studies import arm_sweep
+    from research.studies import arm_sweep
 
     def arm(name, mode, pull_only, wins, rate=2):
         v = {
@@ -132,8 +133,8 @@ def test_arm_sweep_summary_counts_push_pull_arms_in_tension_mode(tmp_path):
 def test_arm_sweep_only_retrains_one_row_and_keeps_the_others(tmp_path):
     """--only scratch trains plain PPO alone; residual PPO's cells and command stay those of
     the earlier sweep, which must hold the same arm (checked before any training)."""
+    from research.studies import arm_sweep
     from tendon2r_gym.env_config import EnvConfig
-    from tendon2r_gym.studies import arm_sweep
 
     runs, out = tmp_path / "runs", tmp_path / "out"
     path = arm_sweep.arm_files(runs / "arms", 0, 2027)["default", "tension"]
@@ -161,7 +162,7 @@ def test_arm_sweep_only_retrains_one_row_and_keeps_the_others(tmp_path):
 
 
 def test_sensitivity_variants_change_one_knob():
-    from tendon2r_gym.studies.sensitivity import variant
+    from research.studies.sensitivity import variant
     from tendon2r_gym.training.hyperparams import scaled_schedule
 
     base = variant("defaults", None)
@@ -178,7 +179,7 @@ def test_sensitivity_variants_change_one_knob():
 def test_sensitivity_rerun_reuses_a_finished_variant(tmp_path):
     """A rerun with the same run folder reuses the finished run (no training is lost or
     repeated): the same summary, the best model untouched."""
-    from tendon2r_gym.studies.sensitivity import _run
+    from research.studies.sensitivity import _run
 
     first = _run("gamma_0.95", 2048, str(tmp_path))
     best = tmp_path / "gamma_0.95" / "seed_0" / "best_model.zip"
@@ -204,7 +205,7 @@ def test_sensitivity_reports_the_tension_rate_against_pd(tmp_path):
     """Each row gives the best model's tension rate and its multiple of PD's on the same
     episodes, and its smoothness on the reference against the limits; both counts exclude the
     shipped entry's own row."""
-    from tendon2r_gym.studies import sensitivity
+    from research.studies import sensitivity
 
     def run(name, rms, rate, rate_x_pd=1.5):
         on_ref = {"tension_x_pd": 1.0, "tension_rate_x_pd": rate_x_pd,
@@ -235,9 +236,9 @@ def test_sensitivity_reports_the_tension_rate_against_pd(tmp_path):
 
 def test_generalist_study_end_to_end(tmp_path):
     """Unseen arms, PD and CT rows, the summary and the markdown (no bundle: baselines only)."""
+    from research.studies import generalist
     from tendon2r_gym.env_config import EnvConfig
     from tendon2r_gym.metrics import worst_ratio
-    from tendon2r_gym.studies import generalist
 
     out = generalist.main(
         ["--n-arms", "2", "--episodes", "1", "--bundles", "--sweep", str(tmp_path / "none"),
@@ -256,7 +257,7 @@ def test_generalist_study_end_to_end(tmp_path):
 def test_generalist_fine_tuning_curve(tmp_path):
     """The fine-tuning section trains the entry from the generalist and from scratch on the
     arm where the generalist is worst, and reports both curves from step 0."""
-    from tendon2r_gym.studies import generalist
+    from research.studies import generalist
 
     out = generalist.main(
         ["--n-arms", "2", "--episodes", "1", "--bundles", "generalist", "--sweep",
@@ -284,12 +285,12 @@ def test_realism_ablation_scores_runs_on_the_realism_arms(tmp_path, monkeypatch)
     folder that is not a run is refused by name."""
     import pytest
 
+    from research.studies import realism_ablation
     from tendon2r_gym.benchmark import realism_arms
     from tendon2r_gym.bundle import bundled_model
     from tendon2r_gym.env_config import EnvConfig
     from tendon2r_gym.gains import tuned_bandwidth
     from tendon2r_gym.metrics import beats, worst_ratio
-    from tendon2r_gym.studies import realism_ablation
 
     monkeypatch.setattr(realism_ablation, "realism_arms", lambda: realism_arms()[:2])
     run = bundled_model("real_arm").parent
@@ -337,9 +338,9 @@ def test_generalist_ablation_names_each_bundles_reward_as_its_entry_sets_it():
     """The reward column reads the bundle's recorded env config: its entry's tracking form
     (the registered one if the entry sets none), its sigma if the entry changes it, and each
     weight the entry changes."""
+    from research.studies import generalist
     from tendon2r_gym.bundle import bundle_names, bundled_model
     from tendon2r_gym.env_config import EnvConfig
-    from tendon2r_gym.studies import generalist
     from tendon2r_gym.training import Hyperparams
 
     registered = EnvConfig.make()
@@ -358,8 +359,8 @@ def test_generalist_ablation_names_each_bundles_reward_as_its_entry_sets_it():
 def test_generalist_ablation_reads_who_saw_the_arm_from_each_run():
     """The ablation table's "arm features seen by" comes from each bundle's recorded run (its
     observation layout and hide lists), not from its name."""
+    from research.studies.generalist import arm_seen_by
     from tendon2r_gym.bundle import bundled_model
-    from tendon2r_gym.studies.generalist import arm_seen_by
 
     assert arm_seen_by(bundled_model("generalist_tension")) == "nobody (blind)"
     assert arm_seen_by(bundled_model("generalist")) == "actor and critic"
@@ -372,9 +373,9 @@ def test_generalist_ablation_reads_action_mode_and_network_from_each_run():
     """The ablation table's action mode, residual, its filter, network, policy smoothing,
     evaluation episodes and optional observation entries come from each bundle's run record:
     what its configs/ppo.yaml entry trained it with."""
+    from research.studies import generalist
     from tendon2r_gym.bundle import bundle_names
     from tendon2r_gym.observation import OPTIONAL
-    from tendon2r_gym.studies import generalist
     from tendon2r_gym.training import Hyperparams
 
     shown = [n for n in ("generalist", *generalist.ABLATIONS) if n in bundle_names()]
@@ -414,7 +415,7 @@ def test_generalist_is_compared_with_the_specialist_of_its_own_action_mode():
     """A sweep arm has one specialist per action mode: the summary scores each bundle against
     the one of the mode it runs in, and fine-tuning goes to the arms furthest from it (to the
     unseen arms furthest from PD without any)."""
-    from tendon2r_gym.studies import generalist
+    from research.studies import generalist
 
     mode = generalist.action_mode_of("generalist")
     other = "tension" if mode == "joint_torque" else "joint_torque"
@@ -443,7 +444,7 @@ def test_generalist_is_compared_with_the_specialist_of_its_own_action_mode():
 def test_generalist_transient_section_shows_whole_and_settled_rms_on_sweep_arms():
     """The sweep arms' section gives each generalist seed's whole-episode and settled RMS
     beside the specialist of its action mode; unseen arms and other bundles stay out."""
-    from tendon2r_gym.studies import generalist
+    from research.studies import generalist
 
     mode = generalist.action_mode_of("generalist")
     row = lambda rms, settled: {"rms_deg": rms, "settled_rms_deg": settled}  # noqa: E731
@@ -473,8 +474,8 @@ def test_generalist_summary_holds_every_arm_to_the_smoothness_limits():
     """A median tension rate within the limit can hide arms over it: the summary counts the
     arms where a bundle keeps the smoothness limits (a residual's rate limit for a residual,
     plain PPO's for plain PPO, as its run recorded it) and those where it is also <= PD."""
+    from research.studies import generalist
     from tendon2r_gym.metrics import RATE_LIMIT_X_PD, TENSION_LIMIT_X_PD
-    from tendon2r_gym.studies import generalist
 
     assert generalist.is_residual("generalist")
     assert not generalist.is_residual("generalist_scratch")
@@ -509,8 +510,8 @@ def test_generalist_study_column_runs_a_bundle_or_one_of_its_seeds():
     """A study column is a bundle (its primary seed) or NAME@SEED (another bundled seed); the
     default columns add each shipped generalist's other seeds; a bad column is a ValueError
     naming --bundles, a seed the bundle lacks one naming the seed."""
+    from research.studies import generalist
     from tendon2r_gym.bundle import bundle_meta, bundled_model
-    from tendon2r_gym.studies import generalist
 
     meta = bundle_meta("generalist")
     assert generalist.model_of("generalist") == bundled_model("generalist")
@@ -572,9 +573,9 @@ def test_transient_share_counts_the_first_settle_s_of_each_episode():
     kernels (log kernels weigh the head less than the squared error does)."""
     from types import SimpleNamespace
 
+    from research.studies.transient import transient_share
     from tendon2r_gym.env_config import EnvConfig
     from tendon2r_gym.metrics import SETTLE_S
-    from tendon2r_gym.studies.transient import transient_share
     from tendon2r_gym.task import Task
 
     time = np.arange(200) * 0.001
@@ -600,7 +601,7 @@ def test_transient_tracking_cost_is_minus_the_envs_tracking_term():
 
     import gymnasium as gym
 
-    from tendon2r_gym.studies.transient import tracking_cost
+    from research.studies.transient import tracking_cost
 
     env = gym.make("Tendon2R-v0", tracking_sigma_deg=0.1, reward_scales={"tracking": 2.0})
     env.reset(seed=1)
@@ -618,8 +619,8 @@ def test_transient_study_end_to_end(tmp_path):
     """On a one-arm sweep the study writes the arm's shares (each in [0, 1], the kernels'
     below the squared error's), its RMS beside the specialist's of its action mode and its
     effort and smoothness against PD; an arm outside the bundle's ranges is left out."""
-    from tendon2r_gym.studies import transient
-    from tendon2r_gym.studies.generalist import action_mode_of
+    from research.studies import transient
+    from research.studies.generalist import action_mode_of
 
     sweep = json.loads((Path(__file__).parents[1] / "results/arm_sweep.json").read_text())
     keep = {k: a for k, a in sweep["arms"].items() if a["arm"] in ("course_2", "pull_only")}

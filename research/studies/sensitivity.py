@@ -1,7 +1,7 @@
 """Hyperparameter sensitivity: does plain PPO still beat PD with settings nobody tuned for us?
 
-    python scripts/sensitivity.py                 # results/sensitivity.md and .json
-    python scripts/sensitivity.py --steps 2048 --variants defaults --out /tmp/x   # smoke
+    python -m research.studies.sensitivity                 # results/sensitivity.md and .json
+    python -m research.studies.sensitivity --steps 2048 --variants defaults --out /tmp/x   # smoke
 
 Each variant is the shipped plain-PPO entry (configs/ppo.yaml ``default_scratch``) with one
 knob changed, trained on the ``default`` preset with one seed and the entry's budget.  A
@@ -19,7 +19,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from tendon2r_gym.studies import joints, save_json
+from research.studies import joints, save_json
 
 ENTRY = "default_scratch"
 
@@ -117,7 +117,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         help="keep the runs here (default: a temp dir); a rerun continues or reuses them",
     )
     args = p.parse_args(argv)
-    command = command_line(argv, "python scripts/sensitivity.py")
+    command = command_line(argv, "python -m research.studies.sensitivity")
     names = [n for n in args.variants if variant(n, args.steps) is not None]
     skipped = [n for n in args.variants if n not in names]
     with tempfile.TemporaryDirectory() as tmp:
