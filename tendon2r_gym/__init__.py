@@ -5,6 +5,8 @@ Data flows one way: Mechanism -> build_model -> Tendon2REnv -> policy -> rollout
 
 import gymnasium as gym
 
+# First: on OSMesa it loads triton before mujoco (see tendon2r_gym.llvm).
+from tendon2r_gym import llvm  # noqa: F401
 from tendon2r_gym.actuation import ActuationAnalysis, cond
 from tendon2r_gym.env import Tendon2REnv
 from tendon2r_gym.env_config import EnvConfig

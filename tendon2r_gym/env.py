@@ -16,6 +16,7 @@ from gymnasium.utils import EzPickle
 from tendon2r_gym import observation as obs_layout
 from tendon2r_gym.actuation import MomentArms, TorqueToTension, cond_of_rows
 from tendon2r_gym.env_config import EnvConfig
+from tendon2r_gym.llvm import load_triton
 from tendon2r_gym.model import CAMERA, build_model, tendon_name
 from tendon2r_gym.ops import SCALAR
 from tendon2r_gym.realism import CommandDelay, Drive, Sensors
@@ -223,6 +224,8 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         integer("height", height, 1, 16384)
         if camera_name not in (None, CAMERA):
             raise invalid("camera_name", camera_name, f"None (free camera) or {CAMERA!r}")
+        if render_mode is not None:  # before a GL context can bring Mesa's LLVM in
+            load_triton()  # tendon2r_gym.llvm: triton loaded after it segfaults
         self.config = cfg = EnvConfig.make(preset, **kwargs)
         self.mechanism = cfg.mechanism  # the current episode's arm (self.arm: its config)
         self.data: mujoco.MjData | None = None

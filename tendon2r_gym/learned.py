@@ -37,6 +37,7 @@ from tendon2r_gym import observation
 from tendon2r_gym.arms import CONTROLLER, MechanismRanges, gain_field, reference_ranges
 from tendon2r_gym.env_config import EnvConfig, low_pass_alpha
 from tendon2r_gym.gains import Gains, gains_of
+from tendon2r_gym.llvm import load_triton
 from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.policies import PDPolicy
 from tendon2r_gym.reference import Reference, ReferenceRanges
@@ -499,6 +500,7 @@ class PPOPolicy:
     def load(cls, model_path: str | Path, env: gym.Env) -> PPOPolicy:
         """Loads ``<name>.zip`` with ``<name>_vecnormalize.pkl`` and the run's run.json; raises
         if the env is not the one the model was trained on."""
+        load_triton()  # torch's triton after a GL context's LLVM segfaults: tendon2r_gym.llvm
         from stable_baselines3 import PPO
         from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
