@@ -163,7 +163,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     ## Version History
     - v0 (unreleased, so the id stays v0): initial version, then, before any release:
       - defaults that make the env learnable from scratch, measured by
-        research.studies.learnability (results/learnability.md): the bounded "log" tracking
+        research.studies.learnability (research/results/learnability.md): the bounded "log" tracking
         reward (was quadratic in deg^2), reward scales ctrl 0.001 and divergence 10 (were
         0.01 and 1000), and the log-scaled tracking error ``error_log`` in the observation;
         the observation reordered into named slices (tendon2r_gym.observation);

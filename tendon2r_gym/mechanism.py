@@ -106,7 +106,7 @@ class Mechanism:
     extra_joint_damping: float = 0.0
     # Simulation.
     # RK4 at 1 ms stays within 4e-4 deg of RK4 at 2e-5 s on both presets under PD, at 1/8 the
-    # cost of the reports' RK4 at 1e-4 s (results/timestep_study.md).
+    # cost of the reports' RK4 at 1e-4 s (research/results/timestep_study.md).
     sim_dt: float = 1e-3  # physics time step (s)
     integrator: str = "RK4"
 

@@ -62,7 +62,7 @@ TERMS: dict[str, tuple[float, str]] = {
         "weighting.  The multiscale kernels weigh a 0.03 deg error about 13 times a 0.001 deg "
         "one (sigma 0.1), the RMS 900 times, so that on them the few steps that close the "
         "reset's offset, most of a precise policy's RMS, are a few percent of its reward "
-        "(README, One policy for every arm; results/transient.md)",
+        "(README, One policy for every arm; research/results/transient.md)",
     ),
     "ctrl": (
         0.001,

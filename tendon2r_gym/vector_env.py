@@ -453,8 +453,8 @@ class Tendon2RVectorEnv(VectorEnv):
 
 
 #: Arms per MuJoCo batch thread by default.  On 2 cores (python -m research.studies.speed, columns
-#: native_1thread and native_2threads of results/speed.md), a second thread pays from 16 arms
-#: on; at 8 arms and fewer, one and two threads differ by less than the noise between runs.
+#: native_1thread and native_2threads of research/results/speed.md), a second thread pays from
+#: 16 arms on; at 8 arms and fewer, one and two threads differ by less than the noise between runs.
 ARMS_PER_THREAD = 8
 
 

@@ -6,15 +6,10 @@ import pytest
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-# Load torch (and the triton extension PPO pulls in) before any test creates an EGL context:
-# loading triton after Mesa's EGL segfaults on these machines.
-import stable_baselines3  # noqa: E402, F401
-from stable_baselines3 import PPO  # noqa: E402, F401
+# Tests render and load models in one process: tendon2r_gym.llvm explains the load order.
+from tendon2r_gym.llvm import load_triton  # noqa: E402
 
-try:
-    import triton.runtime  # noqa: E402, F401
-except ImportError:  # torch builds without triton have nothing to load
-    pass
+load_triton()
 
 from tendon2r_gym import Mechanism  # noqa: E402
 

@@ -2,7 +2,8 @@
 with the preset's reference path on top.  Why mirror-image routings cannot drive both joints,
 and why pull-only tendons need three.
 
-    python -m research.studies.actuation_map --env-config default --out results/actuation_map.png
+    python -m research.studies.actuation_map --env-config default \
+        --out research/results/actuation_map.png
 
 cond(J) near 1 means the tendons drive both joints equally well.  The margin (deg) is pi minus
 the largest angular gap between the moment-arm rows: > 0 where pull-only tendons can produce
@@ -30,7 +31,7 @@ from tendon2r_gym.routing import ROUTINGS  # noqa: E402
 def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("--env-config", default="default", help="preset name or experiment file")
-    p.add_argument("--out", default="results/actuation_map.png")
+    p.add_argument("--out", default="research/results/actuation_map.png")
     p.add_argument("--grid", type=int, default=61)
     args = p.parse_args(argv)
     config = EnvConfig.make(args.env_config)

@@ -1,6 +1,6 @@
 """Arm sweep: does learning hold off the presets it was tuned on?
 
-    python -m research.studies.arm_sweep                  # results/arm_sweep.md and .json
+    python -m research.studies.arm_sweep                  # research/results/arm_sweep.md and .json
     python -m research.studies.arm_sweep --arms default --train-steps 2048 --out /tmp/x   # smoke
 
 Arms: the bundled presets, the example arm (configs/examples/my_arm.yaml) and ``--n-random``
@@ -95,7 +95,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument(
         "--action-modes", nargs="+", default=list(ACTION_MODES), choices=list(ACTION_MODES)
     )
-    p.add_argument("--out", default="results")
+    p.add_argument("--out", default="research/results")
     p.add_argument("--run-dir", default="runs/arm_sweep")
     p.add_argument(
         "--only", choices=list(ROWS), default=None,

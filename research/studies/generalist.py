@@ -1,12 +1,12 @@
 """Generalist study: does one policy, trained across random arms, track arms it never saw?
 
-    python -m research.studies.generalist                       # results/generalist.md and .json
+    python -m research.studies.generalist      # research/results/generalist.md and .json
     python -m research.studies.generalist --n-arms 2 --episodes 1 --out /tmp/x      # smoke
 
 Arms: ``--n-arms`` arms drawn with ``--arm-seed`` from the course's ranges by
 tendon2r_gym.arms.draw_arms (training never draws from this generator: its arms come from the
 envs' own seeded generators), each an experiment file; plus the arm sweep's arms
-(results/arm_sweep.json) that lie inside the generalist's ranges, with their per-arm
+(research/results/arm_sweep.json) that lie inside the generalist's ranges, with their per-arm
 specialists (the sweep's residuals, trained on that arm alone, one per action mode).
 
 Per arm: PD, CT and each generalist bundle zero-shot (no training on the arm), on the same
@@ -425,14 +425,16 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         help="bundle names, or NAME@SEED for another bundled seed (default: the shipped "
         "generalists, their other seeds, then the ablations)",
     )  # fmt: skip
-    p.add_argument("--sweep", default="results/arm_sweep.json", help="the arm sweep's results")
+    p.add_argument(
+        "--sweep", default="research/results/arm_sweep.json", help="the arm sweep's results"
+    )
     p.add_argument("--finetune-arms", type=int, default=3, help="fine-tuning curve on N arms")
     p.add_argument("--finetune-runs", default="runs/finetune", help="its training run folders")
     p.add_argument(
         "--finetune-steps", type=int, default=None,
         help="default: a quarter of the specialist's steps (else the entry's)",
     )  # fmt: skip
-    p.add_argument("--out", default="results")
+    p.add_argument("--out", default="research/results")
     args = p.parse_args(argv)
     command = command_line(argv, "python -m research.studies.generalist")
     shipped = [b for b in BUNDLES if b in bundle_names()]
@@ -485,7 +487,8 @@ def write(result: dict[str, Any], out: Path) -> None:
         f"Produced by `{result['command']}`. RMS tracking error (deg, joint A / B) over "
         f"evaluation seeds {result['seeds']}; for a generalist, (its worst joint's RMS as a "
         "multiple of PD's). Unseen arms: drawn by tendon2r_gym.arms.draw_arms with a seed that "
-        "training never uses; sweep arms: results/arm_sweep.md, with their own specialist. "
+        "training never uses; sweep arms: research/results/arm_sweep.md, with their own "
+        "specialist. "
         "generalist: residual on PD in joint-torque mode, its residual through a first-order "
         "low-pass (PD's command unfiltered; the ablation table gives the time constant), "
         "seeing the arm's features, the tracking error and its rate in action units (the "

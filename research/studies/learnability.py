@@ -1,6 +1,6 @@
 """Learnability study: which env defaults make plain PPO (no PD inside) learn from scratch.
 
-    python -m research.studies.learnability                      # results/learnability.md and .json
+    python -m research.studies.learnability    # research/results/learnability.md and .json
     python -m research.studies.learnability --steps 2048 --seeds 0 --rows defaults --out x  # smoke
 
 Each row is the ``default_scratch`` entry of configs/ppo.yaml (which uses the registered env's
@@ -157,7 +157,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     p.add_argument("--rows", nargs="+", default=list(ROWS), choices=list(ROWS))
     p.add_argument("--jobs", type=int, default=2, help="runs in parallel (one per core)")
-    p.add_argument("--out", default="results")
+    p.add_argument("--out", default="research/results")
     p.add_argument("--run-dir", default=None, help="keep the runs here (default: a temp dir)")
     p.add_argument("--render", default=None, help="only re-render the tables of this JSON")
     args = p.parse_args(argv)

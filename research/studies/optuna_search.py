@@ -7,9 +7,9 @@ starts ``--workers`` copies of the zoo's own command on this machine:
     python -m rl_zoo3.train --algo ppo --env Tendon2R-v0 --gym-packages tendon2r_gym \\
         --conf-file configs/rl_zoo3/ppo.yml -optimize --storage STORAGE --study-name NAME ...
 
-and then writes the study's best trial to results/optuna.md and .json.  Optuna coordinates the
-workers through the storage (a journal file here); nothing here schedules trials.  On many
-machines, run that same zoo command on each of them with a shared database URL as
+and then writes the study's best trial to research/results/optuna.md and .json.  Optuna
+coordinates the workers through the storage (a journal file here); nothing here schedules
+trials.  On many machines, run that same zoo command on each of them with a shared database URL as
 ``--storage`` (for example ``postgresql://user@host/optuna``).
 """
 
@@ -49,7 +49,7 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--storage", default="runs/optuna/tendon2r_ppo.log")
     p.add_argument("--study-name", default="tendon2r_ppo")
     p.add_argument("--log-folder", default="runs/optuna")
-    p.add_argument("--out", default="results")
+    p.add_argument("--out", default="research/results")
     args = p.parse_args(argv)
     from tendon2r_gym.runs import command_line
 

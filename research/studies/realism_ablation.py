@@ -3,7 +3,7 @@ realism section's arms.
 
     python -m research.studies.realism_ablation \
         --runs runs/real_arm/seed_0 runs/real_arm_blind/seed_0
-    # results/realism_ablation.md and .json
+    # research/results/realism_ablation.md and .json
 
 Each run (a folder written by ``tendon2r-train``, e.g. of the configs/ppo.yaml entries
 ``real_arm``, ``real_arm_scheduled``, ``real_arm_oracle``, ``real_arm_history``,
@@ -69,7 +69,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         default="best",
         help="each run's best model (by its training evaluations) or its last",
     )
-    p.add_argument("--out", default="results")
+    p.add_argument("--out", default="research/results")
     args = p.parse_args(argv)
     command = command_line(argv, "python -m research.studies.realism_ablation")
     runs = [RunFolder(Path(r)) for r in args.runs]

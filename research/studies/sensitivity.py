@@ -1,6 +1,6 @@
 """Hyperparameter sensitivity: does plain PPO still beat PD with settings nobody tuned for us?
 
-    python -m research.studies.sensitivity                 # results/sensitivity.md and .json
+    python -m research.studies.sensitivity     # research/results/sensitivity.md and .json
     python -m research.studies.sensitivity --steps 2048 --variants defaults --out /tmp/x   # smoke
 
 Each variant is the shipped plain-PPO entry (configs/ppo.yaml ``default_scratch``) with one
@@ -110,7 +110,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--steps", type=int, default=None, help="default: the entry's budget")
     p.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     p.add_argument("--jobs", type=int, default=2)
-    p.add_argument("--out", default="results")
+    p.add_argument("--out", default="research/results")
     p.add_argument(
         "--run-dir",
         default=None,

@@ -1,7 +1,7 @@
 """Speed benchmark (not a test): raw physics vs env.step, against Gymnasium's Reacher-v5 in the
 same run; vector envs; PPO training throughput; peak memory.
 
-    python -m research.studies.speed            # writes results/speed.md and results/speed.json
+    python -m research.studies.speed   # writes research/results/speed.md and speed.json
 """
 
 from __future__ import annotations
@@ -426,7 +426,7 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--repeats", type=int, default=3, help="best of, per timing")
     p.add_argument("--num-envs", type=int, nargs="+", default=[1, 8, 16, 64, 256])
     p.add_argument("--max-processes", type=int, default=8, help="largest N for async/subproc")
-    p.add_argument("--out", default="results", help="folder for speed.md and speed.json")
+    p.add_argument("--out", default="research/results", help="folder for speed.md and speed.json")
     p.add_argument(
         "--compare",
         nargs="+",

@@ -1,6 +1,6 @@
 """Integrator / time-step study under PD control, against a fine RK4 reference.
 
-    python -m research.studies.timestep        # writes results/timestep_study.md and .json
+    python -m research.studies.timestep        # writes research/results/timestep_study.md and .json
 
 For each preset, integrator and sim_dt: the max joint-angle deviation (deg) from RK4 at
 sim_dt = 2e-5 s over one episode with the same PD policy, and the physics cost per simulated
@@ -55,7 +55,9 @@ def trajectory(preset: str, integrator: str, sim_dt: float, seconds: float = 2.0
 
 def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(description=__doc__)
-    p.add_argument("--out", default="results", help="folder for timestep_study.md and .json")
+    p.add_argument(
+        "--out", default="research/results", help="folder for timestep_study.md and .json"
+    )
     args = p.parse_args(argv)
     rows = []
     for preset in PRESETS:

@@ -1,12 +1,12 @@
 """Where a residual's RMS comes from: the reset's transient, in the RMS and in the reward.
 
-On the arm sweep's arms that a bundle covers (results/arm_sweep.json, as the generalist study
-takes them), the bundle runs the study's evaluation episodes.  Per arm: the share of each
-episode's first SETTLE_S (tendon2r_gym.metrics), the steps that close the reset's offset, in
-the squared tracking error (what the RMS adds up), in the bundle's own tracking reward (its
-run's ``tracking_form`` and ``tracking_sigma_deg``) and in the registered one (the sweep's
-specialists trained on it).  A reward that weighs those steps far less than the RMS does
-trains a policy that settles precisely but closes the offset slowly.
+On the arm sweep's arms that a bundle covers (research/results/arm_sweep.json, as the generalist
+study takes them), the bundle runs the study's evaluation episodes. Per arm: the share of each
+episode's first SETTLE_S (tendon2r_gym.metrics), the steps that close the reset's offset, in the
+squared tracking error (what the RMS adds up), in the bundle's own tracking reward (its run's
+``tracking_form`` and ``tracking_sigma_deg``) and in the registered one (the sweep's specialists
+trained on it). A reward that weighs those steps far less than the RMS does trains a policy that
+settles precisely but closes the offset slowly.
 
     python -m research.studies.transient [--bundle generalist] [--out results]
 """
@@ -68,8 +68,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("--bundle", default="generalist", help="a bundle, or NAME@SEED")
     p.add_argument("--episodes", type=int, default=3, help="evaluation seeds 0..N-1 per arm")
-    p.add_argument("--sweep", default="results/arm_sweep.json", help="the arm sweep's results")
-    p.add_argument("--out", default="results")
+    p.add_argument(
+        "--sweep", default="research/results/arm_sweep.json", help="the arm sweep's results"
+    )
+    p.add_argument("--out", default="research/results")
     args = p.parse_args(argv)
     model = model_of(args.bundle)
     own = tracking_reward_of(model)

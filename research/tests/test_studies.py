@@ -62,7 +62,7 @@ def test_learnability_rows_change_what_they_say():
 
 
 def test_default_time_step_is_the_study_recommendation():
-    """Mechanism's default integrator and sim_dt are what results/timestep_study.json chose
+    """Mechanism's default integrator and sim_dt are what research/results/timestep_study.json chose
     (re-run python -m research.studies.timestep after changing the model, then update the
     default)."""
     chosen = json.loads((RESULTS / "timestep_study.json").read_text())["recommended"]
@@ -622,7 +622,7 @@ def test_transient_study_end_to_end(tmp_path):
     from research.studies import transient
     from research.studies.generalist import action_mode_of
 
-    sweep = json.loads((Path(__file__).parents[1] / "results/arm_sweep.json").read_text())
+    sweep = json.loads((RESULTS / "arm_sweep.json").read_text())
     keep = {k: a for k, a in sweep["arms"].items() if a["arm"] in ("course_2", "pull_only")}
     path = tmp_path / "sweep.json"
     path.write_text(json.dumps({**sweep, "arms": keep}))
