@@ -37,6 +37,44 @@ MAX_SMOOTHING_WEIGHT = 100.0
 MAX_SMOOTHING_SIGMA = 10.0
 
 
+#: An entry's key naming the entry it starts from (in its own file, else in PPO_CONFIG).
+BASE = "base"
+
+
+def merged(base: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]:
+    """Returns ``base`` with ``changes`` on top: a mapping merges into the base's mapping
+    (recursively), a null removes the key (its default), any other value replaces."""
+    out = copy.deepcopy(base)
+    for key, value in changes.items():
+        if value is None:
+            out.pop(key, None)
+        elif isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = merged(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def entry_values(name: str, path: str | Path = PPO_CONFIG, seen: tuple[str, ...] = ()) -> dict:
+    """Returns entry ``name`` of the hyperparameter file ``path`` with its ``base`` resolved: the
+    named entry (of the same file, else of the shipped file PPO_CONFIG) with this one's values
+    on top (:func:`merged`)."""
+    table = load_yaml(path)
+    if name not in table:
+        if Path(path).resolve() != PPO_CONFIG.resolve() and name in load_yaml(PPO_CONFIG):
+            return entry_values(name, PPO_CONFIG, seen)
+        raise invalid("hyperparams", name, f"an entry of {path}: {sorted(table)}")
+    if name in seen:
+        raise invalid(f"{path}: {name}.{BASE}", name, f"no cycle (through {list(seen)})")
+    values = mapping(f"{path}: {name}", table[name])
+    base = values.pop(BASE, None)
+    if base is None:
+        return values
+    if not isinstance(base, str):
+        raise invalid(f"{path}: {name}.{BASE}", base, "the name of another entry")
+    return merged(entry_values(base, path, (*seen, name)), values)
+
+
 @dataclass(frozen=True)
 class Smoothing:
     """CAPS's smoothness regularization of the policy (tendon2r_gym.training.smoothing): the
@@ -198,10 +236,7 @@ class Hyperparams:
     ) -> Hyperparams:
         """Returns entry ``name`` of a hyperparameter file.  ``env_config`` (a preset name or
         experiment-file path) replaces the entry's env preset, keeping its other env kwargs."""
-        table = load_yaml(path)
-        if name not in table:
-            raise invalid("hyperparams", name, f"an entry of {path}: {sorted(table)}")
-        values = mapping(f"{path}: {name}", table[name])
+        values = entry_values(name, path)
         if env_config is not None:
             env_kwargs = {**mapping("env_kwargs", values.get("env_kwargs")), "preset": env_config}
             values = {**values, "env_kwargs": env_kwargs}
