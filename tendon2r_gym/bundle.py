@@ -17,11 +17,14 @@ import shutil
 from pathlib import Path
 from typing import Any
 
+from tendon2r_gym.files import corrupt, read_json
 from tendon2r_gym.presets import MODELS_DIR
 from tendon2r_gym.runs import BEST, BUNDLE_FILES, SUMMARY, RunFolder, seed_dir
 from tendon2r_gym.validation import invalid
 
 BUNDLE_META = "bundle.json"
+#: The keys of bundle.json that are read (it also records the bundle's name).
+META_KEYS = ("seeds", "primary_seed", "train_command", "command")
 
 
 def bundle_runs(run_dirs: list[Path], name: str, command: str, root: Path = MODELS_DIR) -> Path:
@@ -61,9 +64,23 @@ def bundle_names(root: Path = MODELS_DIR) -> list[str]:
 
 
 def bundle_meta(name: str, root: Path = MODELS_DIR) -> dict[str, Any] | None:
-    """Returns the bundle's bundle.json, or None if nothing is bundled under that name."""
-    path = root / name / BUNDLE_META
-    return json.loads(path.read_text()) if path.is_file() else None
+    """Returns the bundle's bundle.json, or None if nothing is bundled under that name; a
+    corrupt one is a ValueError naming it."""
+    path = Path(root) / name / BUNDLE_META
+    if not path.is_file():
+        return None
+    recover = (
+        f"re-bundle it: tendon2r-bundle --name {name} --replace --runs <its run folders> "
+        "(the command it recorded, if readable, names them)"
+    )
+    meta = read_json(path, META_KEYS, recover)
+    seeds = meta["seeds"]
+    if not isinstance(seeds, list) or not seeds or not all(type(s) is int for s in seeds):
+        raise corrupt(path, f"invalid: seeds = {seeds!r} is not a list of seeds", recover)
+    if meta["primary_seed"] not in seeds:
+        primary = meta["primary_seed"]
+        raise corrupt(path, f"invalid: primary_seed = {primary!r} is not among {seeds}", recover)
+    return meta
 
 
 def bundled_model(name: str, seed: int | None = None, root: Path = MODELS_DIR) -> Path:
