@@ -101,6 +101,10 @@ class TrainArgs:
     --resume continues the run recorded in --run-dir: its config.yaml (budget and overrides
     included) with only this command's override flags on top; --hyperparams, --config and
     --env-config choose the hyperparameters of a new run only.
+
+    --bundle NAME copies the finished runs into the bundled models as tendon2r-bundle does; the
+    name is checked before training starts, and a bundle of that name is replaced only with
+    --replace-bundle.
     """
 
     hyperparams: str = arg("default", "entry of the hyperparameter file (a new run)")
@@ -113,6 +117,7 @@ class TrainArgs:
     run_dir: str | None = arg(None, "default runs/<hyperparams>; seeds go in seed_<n>/")
     resume: bool = arg(False, "continue the recorded run from its newest readable state")
     bundle: str | None = arg(None, "copy the best models into the bundled models under NAME")
+    replace_bundle: bool = arg(False, "with --bundle: replace the bundle of that name")
     init_from: str | None = arg(None, "start from a bundle's (or model zip's) weights: fine-tune")
     progress_bar: bool = arg(False, "also on whenever stderr is a terminal")
 
@@ -139,17 +144,21 @@ def experiment(args: TrainArgs, command: str = "") -> Experiment:
 
 
 def train_main(argv: list[str] | None = None) -> dict[str, Any]:
-    from tendon2r_gym.bundle import bundle_runs
+    from tendon2r_gym.bundle import bundle_runs, check_destination
     from tendon2r_gym.runs import command_line
 
     args = parse(TrainArgs, argv)
+    if args.bundle is not None:  # refused before training, not after it
+        check_destination(args.bundle, args.replace_bundle, field="--bundle",
+                          flag="--replace-bundle")  # fmt: skip
     command = command_line(argv, "tendon2r-train")
     exp = experiment(args, command)
     agg = exp.train(resume=args.resume)
     print(json.dumps({k: v for k, v in agg.items() if k != "runs"}), flush=True)
-    if args.bundle:
+    if args.bundle is not None:
         runs = [exp.run_folder(s).path for s in exp.seeds]
-        print("bundled into", bundle_runs(runs, args.bundle, command), flush=True)
+        dest = bundle_runs(runs, args.bundle, command, replace=args.replace_bundle)
+        print("bundled into", dest, flush=True)
     return agg
 
 
@@ -430,20 +439,32 @@ class BundleArgs:
     """Copy finished training runs into the bundled models (the first run is the primary one).
 
     tendon2r-bundle --name default --runs runs/default/seed_0 runs/default/seed_1
+    tendon2r-bundle --name default --replace --runs runs/default/seed_0
+
+    --name is required: a plain name (letters, digits, '_', '.', '-'), one folder under the
+    models root.  A bundle of that name is replaced only with --replace, and only once the new
+    one is complete (written beside it, then renamed into place): a failure leaves it intact.
     """
 
-    name: str = arg("", "bundle name, e.g. default")
+    name: str | None = arg(None, "bundle name, e.g. default (required)")
     runs: list[str] = arg([], "run folders written by tendon2r-train")
+    replace: bool = arg(False, "replace the bundle of that name")
+    root: str | None = arg(None, "models folder (default: the package's bundled models)")
 
 
 def bundle_main(argv: list[str] | None = None) -> Path:
-    from tendon2r_gym.bundle import bundle_runs
+    from tendon2r_gym.bundle import bundle_runs, check_destination
+    from tendon2r_gym.presets import MODELS_DIR
     from tendon2r_gym.runs import command_line
+    from tendon2r_gym.validation import invalid
 
     args = parse(BundleArgs, argv)
-    dest = bundle_runs(
-        [Path(r) for r in args.runs], args.name, command_line(argv, "tendon2r-bundle")
-    )
+    root = Path(args.root) if args.root is not None else MODELS_DIR
+    check_destination(args.name, args.replace, root, field="--name", flag="--replace")
+    if not args.runs:
+        raise invalid("--runs", args.runs, "one or more run folders")
+    command = command_line(argv, "tendon2r-bundle")
+    dest = bundle_runs([Path(r) for r in args.runs], args.name, command, root, args.replace)
     print("bundled", len(args.runs), "run(s) into", dest)
     return dest
 

@@ -20,7 +20,8 @@ whole command would put its lag inside PD's loop.
 
 A trained model only meets the env it was trained for: :meth:`PPOPolicy.load` compares the env
 config recorded in the run (``run.json``) with the env's and refuses another mechanism,
-reference set or observation layout.
+reference set or observation layout, and its model zip and VecNormalize pkl when unreadable or
+made for another observation or action size (tendon2r_gym.files).
 """
 
 from __future__ import annotations
@@ -36,6 +37,14 @@ import numpy as np
 from tendon2r_gym import observation
 from tendon2r_gym.arms import CONTROLLER, MechanismRanges, gain_field, reference_ranges
 from tendon2r_gym.env_config import EnvConfig, low_pass_alpha
+from tendon2r_gym.files import (
+    check_model_spaces,
+    check_stats_shape,
+    load_model,
+    load_vecnormalize,
+    model_data,
+    vecnormalize,
+)
 from tendon2r_gym.gains import Gains, gains_of
 from tendon2r_gym.llvm import load_triton
 from tendon2r_gym.mechanism import Mechanism
@@ -437,7 +446,8 @@ def trained_model(
 ) -> tuple[Path, Path, dict[str, Any]]:
     """Returns (``<name>.zip``, ``<name>_vecnormalize.pkl``, the run's run.json) of a model
     that tendon2r-train wrote, after checking that it was trained for ``env``
-    (:func:`check_model_env`); raises a ValueError naming ``field`` otherwise."""
+    (:func:`check_model_env`; a ValueError naming ``field`` otherwise) and that both files are
+    readable and made for it (:func:`check_model_files`; a ValueError naming the file)."""
     zip_path, stats = model_files(stem_of(model_path))
     if zip_path.is_dir() or not zip_path.is_file():
         raise ValueError(
@@ -452,7 +462,22 @@ def trained_model(
             )
     meta = training_record(zip_path)
     check_model_env(meta["env_config"], env, f"{field} {zip_path}")
+    check_model_files(zip_path, stats, meta, env)
     return zip_path, stats, meta
+
+
+def check_model_files(zip_path: Path, stats: Path, meta: dict[str, Any], env: gym.Env) -> None:
+    """Raises a ValueError naming the file if the model zip or its VecNormalize pkl is
+    unreadable, or made for another observation or action size than ``env`` (whose config
+    matches the run's ``meta``, :func:`check_model_env`) gives it: the model sees the env's
+    observation (with its :func:`arm_features` appended), ``frame_stack`` times."""
+    arm = arm_features(meta["env_config"], env)
+    seen = env.observation_space.shape[0] + (0 if arm is None else arm.size)
+    stack = int(meta.get("frame_stack", 1))
+    where = f"the env it is loaded on (that of its {RUN_META})"
+    data = model_data(zip_path)
+    check_model_spaces(zip_path, data, (stack * seen,), env.action_space.shape, where)
+    check_stats_shape(stats, vecnormalize(stats), (seen,), where)
 
 
 class PPOPolicy:
@@ -499,16 +524,16 @@ class PPOPolicy:
     @classmethod
     def load(cls, model_path: str | Path, env: gym.Env) -> PPOPolicy:
         """Loads ``<name>.zip`` with ``<name>_vecnormalize.pkl`` and the run's run.json; raises
-        if the env is not the one the model was trained on."""
+        if the env is not the one the model was trained on, or a file is corrupt or made for
+        another observation size (:func:`trained_model`)."""
         load_triton()  # torch's triton after a GL context's LLVM segfaults: tendon2r_gym.llvm
-        from stable_baselines3 import PPO
-        from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+        from stable_baselines3.common.vec_env import DummyVecEnv
 
         zip_path, stats, meta = trained_model(model_path, env)
-        model = PPO.load(zip_path, device="cpu")
+        model = load_model(zip_path, device="cpu")
         arm = arm_features(meta["env_config"], env)
         seen = env if arm is None else _with_arm(env, arm)
-        vecnorm = VecNormalize.load(str(stats), DummyVecEnv([lambda: seen]))
+        vecnorm = load_vecnormalize(stats, DummyVecEnv([lambda: seen]))
         vecnorm.training, vecnorm.norm_reward = False, False
         gains = deployed_gains(meta["env_config"], env)
         history = int(meta.get("frame_stack", 1)), int(meta.get("frame_stride", 1))
