@@ -344,8 +344,8 @@ def test_generalist_ablation_names_each_bundles_reward_as_its_entry_sets_it():
     from tendon2r_gym.training import Hyperparams
 
     registered = EnvConfig.make()
-    shown = [n for n in ("generalist", *generalist.ABLATIONS) if n in bundle_names()]
-    assert {"generalist", "generalist_log", "generalist_multiscale"} <= set(shown)
+    shown = [n for n in (*generalist.BUNDLES, *generalist.ABLATIONS) if n in bundle_names()]
+    assert set(generalist.BUNDLES) <= set(shown)
     for name in shown:
         env = Hyperparams.from_entry(name).env_kwargs
         weights = [f"{k} {w:g}" for k, w in env.get("reward_scales", {}).items()]
@@ -362,11 +362,8 @@ def test_generalist_ablation_reads_who_saw_the_arm_from_each_run():
     from research.studies.generalist import arm_seen_by
     from tendon2r_gym.bundle import bundled_model
 
-    assert arm_seen_by(bundled_model("generalist_tension")) == "nobody (blind)"
+    assert arm_seen_by(bundled_model("default")) == "nobody (blind)"
     assert arm_seen_by(bundled_model("generalist")) == "actor and critic"
-    assert arm_seen_by(bundled_model("generalist_arm")) == "actor and critic"
-    assert arm_seen_by(bundled_model("generalist_actor_arm")) == "actor only"
-    assert arm_seen_by(bundled_model("generalist_observe_arm")) == "actor and critic"
 
 
 def test_generalist_ablation_reads_action_mode_and_network_from_each_run():
@@ -378,10 +375,8 @@ def test_generalist_ablation_reads_action_mode_and_network_from_each_run():
     from tendon2r_gym.observation import OPTIONAL
     from tendon2r_gym.training import Hyperparams
 
-    shown = [n for n in ("generalist", *generalist.ABLATIONS) if n in bundle_names()]
+    shown = [n for n in (*generalist.BUNDLES, *generalist.ABLATIONS) if n in bundle_names()]
     table = generalist.ablation(shown)
-    modes = {table[n]["action_mode"] for n in shown}
-    assert modes == {"tension", "joint_torque"}, "the table tells the two apart"
     for name in shown:
         hp = Hyperparams.from_entry(name)
         assert table[name]["action_mode"] == hp.env_kwargs.get("action_mode", "tension"), name
@@ -405,9 +400,7 @@ def test_generalist_ablation_reads_action_mode_and_network_from_each_run():
         assert table[name]["observes"] == (", ".join(flags) or "none"), name
     assert generalist._rate("lin_3.0e-4") == "0.0003, linear to 0"
     assert generalist._rate(3.0e-4) == "0.0003"
-    keys = ("eval_episodes", "residual_filter_tau", "observes", "learning_rate", "residual",
-            "smoothing")  # fmt: skip
-    for key in keys:
+    for key in ("residual_filter_tau", "learning_rate", "residual"):
         assert len({table[n][key] for n in shown}) > 1, f"the table tells {key} apart"
 
 
@@ -527,11 +520,9 @@ def test_generalist_study_column_runs_a_bundle_or_one_of_its_seeds():
 
 #: Bundles recorded before their entries changed (their bundle.json's train_command says how
 #: each was trained): their env kwargs lack the ``tracking_form: log`` and ``reward_scales:
-#: {action_rate: 0.01}`` written into the entries since, and random_reference trained on a
-#: shorter budget.  Each must still differ (else it belongs with the others).
-LEGACY_BUNDLES = (
-    "generalist_actor_arm", "generalist_arm", "generalist_log", "random_reference", "real_arm",
-)  # fmt: skip
+#: {action_rate: 0.01}`` that were the env's defaults then.  Each must still differ (else it
+#: belongs with the others).
+LEGACY_BUNDLES = ("random_reference", "real_arm")
 
 
 def _entry_differences(name: str) -> dict[int, set[str]]:
