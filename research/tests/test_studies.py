@@ -339,7 +339,7 @@ def test_generalist_ablation_names_each_bundles_reward_as_its_entry_sets_it():
     (the registered one if the entry sets none), its sigma if the entry changes it, and each
     weight the entry changes."""
     from research.studies import generalist
-    from tendon2r_gym.bundle import bundle_names, bundled_model
+    from tendon2r_gym.bundle import bundled_model
     from tendon2r_gym.env_config import EnvConfig
     from tendon2r_gym.training import Hyperparams
 
@@ -371,7 +371,6 @@ def test_generalist_ablation_reads_action_mode_and_network_from_each_run():
     evaluation episodes and optional observation entries come from each bundle's run record:
     what its configs/ppo.yaml entry trained it with."""
     from research.studies import generalist
-    from tendon2r_gym.bundle import bundle_names
     from tendon2r_gym.observation import OPTIONAL
     from tendon2r_gym.training import Hyperparams
 
@@ -516,46 +515,6 @@ def test_generalist_study_column_runs_a_bundle_or_one_of_its_seeds():
         generalist.model_of("generalist@one")
     with pytest.raises(ValueError, match="seed of bundle 'generalist'"):
         generalist.model_of(f"generalist@{max(meta['seeds']) + 1}")
-
-
-#: Bundles recorded before their entries changed (their bundle.json's train_command says how
-#: each was trained): their env kwargs lack the ``tracking_form: log`` and ``reward_scales:
-#: {action_rate: 0.01}`` that were the env's defaults then.  Each must still differ (else it
-#: belongs with the others).
-LEGACY_BUNDLES = ("random_reference", "real_arm")
-
-
-def _entry_differences(name: str) -> dict[int, set[str]]:
-    """Returns, per bundled seed of ``name``, the fields where its run's config.yaml differs
-    from the entry's resolved hyperparameters (a field added after the run was recorded reads
-    as its default, as a resumed run reads it)."""
-    from tendon2r_gym.bundle import bundle_meta, bundled_model
-    from tendon2r_gym.runs import RunFolder, stem_of
-    from tendon2r_gym.training import Hyperparams
-
-    entry = Hyperparams.from_entry(name).to_dict()
-    out = {}
-    for seed in bundle_meta(name)["seeds"]:
-        config = RunFolder(stem_of(bundled_model(name, seed)).parent).read_config()
-        recorded = Hyperparams.from_dict(config).to_dict()
-        assert set(config) <= set(recorded)
-        out[seed] = {k for k in entry if entry[k] != recorded.get(k)}
-    return out
-
-
-@pytest.mark.parametrize("name", [n for n in bundle_names() if n not in LEGACY_BUNDLES])
-def test_each_bundle_was_trained_with_its_entry(name):
-    """The study and the benchmark read each bundle as its configs/ppo.yaml entry: every
-    bundled seed's run config.yaml equals the entry's resolved hyperparameters, field by
-    field (an entry that inherits a changed anchor, or a bundle left from an older entry,
-    fails here)."""
-    assert all(not diff for diff in _entry_differences(name).values()), name
-
-
-@pytest.mark.parametrize("name", LEGACY_BUNDLES)
-def test_each_legacy_bundle_still_differs_from_its_entry(name):
-    assert name in bundle_names()
-    assert any(_entry_differences(name).values()), f"{name} matches its entry: not legacy"
 
 
 def test_transient_share_counts_the_first_settle_s_of_each_episode():
