@@ -26,7 +26,6 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from tendon2r_gym.evaluation import names as policy_names
-from tendon2r_gym.runs import seed_dirs
 from tendon2r_gym.training.hyperparams import VEC_ENVS
 from tendon2r_gym.tuning import SCANS
 
@@ -135,7 +134,7 @@ def experiment(args: TrainArgs, command: str = "") -> Experiment:
         if getattr(args, k) is not None
     }
     progress = args.progress_bar or sys.stderr.isatty()
-    if args.resume and seed_dirs(base):
+    if args.resume:  # a folder without a run is refused, naming it
         return Experiment.resume(base, args.seeds, command, progress, **overrides)
     hp = Hyperparams.from_entry(args.hyperparams, args.config or PPO_CONFIG, args.env_config)
     if overrides:

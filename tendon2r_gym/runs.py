@@ -14,10 +14,13 @@ A training run writes, in ``runs/<name>/seed_<n>/``::
                                  on them started on the reference, where smoothness is judged)
     last_model.zip (+ pkl)       the state at the end, or at Ctrl-C
     checkpoints/                 periodic checkpoints (by steps and by time)
-    summary.json                 steps and wall time summed over all segments
+    summary.json                 steps and wall time summed over all segments (also written at
+                                 each checkpoint, as if the run were interrupted there)
     tb/                          TensorBoard logs
 
-A bundle (tendon2r_gym.bundle) copies the small files of a run: :data:`BUNDLE_FILES`.
+A bundle (tendon2r_gym.bundle) copies the small files of a run: :data:`BUNDLE_FILES`.  Each
+record is checked when it is read (:func:`read_record`): a corrupt one is a ValueError naming
+the file, what is wrong with it and how to recover.
 """
 
 from __future__ import annotations
@@ -58,6 +61,90 @@ BUNDLE_FILES = (
 )
 
 
+#: What each record holds, checked when it is read: a mapping of keys to what their values
+#: are (``{}`` a mapping, ``[...]`` a list of such rows, ``list`` a list, ``float`` a number,
+#: ``None`` anything); a file not named here is only parsed.
+_SEGMENT = {"start_timesteps": float, "end_timesteps": float, "wall_time_s": float}
+SHAPES: dict[str, Any] = {
+    RUN_META: {"seed": float, "env_kwargs": {}, "env_config": {}},
+    CONFIG: {},
+    SUMMARY: {"timesteps": float, "wall_time_s": float, "segments": [_SEGMENT]},
+    EVALUATIONS: [{"timesteps": float, "wall_time_s": float, "rms_deg": list, "beats_pd": None}],
+    BEST_METRICS: {"timesteps": float, "rms_deg": list},
+    SEEDS_SUMMARY: {"seeds": list, "runs": list},
+}
+_AGAIN = "delete the seed folder and train it again"
+#: How to recover from a corrupt record.
+RECOVERY = {
+    RUN_META: f"restore it from a copy (a bundle keeps one), or {_AGAIN}",
+    CONFIG: f"restore it from a copy (a bundle keeps one), or {_AGAIN}",
+    COMMAND: "restore it from a copy (a bundle keeps one), or write the command on its first line",
+    SUMMARY: "restore it from a copy (a bundle keeps one), or delete it: a --resume then counts "
+    "the totals from its own segment on",
+    EVALUATIONS: "restore it from a copy (a bundle keeps one), or delete it: the evaluations "
+    "start anew (best_metrics.json keeps the best model's RMS)",
+    BEST_METRICS: "restore it from a copy (a bundle keeps one), or delete it with best_model.zip "
+    "and best_model_vecnormalize.pkl: the next evaluation saves a new best model",
+    PD_EVAL: "delete it: the next training measures PD again",
+    SEEDS_SUMMARY: "delete it: the next train command writes it again",
+}
+
+
+def corrupt(path: Path, what: str) -> ValueError:
+    """Returns the ValueError of a corrupt run file: ``<path> is corrupt: <what>; to recover,
+    <how>`` (:data:`RECOVERY`), on one line."""
+    how = RECOVERY.get(path.name, f"restore it from a copy, or {_AGAIN}")
+    return ValueError(" ".join(f"{path} is corrupt: {what}; to recover, {how}".split()))
+
+
+def read_record(path: Path) -> Any:
+    """Returns the data of a run record (JSON, or YAML for config.yaml), or None if there is
+    no such file; raises :func:`corrupt` if it is empty, does not parse, or is not shaped as
+    :data:`SHAPES` says."""
+    if not path.is_file():
+        return None
+    try:
+        text = path.read_text()
+    except UnicodeDecodeError:
+        raise corrupt(path, "it is not UTF-8 text") from None
+    if not text.strip():
+        raise corrupt(path, "it is empty")
+    yaml_file = path.suffix == ".yaml"
+    try:
+        data = yaml.safe_load(text) if yaml_file else json.loads(text)
+    except (yaml.YAMLError, json.JSONDecodeError) as e:
+        raise corrupt(path, f"it is not valid {'YAML' if yaml_file else 'JSON'} ({e})") from None
+    if (problem := _mismatch(data, SHAPES.get(path.name))) is not None:
+        raise corrupt(path, problem)
+    return data
+
+
+def _mismatch(data: Any, shape: Any, where: str = "") -> str | None:
+    """Returns what about ``data`` (the value at ``where``) does not match ``shape`` (see
+    :data:`SHAPES`), or None."""
+    name = where or "its top level"
+    if shape is None:
+        return None
+    if shape is float:
+        number = isinstance(data, (int, float)) and not isinstance(data, bool)
+        return None if number else f"{name} = {data!r} is not a number"
+    if shape is list or isinstance(shape, list):
+        if not isinstance(data, list):
+            return f"{name} is a {type(data).__name__}, not a list"
+        rows = enumerate(data if isinstance(shape, list) else [])
+        found = (_mismatch(r, shape[0], f"{where}[{i}]" if where else f"row {i}") for i, r in rows)
+        return next((problem for problem in found if problem is not None), None)
+    if not isinstance(data, dict):
+        return f"{name} is a {type(data).__name__}, not a mapping"
+    for key, value in shape.items():
+        if key not in data:
+            return f"{where or 'it'} lacks {key!r}"
+        inner = f"{where}'s {key}" if where.startswith("row") else f"{where}.{key}".lstrip(".")
+        if (problem := _mismatch(data[key], value, inner)) is not None:
+            return problem
+    return None
+
+
 def seed_dir(base: str | Path, seed: int) -> Path:
     """Returns the run folder of one seed of a multi-seed command: ``base/seed_<n>``."""
     return Path(base) / f"seed_{seed}"
@@ -65,7 +152,11 @@ def seed_dir(base: str | Path, seed: int) -> Path:
 
 def seed_dirs(base: str | Path) -> list[Path]:
     """Returns the seed run folders under ``base`` that hold a recorded config, by seed."""
-    found = [p for p in Path(base).glob("seed_*") if (p / CONFIG).is_file()]
+    found = [
+        p
+        for p in Path(base).glob("seed_*")
+        if p.name.removeprefix("seed_").isdigit() and (p / CONFIG).is_file()
+    ]
     return sorted(found, key=lambda p: int(p.name.removeprefix("seed_")))
 
 
@@ -136,23 +227,26 @@ class RunFolder:
 
     # -- records -------------------------------------------------------------------------------
     def read_json(self, name: str) -> Any:
-        path = self.file(name)
-        return json.loads(path.read_text()) if path.is_file() else None
+        """Returns a JSON record of the run, or None if there is none; raises a ValueError
+        naming the file if it is corrupt (:func:`read_record`)."""
+        return read_record(self.file(name))
 
     def write_json(self, name: str, data: Any) -> None:
-        self.path.mkdir(parents=True, exist_ok=True)
-        tmp = self.file(name + ".tmp")
-        tmp.write_text(json.dumps(data, indent=1) + "\n")
-        tmp.replace(self.file(name))  # atomic: a crash never leaves half a file
+        self._write(name, json.dumps(data, indent=1) + "\n")
 
     def write_config(self, cfg: dict[str, Any]) -> None:
+        self._write(CONFIG, yaml.safe_dump(cfg, sort_keys=False))
+
+    def _write(self, name: str, text: str) -> None:
         self.path.mkdir(parents=True, exist_ok=True)
-        self.file(CONFIG).write_text(yaml.safe_dump(cfg, sort_keys=False))
+        tmp = self.file(name + ".tmp")
+        tmp.write_text(text)
+        tmp.replace(self.file(name))  # atomic: a crash never leaves half a file
 
     def read_config(self) -> dict[str, Any] | None:
-        """Returns the recorded hyperparameters (config.yaml), or None."""
-        path = self.file(CONFIG)
-        return yaml.safe_load(path.read_text()) if path.is_file() else None
+        """Returns the recorded hyperparameters (config.yaml), or None; raises a ValueError
+        naming the file if it is corrupt (:func:`read_record`)."""
+        return read_record(self.file(CONFIG))
 
     def record_command(self, command: str, resume: bool) -> None:
         """Starts command.txt with the original command; a resume appends its own line."""
@@ -166,7 +260,11 @@ class RunFolder:
 
     def train_command(self) -> str:
         """Returns the command that started the run (the first line of command.txt)."""
-        return self.file(COMMAND).read_text().splitlines()[0]
+        path = self.file(COMMAND)
+        lines = path.read_text().splitlines()
+        if not lines or not lines[0].strip():
+            raise corrupt(path, "it is empty (its first line is the command that started the run)")
+        return lines[0]
 
     def pd_eval_rms(self) -> list[float] | None:
         """PD's RMS error (deg) on the eval seeds: pd_eval.json holds PD's tracking metrics

@@ -375,6 +375,7 @@ def test_fine_tuning_starts_from_a_generalists_weights_on_an_arm_inside_its_rang
     far.write_text(arm.read_text().replace("c: 0.09", "c: 0.2"))
     with pytest.raises(ValueError, match=r"c = 0.2 outside \[0.03, 0.095\]"):
         _train(config, tmp_path / "far", "--env-config", str(far), "--init-from", str(source))
+    assert not (tmp_path / "far").exists(), "a refused start writes nothing"
 
 
 def test_the_registered_fine_tune_trains_on_its_generalists_reward():
@@ -511,6 +512,7 @@ def test_a_fine_tune_starts_from_the_exploration_noise_it_asks_for(tmp_path):
     config.write_text(yaml.safe_dump(cfg))
     with pytest.raises(ValueError, match=rf"init_log_std = .* or {n} \(the model's actions\)"):
         _train(config, tmp_path / "too_many")
+    assert not (tmp_path / "too_many").exists(), "a refused start writes nothing"
     hp = Hyperparams.from_dict(cfg["tiny"])
     with pytest.raises(ValueError, match=r"init_log_std = \[.*\] is invalid.*without init_from"):
         hp.replace(init_from=None)

@@ -3,9 +3,12 @@ model), timed checkpoints, and a clean stop on Ctrl-C or SIGTERM."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
+import threading
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -51,11 +54,18 @@ class TimedCheckpointCallback(CheckpointCallback):
     calls), also every ``minutes`` of wall time, each written by :func:`save_pair`, so that a
     SIGKILL loses little and never leaves a torn checkpoint."""
 
-    def __init__(self, save_freq: int, save_path: str, minutes: float) -> None:
+    def __init__(
+        self,
+        save_freq: int,
+        save_path: str,
+        minutes: float,
+        on_save: Callable[[], None] | None = None,
+    ) -> None:
         super().__init__(
             save_freq, save_path, name_prefix=CHECKPOINT_PREFIX, save_vecnormalize=True
         )
         self.period_s = 60.0 * minutes
+        self.on_save = on_save  # after each checkpoint (the run records its progress)
         self._last_save = time.monotonic()
 
     def _on_step(self) -> bool:
@@ -64,14 +74,17 @@ class TimedCheckpointCallback(CheckpointCallback):
             self._last_save = time.monotonic()
             zip_path = Path(self._checkpoint_path(extension="zip"))
             save_pair(self.model, zip_path, Path(self._checkpoint_path("vecnormalize_", "pkl")))
+            if self.on_save is not None:
+                self.on_save()
         return True
 
 
 class TrackingEvalCallback(BaseCallback):
-    """Every ``eval_freq`` env steps, rolls the deterministic policy out on fixed seeds and keeps
-    the best model by :func:`~tendon2r_gym.metrics.selection_rank`: the lowest mean tracking
-    RMS (over joints) among the evaluations <= PD on both joints within the smoothness limits,
-    else the lowest overall.  Each evaluation is appended to evaluations.json with the
+    """At every multiple of ``eval_freq`` of the run's env steps (a resumed run's too) and at
+    the end, rolls the deterministic policy out on fixed seeds and keeps the best model by
+    :func:`~tendon2r_gym.metrics.selection_rank`: the lowest mean tracking RMS (over joints)
+    among the evaluations <= PD on both joints within the smoothness limits, else the lowest
+    overall.  Each evaluation is appended to evaluations.json with the
     cumulative wall time, whether it beats PD on both joints, and its RMS tension and tension
     rate as multiples of PD's.
 
@@ -136,7 +149,7 @@ class TrackingEvalCallback(BaseCallback):
         self._last_eval = self.num_timesteps
 
     def _on_step(self) -> bool:
-        if self.num_timesteps - self._last_eval >= self.eval_freq:
+        if self.num_timesteps // self.eval_freq > self._last_eval // self.eval_freq:
             self._last_eval = self.num_timesteps
             self.evaluate()
         return True
@@ -233,11 +246,43 @@ def save_pair(model: Any, zip_path: Path, stats_path: Path) -> None:
     venv = model.get_vec_normalize_env()
     if venv is not None:
         part = stats_path.with_name(f".{stats_path.name}.part")
-        venv.save(str(part))
-        os.replace(part, stats_path)
+        with _removed_on_error(part):
+            venv.save(str(part))
+            os.replace(part, stats_path)
     part = zip_path.with_name(f".{zip_path.stem}.part.zip")
-    model.save(part)
-    os.replace(part, zip_path)
+    with _removed_on_error(part):
+        model.save(part)
+        os.replace(part, zip_path)
+
+
+@contextlib.contextmanager
+def _removed_on_error(part: Path) -> Iterator[None]:
+    """Removes the partial file ``part`` if writing it fails (e.g. on a full disk)."""
+    try:
+        yield
+    except BaseException:
+        with contextlib.suppress(OSError):
+            part.unlink(missing_ok=True)
+        raise
+
+
+@contextlib.contextmanager
+def quiet_writer_threads() -> Iterator[None]:
+    """Keeps the OSError of TensorBoard's writer thread (a read-only run folder, a full disk)
+    from printing its traceback: the thread keeps it, and SB3's logger raises it in the
+    training loop at its next write, which reports it once."""
+    previous = threading.excepthook
+
+    def hook(args: threading.ExceptHookArgs) -> None:
+        module = type(args.thread).__module__ if args.thread is not None else ""
+        if not (issubclass(args.exc_type, OSError) and module.startswith("tensorboard.")):
+            previous(args)
+
+    threading.excepthook = hook
+    try:
+        yield
+    finally:
+        threading.excepthook = previous
 
 
 def save_model(model: Any, stem: Path) -> None:

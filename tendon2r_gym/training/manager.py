@@ -14,16 +14,25 @@ tendon2r_gym.runs) and survives interruption:
 - a command that can be run again (the own-arm benchmark, the studies) trains through
   :meth:`Experiment.start_or_continue`: its runs continue as they were recorded, and runs of
   other hyperparameters in its folder are refused;
-- ``summary.json`` adds up steps and wall time over every segment, and command.txt keeps the
-  original command with one line per resume.
+- ``summary.json`` adds up steps and wall time over every segment, recorded at each
+  checkpoint too (a killed segment counts up to its last checkpoint), and command.txt keeps
+  the original command with one line per resume;
+- a run is checked before anything is written (:func:`plan_run`): a refused start leaves its
+  folder as it was;
+- a run folder that cannot be written (read-only, a full disk) stops training with one
+  :class:`RunWriteError` line, after keeping the last state it can.
 """
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
+import os
 import time
 import warnings
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -36,12 +45,16 @@ from tendon2r_gym.runs import (
     BEST_METRICS,
     CONFIG,
     EVALUATIONS,
+    PD_EVAL,
     RUN_META,
     SEEDS_SUMMARY,
     SUMMARY,
     RunFolder,
+    model_files,
+    saved_steps,
     seed_dir,
     seed_dirs,
+    stem_of,
     training_record,
 )
 from tendon2r_gym.training.callbacks import (
@@ -49,6 +62,7 @@ from tendon2r_gym.training.callbacks import (
     TimedCheckpointCallback,
     TrackingEvalCallback,
     TrackingLogCallback,
+    quiet_writer_threads,
     save_model,
 )
 from tendon2r_gym.training.hyperparams import LOG_STD_RANGE, Hyperparams
@@ -79,7 +93,12 @@ class Experiment:
         ``seeds``)."""
         recorded = seed_dirs(base)
         if not recorded:
-            raise invalid("run_dir", str(base), "a folder with seed_<n>/config.yaml to resume")
+            raise invalid(
+                "run_dir",
+                str(base),
+                "a folder that holds a run to resume (seed_<n>/config.yaml); it holds none: "
+                "without --resume, the command starts a new run there",
+            )
         hp = recorded_hyperparams(RunFolder(recorded[0]))
         if overrides:
             hp = hp.replace(**overrides)
@@ -116,13 +135,11 @@ class Experiment:
 
     def train(self, resume: bool = False) -> dict[str, Any]:
         """Trains one run per seed (continuing those with a saved state if ``resume``) and
-        writes SEEDS_SUMMARY.  A Ctrl-C stops them all: the summary of the finished seeds is
+        writes SEEDS_SUMMARY.  Every seed's run is checked before any is written
+        (:func:`plan_run`).  A Ctrl-C stops them all: the summary of the finished seeds is
         written, then it re-raises."""
-        started = [
-            str(run.path)
-            for run in map(self.run_folder, self.seeds)
-            if run.read_config() is not None
-        ]
+        runs = [self.run_folder(seed) for seed in self.seeds]
+        started = [str(run.path) for run in runs if run.read_config() is not None]
         if not resume and started:
             raise invalid(
                 "run_dir",
@@ -130,29 +147,43 @@ class Experiment:
                 f"a folder without runs (it holds {started}: --resume continues them; a new "
                 "run needs another --run-dir)",
             )
+        plans = [  # every seed checked before anything is written
+            plan_run(self.hyperparams, run, seed, resume and bool(run.checkpoint_candidates()))
+            for seed, run in zip(self.seeds, runs, strict=True)
+        ]
         results: list[dict[str, Any]] = []
         try:
-            for seed in self.seeds:
-                run = self.run_folder(seed)
-                resume_this = resume and bool(run.checkpoint_candidates())
-                results.append(
-                    train_run(
-                        self.hyperparams, run, seed, resume_this, self.command, self.progress_bar
-                    )
-                )
-        finally:
-            agg = seeds_summary(self.seeds, results)
+            for plan in plans:
+                results.append(train_planned(plan, self.command, self.progress_bar))
+        except BaseException:
+            with contextlib.suppress(OSError):  # the error in flight is the one to report
+                RunFolder(self.base).write_json(SEEDS_SUMMARY, seeds_summary(self.seeds, results))
+            raise
+        agg = seeds_summary(self.seeds, results)
+        try:
             RunFolder(self.base).write_json(SEEDS_SUMMARY, agg)
+        except OSError as e:
+            raise RunWriteError(
+                f"writing {self.base / SEEDS_SUMMARY} failed ({e}); the runs are saved in "
+                "their seed folders"
+            ) from e
         return agg
 
 
 def recorded_hyperparams(run: RunFolder) -> Hyperparams:
     """Returns the hyperparameters a run was started with (its config.yaml)."""
-    values = run.read_config()
+    values = run.read_config()  # a mapping, or a ValueError naming the file
     if values is None:
         raise invalid("run folder", str(run.path), f"a run folder with a {CONFIG}")
     values.pop("seed", None)  # older runs recorded it there (run.json has it)
-    return Hyperparams.from_dict(values, str(run.file(CONFIG)))
+    try:
+        return Hyperparams.from_dict(values, CONFIG)
+    except ValueError as e:  # edited, or naming a file that moved (an experiment file)
+        raise ValueError(
+            f"{run.file(CONFIG)}: its hyperparameters are invalid ({e}); to recover, put back a "
+            "file they name that moved (env_kwargs.preset), or restore it from a copy (a bundle "
+            "keeps one)"
+        ) from None
 
 
 # -- one run -----------------------------------------------------------------------------------
@@ -217,6 +248,14 @@ def initial_model(hp: Hyperparams) -> tuple[Path, Path]:
             source,
             f"{kind} for this entry (the model has residual_scale {meta['residual_scale']})",
         )
+    n = int(np.prod(env.action_space.shape))  # the model's actions: it was trained for env
+    if isinstance(hp.init_log_std, list) and len(hp.init_log_std) != n:
+        lo, hi = LOG_STD_RANGE
+        raise invalid(
+            "init_log_std",
+            hp.init_log_std,
+            f"one number in [{lo:g}, {hi:g}], or {n} (the model's actions)",
+        )
     return zip_path, stats
 
 
@@ -231,9 +270,9 @@ def fine_tune(hp: Hyperparams) -> Hyperparams:
     from tendon2r_gym.bundle import model_path
     from tendon2r_gym.learned import Residual, fine_tune_env_kwargs
 
-    if hp.init_from is None:
+    source = None if hp.init_from is None else model_path(hp.init_from)
+    if source is None or not model_files(stem_of(source))[0].is_file():
         return hp  # (a missing source is refused by initial_model, naming init_from)
-    source = model_path(hp.init_from)
     residual = Residual.from_record(training_record(source))
     env_kwargs = fine_tune_env_kwargs(source, hp.env_kwargs)
     if not hp.residual.active or not residual.active:
@@ -241,14 +280,16 @@ def fine_tune(hp: Hyperparams) -> Hyperparams:
     return hp.replace(env_kwargs=env_kwargs, **residual.to_record())
 
 
-def _load_initial(hp: Hyperparams, venv: Any, seed: int, run: RunFolder) -> tuple[Any, Any]:
-    """Returns (PPO, VecNormalize) started from ``hp.init_from``'s weights and observation
-    statistics, training on ``venv`` with the run's PPO settings."""
+def _load_initial(
+    hp: Hyperparams, source: tuple[Path, Path], venv: Any, seed: int, run: RunFolder
+) -> tuple[Any, Any]:
+    """Returns (PPO, VecNormalize) started from the weights and observation statistics of
+    ``source`` (:func:`initial_model`), training on ``venv`` with the run's PPO settings."""
     from stable_baselines3.common.vec_env import VecNormalize
 
     from tendon2r_gym.training.smoothing import SmoothPPO
 
-    zip_path, stats = initial_model(hp)
+    zip_path, stats = source
     vecnorm = VecNormalize.load(str(stats), venv)
     vecnorm.training = True
     vecnorm.norm_reward = bool(hp.normalize.get("norm_reward", True))
@@ -266,18 +307,44 @@ def _load_initial(hp: Hyperparams, venv: Any, seed: int, run: RunFolder) -> tupl
 
 def _reset_log_std(log_std: Any, value: float | list[float]) -> None:
     """Sets the policy's log std (``init_log_std``): one value for every action, or one per
-    action; raises naming the field if the list does not match the model's actions."""
+    action (:func:`initial_model` checked their number)."""
     import torch
 
-    n = log_std.numel()
-    if isinstance(value, list) and len(value) != n:
-        lo, hi = LOG_STD_RANGE
-        raise invalid(
-            "init_log_std", value, f"one number in [{lo:g}, {hi:g}], or {n} (the model's actions)"
-        )
     values = torch.as_tensor(value, dtype=log_std.dtype).expand(log_std.shape)
     with torch.no_grad():
         log_std.copy_(values)
+
+
+class RunWriteError(ValueError):
+    """Writing to a run folder failed (read-only, or a full disk): the command's one-line error
+    (a ValueError, as the console commands print them) names the folder, the OS error and the
+    saved state a --resume continues from."""
+
+
+@dataclass(frozen=True)
+class RunPlan:
+    """One run as checked before anything is written: what it trains, and from what."""
+
+    hp: Hyperparams  # a new fine-tune's with its source's settings (fine_tune)
+    run: RunFolder
+    seed: int
+    resume: bool
+    env_config: EnvConfig
+    previous: dict[str, Any] | None  # the summary of the earlier segments (a resume)
+    source: tuple[Path, Path] | None  # init_from's model zip and statistics (a new fine-tune)
+
+
+def plan_run(hp: Hyperparams, run: RunFolder, seed: int = 0, resume: bool = False) -> RunPlan:
+    """Returns the plan of one run after checking all it reads (the env, init_from's model,
+    the run's records), writing nothing: a refused run leaves its folder as it was."""
+    if not resume:  # a resumed run keeps the env kwargs it recorded
+        hp = fine_tune(hp)
+    env_config = EnvConfig.make(**hp.env_kwargs)
+    for name in (EVALUATIONS, BEST_METRICS, PD_EVAL):  # read by the eval callback
+        run.read_json(name)
+    previous = run.read_json(SUMMARY) if resume else None
+    source = initial_model(hp) if not resume and hp.init_from is not None else None
+    return RunPlan(hp, run, seed, resume, env_config, previous, source)
 
 
 def train_run(
@@ -288,47 +355,102 @@ def train_run(
     command: str = "",
     progress_bar: bool = False,
 ) -> dict[str, Any]:
-    """Trains one run; returns its summary.  Ctrl-C saves, writes the summary, re-raises.
-    A new fine-tune (``init_from``) trains on :func:`fine_tune`'s env kwargs."""
+    """Trains one run; returns its summary (:func:`plan_run`, then :func:`train_planned`)."""
+    return train_planned(plan_run(hp, run, seed, resume), command, progress_bar)
+
+
+def train_planned(plan: RunPlan, command: str = "", progress_bar: bool = False) -> dict[str, Any]:
+    """Trains one planned run; returns its summary.  Ctrl-C saves, writes the summary,
+    re-raises.  If writing to the run folder fails (read-only, a full disk), training stops
+    with a :class:`RunWriteError`, after keeping the last state it can (last_model, else the
+    newest checkpoint stays)."""
     import torch
     from stable_baselines3.common.callbacks import CallbackList
+
+    hp, run = plan.hp, plan.run
+    torch.set_num_threads(hp.torch_threads)
+    model, vecnorm = _model(plan)
+    segment = Segment(run, plan.seed, command, plan.previous, int(model.num_timesteps))
+    stop = StopOnSignal()
+    error: BaseException | None = None
+    with quiet_writer_threads():
+        try:
+            _write_records(plan, command)
+            callbacks = [
+                stop,
+                TrackingLogCallback(),
+                TrackingEvalCallback(
+                    hp.env_kwargs,
+                    hp.eval_seeds,
+                    hp.eval_freq,
+                    run,
+                    hp.residual,
+                    hp.frame_stack,
+                    hp.frame_stride,
+                    wall_offset_s=segment.wall_offset_s,
+                ),
+                TimedCheckpointCallback(
+                    max(hp.checkpoint_freq // hp.n_envs, 1),
+                    str(run.checkpoints),
+                    hp.checkpoint_minutes,
+                    on_save=lambda: segment.checkpoint(model.num_timesteps),
+                ),
+            ]
+            remaining = hp.total_timesteps - segment.start_steps
+            with stop:
+                if remaining > 0:
+                    model.learn(
+                        remaining,
+                        callback=CallbackList(callbacks),
+                        reset_num_timesteps=not plan.resume,
+                        progress_bar=progress_bar,
+                        tb_log_name="ppo",
+                    )
+            if stop.stopped:
+                raise KeyboardInterrupt("signal")
+        except KeyboardInterrupt as e:
+            print(f"interrupted at {model.num_timesteps} steps; resume with --resume", flush=True)
+            error = e
+        except BaseException as e:  # noqa: BLE001 (saved below, then raised)
+            error = e
+        # Ctrl-C or a crash keeps the last state; each write is tried even if one fails.
+        failed = [error] if error is not None and _write_error(error, run) else []
+        failed += _attempt(lambda: save_model(model, run.last))
+        failed += _attempt(lambda: _close_logger(model))
+        _close(vecnorm)
+        summary: dict[str, Any] = {}
+        failed += _attempt(
+            lambda: summary.update(segment.end(model.num_timesteps, error is not None))
+        )
+    if summary:
+        print(json.dumps({k: v for k, v in summary.items() if k != "segments"}), flush=True)
+    if error is not None and not _write_error(error, run):
+        raise error
+    if failed:
+        raise RunWriteError(_write_failure(run, model.num_timesteps, failed)) from failed[0]
+    return summary
+
+
+def _model(plan: RunPlan) -> tuple[Any, Any]:
+    """Returns (PPO, VecNormalize) of a planned run on its training envs: resumed, started
+    from init_from's weights, or new; the envs are closed if that fails."""
     from stable_baselines3.common.vec_env import VecNormalize
 
     from tendon2r_gym.training.smoothing import SmoothPPO
 
-    if not resume:  # a resumed run keeps the env kwargs it recorded
-        hp = fine_tune(hp)
-    env_config = EnvConfig.make(**hp.env_kwargs)
-    previous = run.read_json(SUMMARY) if resume else None
-    run.write_config(hp.to_dict())
-    run.record_command(command, resume)
-    run.write_json(
-        RUN_META,
-        {
-            **hp.residual.to_record(),
-            "frame_stack": hp.frame_stack,
-            "frame_stride": hp.frame_stride,
-            "seed": seed,
-            "env_kwargs": hp.env_kwargs,
-            "env_config": {
-                **env_config.to_dict(),
-                "observation": env_config.observation_layout(),
-            },
-        },
-    )
-    torch.set_num_threads(hp.torch_threads)
-    venv = make_vec_env(hp, seed)
-    if resume:
-        model, vecnorm = _load_newest(run, venv, hp)
-    elif hp.init_from is not None:
-        model, vecnorm = _load_initial(hp, venv, seed, run)
-    else:
+    hp, run = plan.hp, plan.run
+    venv = make_vec_env(hp, plan.seed)
+    try:
+        if plan.resume:
+            return _load_newest(run, venv, hp)
+        if plan.source is not None:
+            return _load_initial(hp, plan.source, venv, plan.seed, run)
         vecnorm = VecNormalize(venv, gamma=hp.gamma, **hp.normalize)
-        policy, policy_kwargs = hp.policy(env_config)
+        policy, policy_kwargs = hp.policy(plan.env_config)
         model = SmoothPPO(
             policy,
             stacked(vecnorm, hp.frame_stack, hp.frame_stride),
-            seed=seed,
+            seed=plan.seed,
             device="cpu",
             verbose=0,
             tensorboard_log=str(run.tensorboard),
@@ -336,50 +458,120 @@ def train_run(
             smoothing=hp.smoothing,
             **hp.ppo_kwargs(),
         )
-    callbacks = [
-        TrackingLogCallback(),
-        TrackingEvalCallback(
-            hp.env_kwargs,
-            hp.eval_seeds,
-            hp.eval_freq,
-            run,
-            hp.residual,
-            hp.frame_stack,
-            hp.frame_stride,
-            wall_offset_s=previous["wall_time_s"] if previous else 0.0,
-        ),
-        TimedCheckpointCallback(
-            max(hp.checkpoint_freq // hp.n_envs, 1), str(run.checkpoints), hp.checkpoint_minutes
-        ),
-    ]
-    start_steps = int(model.num_timesteps)
-    remaining = hp.total_timesteps - start_steps
-    start = time.perf_counter()
-    interrupted = False
-    stop = StopOnSignal()
-    try:
-        with stop:
-            if remaining > 0:
-                model.learn(
-                    remaining,
-                    callback=CallbackList([stop, *callbacks]),
-                    reset_num_timesteps=not resume,
-                    progress_bar=progress_bar,
-                    tb_log_name="ppo",
-                )
-        if stop.stopped:
-            raise KeyboardInterrupt("signal")
-    except KeyboardInterrupt:
-        interrupted = True
-        print(f"interrupted at {model.num_timesteps} steps; resume with --resume", flush=True)
+        return model, vecnorm
+    except BaseException:
+        _close(venv)
         raise
-    finally:
-        save_model(model, run.last)  # Ctrl-C or a crash keeps the last state
-        _close(vecnorm)
-        summary = _write_summary(
-            run, seed, command, previous, start_steps, model, start, interrupted
+
+
+def _write_records(plan: RunPlan, command: str) -> None:
+    """Writes config.yaml, command.txt and run.json of a planned run."""
+    hp, run, env_config = plan.hp, plan.run, plan.env_config
+    run.write_config(hp.to_dict())
+    run.record_command(command, plan.resume)
+    run.write_json(
+        RUN_META,
+        {
+            **hp.residual.to_record(),
+            "frame_stack": hp.frame_stack,
+            "frame_stride": hp.frame_stride,
+            "seed": plan.seed,
+            "env_kwargs": hp.env_kwargs,
+            "env_config": {
+                **env_config.to_dict(),
+                "observation": env_config.observation_layout(),
+            },
+        },
+    )
+
+
+def _attempt(write: Callable[[], Any]) -> list[OSError]:
+    """Runs ``write``; returns its OSError (a read-only folder, a full disk) in a list, or []."""
+    try:
+        write()
+    except OSError as e:
+        return [e]
+    return []
+
+
+#: The errors of a folder that cannot be written (a failed write may not name its file).
+WRITE_ERRNOS = frozenset({errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOSPC, errno.EDQUOT,
+                          errno.EFBIG})  # fmt: skip
+
+
+def _write_error(error: BaseException, run: RunFolder) -> bool:
+    """Returns whether ``error`` is a failure to write to the run folder: an OSError of
+    :data:`WRITE_ERRNOS`, or of a file in the folder."""
+    if not isinstance(error, OSError):
+        return False
+    if error.errno in WRITE_ERRNOS:
+        return True
+    if not isinstance(error.filename, (str, bytes, os.PathLike)):
+        return False
+    return Path(os.fsdecode(error.filename)).resolve().is_relative_to(run.path.resolve())
+
+
+def _close_logger(model: Any) -> None:
+    """Closes SB3's logger (it flushes the TensorBoard events), if training started one."""
+    logger = getattr(model, "_logger", None)
+    if logger is not None:
+        logger.close()
+
+
+def _write_failure(run: RunFolder, steps: int, failed: list[OSError]) -> str:
+    """Returns the one-line error of a run whose folder could not be written: the folder, the
+    first OS error, and the saved state a --resume continues from."""
+    saved = []
+    with contextlib.suppress(OSError):  # a folder that cannot be read either
+        saved = run.checkpoint_candidates()
+    if not saved:
+        then = "run the command again (nothing was saved to continue from)"
+    else:
+        then = (
+            f"--resume continues from {saved[0][0].relative_to(run.path)} "
+            f"({saved_steps(saved[0][0])} steps)"
         )
-    return summary
+    return (
+        f"writing to the run folder {run.path} failed at {steps} steps ({failed[0]}); training "
+        f"stopped; once the folder is writable and has room again, {then}"
+    )
+
+
+@dataclass
+class Segment:
+    """This command's segment of a run: summary.json adds it to the earlier ones, at each
+    checkpoint (as if the run were killed then, so that a SIGKILL loses only the time since)
+    and at the end."""
+
+    run: RunFolder
+    seed: int
+    command: str
+    previous: dict[str, Any] | None
+    start_steps: int
+    start: float = field(default_factory=time.perf_counter)
+
+    @property
+    def wall_offset_s(self) -> float:
+        """The wall time of the earlier segments."""
+        return float(self.previous["wall_time_s"]) if self.previous else 0.0
+
+    def checkpoint(self, steps: int) -> None:
+        """Records the segment so far, as interrupted at ``steps``."""
+        _write_summary(self.run, self.seed, self._segments(steps, True))
+
+    def end(self, steps: int, interrupted: bool) -> dict[str, Any]:
+        """Records the segment's end; returns the summary."""
+        return _write_summary(self.run, self.seed, self._segments(steps, interrupted))
+
+    def _segments(self, steps: int, interrupted: bool) -> list[dict[str, Any]]:
+        segment = {
+            "command": self.command,
+            "start_timesteps": self.start_steps,
+            "end_timesteps": int(steps),
+            "wall_time_s": round(time.perf_counter() - self.start, 1),
+            "interrupted": interrupted,
+        }
+        return [*(self.previous or {}).get("segments", []), segment]
 
 
 def first_beat_pd(run: RunFolder) -> dict[str, Any] | None:
@@ -390,39 +582,22 @@ def first_beat_pd(run: RunFolder) -> dict[str, Any] | None:
     return None
 
 
-def _write_summary(
-    run: RunFolder,
-    seed: int,
-    command: str,
-    previous: dict[str, Any] | None,
-    start_steps: int,
-    model: Any,
-    start: float,
-    interrupted: bool,
-) -> dict[str, Any]:
-    """Writes summary.json: this segment appended to the earlier ones, totals summed."""
-    wall = time.perf_counter() - start
-    steps = int(model.num_timesteps)
-    segment = {
-        "command": command,
-        "start_timesteps": start_steps,
-        "end_timesteps": steps,
-        "wall_time_s": round(wall, 1),
-        "interrupted": interrupted,
-    }
-    segments = [*(previous or {}).get("segments", []), segment]
+def _write_summary(run: RunFolder, seed: int, segments: list[dict[str, Any]]) -> dict[str, Any]:
+    """Writes summary.json: steps and wall time summed over ``segments`` (the last one this
+    command's), and the best evaluation so far; returns it."""
+    last = segments[-1]
     total_wall = round(sum(s["wall_time_s"] for s in segments), 1)
     best = run.read_json(BEST_METRICS) or {}
     summary = {
         "seed": seed,
-        "timesteps": steps,
+        "timesteps": last["end_timesteps"],
         "wall_time_s": total_wall,
         "steps_per_s": round(
             sum(s["end_timesteps"] - s["start_timesteps"] for s in segments)
             / max(total_wall, 1e-9),
             1,
         ),
-        "interrupted": interrupted,
+        "interrupted": last["interrupted"],
         "best_rms_deg": best.get("rms_deg"),
         "best_timesteps": best.get("timesteps"),
         "best_tension_rate_N_per_s": best.get("rms_tension_rate_N_per_s"),
@@ -431,7 +606,6 @@ def _write_summary(
         "segments": segments,
     }
     run.write_json(SUMMARY, summary)
-    print(json.dumps({k: v for k, v in summary.items() if k != "segments"}), flush=True)
     return summary
 
 
