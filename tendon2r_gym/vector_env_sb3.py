@@ -33,8 +33,9 @@ class SB3VecEnv(VecEnv):
 
         if venv.autoreset_mode != AutoresetMode.SAME_STEP:
             raise invalid("autoreset_mode", venv.autoreset_mode, "SAME_STEP for SB3")
+        self.venv = venv  # before VecEnv's init, which reads the env's render_mode
         super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
-        self.venv, self.residual = venv, residual
+        self.residual = residual
         self.pd = PDPolicy.from_env(venv) if residual.active else None
         self.filter = ResidualFilter(residual.filter_tau, venv.config.ctrl_dt)
         residual.check_action_mode(venv.config.action_mode)
