@@ -29,17 +29,31 @@ __all__ = [
     "positive_span",
     "to_xml",
 ]
-__version__ = "0.1.0"
+__version__ = "0.2.0"
+
+#: The env's versions, each frozen (Gymnasium's rule: a change that can change learning results
+#: is a new version; CHANGELOG.md says what each changed; tendon2r_gym.contract pins them).
+#: Each id's defaults, over its preset's values: v1 is what the shipped plain-PPO entries learn
+#: on (training starts off the reference; the tracking error's rate is observed); v0 is the
+#: earlier default, kept for code that names it.
+VERSIONS: dict[str, dict[str, object]] = {
+    "v0": {},
+    "v1": {"reset_noise_scale": 0.02, "observe_error_rate": True},
+}
+LATEST = "Tendon2R-v1"
 
 # No max_episode_steps here: the entry point wraps the env in a TimeLimit of
 # episode_duration / ctrl_dt steps, so episode length has one source of truth.
-# Tendon2RResidual-v0 is the same env under a second id, only so that rl_zoo3's hyperparameter
+# Tendon2RResidual-<v> is the same env under a second id, only so that rl_zoo3's hyperparameter
 # file (keyed by env id) can hold a residual entry; that entry's env_wrapper adds
 # tendon2r_gym.learned.ResidualPDWrapper (configs/rl_zoo3/ppo.yml).
-for _id in ("Tendon2R-v0", "Tendon2RResidual-v0"):
-    if _id not in gym.registry:
-        gym.register(
-            id=_id,
-            entry_point="tendon2r_gym.env:make_env",
-            vector_entry_point="tendon2r_gym.vector_env:Tendon2RVectorEnv",
-        )
+for _version, _defaults in VERSIONS.items():
+    for _name in ("Tendon2R", "Tendon2RResidual"):
+        _id = f"{_name}-{_version}"
+        if _id not in gym.registry:
+            gym.register(
+                id=_id,
+                entry_point="tendon2r_gym.env:make_env",
+                vector_entry_point="tendon2r_gym.vector_env:Tendon2RVectorEnv",
+                kwargs=dict(_defaults),
+            )

@@ -12,7 +12,7 @@ import yaml
 CONF = Path(__file__).resolve().parent.parent / "configs" / "rl_zoo3" / "ppo.yml"
 
 
-@pytest.mark.parametrize("env_id", ["Tendon2R-v0", "Tendon2RResidual-v0"])
+@pytest.mark.parametrize("env_id", ["Tendon2R-v1", "Tendon2RResidual-v1"])
 def test_rl_zoo3_trains_with_our_hyperparameter_file(tmp_path, env_id):
     cmd = [sys.executable, "-m", "rl_zoo3.train", "--algo", "ppo", "--env", env_id,
            "--gym-packages", "tendon2r_gym", "--conf-file", str(CONF), "-n", "256",
@@ -23,7 +23,7 @@ def test_rl_zoo3_trains_with_our_hyperparameter_file(tmp_path, env_id):
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert (tmp_path / "ppo" / f"{env_id}_1" / f"{env_id}.zip").is_file()
-    if env_id == "Tendon2RResidual-v0":
+    if env_id == "Tendon2RResidual-v1":
         assert (
             "ResidualPDWrapper"
             in (tmp_path / "ppo" / f"{env_id}_1" / env_id / "config.yml").read_text()
@@ -53,8 +53,8 @@ def test_the_residual_trains_on_the_registered_reward():
     from tendon2r_gym.training.zoo import zoo_file
 
     table = yaml.safe_load(zoo_file())
-    assert table["Tendon2RResidual-v0"]["env_kwargs"] == {"preset": "default"}
-    assert "env_wrapper" in table["Tendon2RResidual-v0"]
+    assert table["Tendon2RResidual-v1"]["env_kwargs"] == {"preset": "default"}
+    assert "env_wrapper" in table["Tendon2RResidual-v1"]
     for entry in table.values():
         assert not {"reward_scales", "tracking_form", "tracking_sigma_deg"} & set(
             entry["env_kwargs"]

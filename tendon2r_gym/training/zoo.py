@@ -4,7 +4,7 @@ trains what the benchmark trains: the same env kwargs, PPO settings, normalizati
     python scripts/export_zoo.py        # writes configs/rl_zoo3/ppo.yml
 
 rl_zoo3 keys its entries by env id, so the residual entry uses a second id of the same env
-(Tendon2RResidual-v0) and adds our wrapper with the zoo's ``env_wrapper``.
+(Tendon2RResidual-v1) and adds our wrapper with the zoo's ``env_wrapper``.
 """
 
 from __future__ import annotations
@@ -20,15 +20,15 @@ from tendon2r_gym.training.hyperparams import Hyperparams
 from tendon2r_gym.validation import invalid
 
 #: Zoo env id -> our entry.
-ENTRIES = {"Tendon2R-v0": "default_scratch", "Tendon2RResidual-v0": "default"}
+ENTRIES = {"Tendon2R-v1": "default_scratch", "Tendon2RResidual-v1": "default"}
 WRAPPER = "tendon2r_gym.learned.ResidualPDWrapper"
 
 HEADER = """\
 # GENERATED from configs/ppo.yaml by `python scripts/export_zoo.py`; edit that file instead
 # (tests/test_zoo.py checks that this one is up to date).
-#   python -m rl_zoo3.train --algo ppo --env Tendon2R-v0 --gym-packages tendon2r_gym \\
+#   python -m rl_zoo3.train --algo ppo --env Tendon2R-v1 --gym-packages tendon2r_gym \\
 #       --conf-file configs/rl_zoo3/ppo.yml
-#   python -m rl_zoo3.train --algo ppo --env Tendon2RResidual-v0 --gym-packages tendon2r_gym \\
+#   python -m rl_zoo3.train --algo ppo --env Tendon2RResidual-v1 --gym-packages tendon2r_gym \\
 #       --conf-file configs/rl_zoo3/ppo.yml
 # The zoo runs SB3's DummyVecEnv with the same n_envs x n_steps as our native vector env.
 """
