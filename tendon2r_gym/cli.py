@@ -13,17 +13,14 @@ Ctrl-C during a command exits with code 130 after saving what it was doing.
 
 from __future__ import annotations
 
-import argparse
-import dataclasses
 import json
 import os
 import sys
-import types
 import typing
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Annotated, Any, Literal, TypeVar
 
 from tendon2r_gym.evaluation import names as policy_names
 from tendon2r_gym.training.hyperparams import VEC_ENVS
@@ -34,40 +31,25 @@ if typing.TYPE_CHECKING:
     from tendon2r_gym.training import Experiment
 
 A = TypeVar("A")
+VecEnvName = Literal[VEC_ENVS]  # type: ignore[valid-type]
+PolicyName = Literal[tuple(policy_names())]  # type: ignore[valid-type]
+ScanName = Literal[SCANS]  # type: ignore[valid-type]
 
 
-def arg(default: Any = None, help: str = "", **kw: Any) -> Any:  # noqa: A002
-    """A dataclass field with its --help text."""
-    if isinstance(default, list):
-        return field(default_factory=lambda: list(default), metadata={"help": help, **kw})
-    return field(default=default, metadata={"help": help, **kw})
+def arg(help: str) -> Any:  # noqa: A002
+    """A field's --help text (tyro's marker, in ``Annotated[type, arg("...")]``)."""
+    import tyro
+
+    return tyro.conf.arg(help=help)
 
 
 def parse(cls: type[A], argv: list[str] | None, doc: str | None = None) -> A:
-    """Parses argv into the dataclass ``cls``: one --flag per field, typed by its annotation
-    (bool is a switch, list[int] takes several values, X | None is optional)."""
-    parser = argparse.ArgumentParser(
-        description=doc or cls.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    hints = typing.get_type_hints(cls)
-    for f in dataclasses.fields(cls):
-        kind = hints[f.name]
-        args = typing.get_args(kind)
-        if typing.get_origin(kind) in (typing.Union, types.UnionType):
-            kind = next(a for a in args if a is not type(None))
-        flag = "--" + f.name.replace("_", "-")
-        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
-        kw: dict[str, Any] = {"help": f.metadata.get("help", ""), "default": default}
-        if "choices" in f.metadata:  # a tuple, or a function that returns the registry's names
-            choices = f.metadata["choices"]
-            kw["choices"] = tuple(choices() if callable(choices) else choices)
-        if kind is bool:
-            parser.add_argument(flag, action="store_true", help=kw["help"])
-        elif typing.get_origin(kind) is list:
-            parser.add_argument(flag, type=typing.get_args(kind)[0], nargs="+", **kw)
-        else:
-            parser.add_argument(flag, type=kind, **kw)
-    return cls(**vars(parser.parse_args(argv)))
+    """Parses argv into the dataclass ``cls`` with tyro: one --flag per field, typed by its
+    annotation (a bool is --flag / --no-flag, a list takes several values, a Literal its
+    choices, ``X | None`` is optional)."""
+    import tyro
+
+    return tyro.cli(cls, args=argv, description=doc or cls.__doc__)
 
 
 def run(main: Callable[[list[str] | None], Any]) -> Callable[[], None]:
@@ -106,19 +88,27 @@ class TrainArgs:
     --replace-bundle.
     """
 
-    hyperparams: str = arg("default", "entry of the hyperparameter file (a new run)")
-    config: str | None = arg(None, "hyperparameter file (default: configs/ppo.yaml)")
-    env_config: str | None = arg(None, "preset name or experiment file: the env to train on")
-    total_timesteps: int | None = arg(None, "overrides the entry (or the resumed run)")
-    n_envs: int | None = arg(None, "overrides the entry (or the resumed run)")
-    vec_env: str | None = arg(None, "overrides the entry (or the resumed run)", choices=VEC_ENVS)
-    seeds: list[int] | None = arg(None, "one run folder per seed (default 0, or the resumed ones)")
-    run_dir: str | None = arg(None, "default runs/<hyperparams>; seeds go in seed_<n>/")
-    resume: bool = arg(False, "continue the recorded run from its newest readable state")
-    bundle: str | None = arg(None, "copy the best models into the bundled models under NAME")
-    replace_bundle: bool = arg(False, "with --bundle: replace the bundle of that name")
-    init_from: str | None = arg(None, "start from a bundle's (or model zip's) weights: fine-tune")
-    progress_bar: bool = arg(False, "also on whenever stderr is a terminal")
+    hyperparams: Annotated[str, arg("entry of the hyperparameter file (a new run)")] = "default"
+    config: Annotated[str | None, arg("hyperparameter file (default: configs/ppo.yaml)")] = None
+    env_config: Annotated[
+        str | None, arg("preset name or experiment file: the env to train on")
+    ] = None
+    total_timesteps: Annotated[int | None, arg("overrides the entry (or the resumed run)")] = None
+    n_envs: Annotated[int | None, arg("overrides the entry (or the resumed run)")] = None
+    vec_env: Annotated[VecEnvName | None, arg("overrides the entry (or the resumed run)")] = None
+    seeds: Annotated[
+        list[int] | None, arg("one run folder per seed (default 0, or the resumed ones)")
+    ] = None
+    run_dir: Annotated[str | None, arg("default runs/<hyperparams>; seeds go in seed_<n>/")] = None
+    resume: Annotated[bool, arg("continue the recorded run from its newest readable state")] = False
+    bundle: Annotated[
+        str | None, arg("copy the best models into the bundled models under NAME")
+    ] = None
+    replace_bundle: Annotated[bool, arg("with --bundle: replace the bundle of that name")] = False
+    init_from: Annotated[
+        str | None, arg("start from a bundle's (or model zip's) weights: fine-tune")
+    ] = None
+    progress_bar: Annotated[bool, arg("also on whenever stderr is a terminal")] = False
 
 
 def experiment(args: TrainArgs, command: str = "") -> Experiment:
@@ -171,16 +161,18 @@ class EvaluateArgs:
     tendon2r-evaluate --policy ct --env-config my_arm.yaml --plots figs --video run.mp4
     """
 
-    policy: str = arg("pd", "policy to run", choices=policy_names)
-    model: str | None = arg(None, "PPO model zip (default: the bundle named like the preset)")
-    bundle: str | None = arg(None, "bundled PPO to use instead of --model")
-    env_config: str = arg("default", "preset name or experiment file")
-    episodes: int = arg(3, "episodes, seeds seed .. seed + episodes - 1")
-    seed: int = arg(0, "first episode seed")
-    episode_duration: float | None = arg(None, "overrides the env config (s)")
-    json: str | None = arg(None, "write all metrics here")
-    plots: str | None = arg(None, "folder for the PNGs of the first episode")
-    video: str | None = arg(None, "mp4 or gif of the first episode")
+    policy: Annotated[PolicyName, arg("policy to run")] = "pd"
+    model: Annotated[
+        str | None, arg("PPO model zip (default: the bundle named like the preset)")
+    ] = None
+    bundle: Annotated[str | None, arg("bundled PPO to use instead of --model")] = None
+    env_config: Annotated[str, arg("preset name or experiment file")] = "default"
+    episodes: Annotated[int, arg("episodes, seeds seed .. seed + episodes - 1")] = 3
+    seed: Annotated[int, arg("first episode seed")] = 0
+    episode_duration: Annotated[float | None, arg("overrides the env config (s)")] = None
+    json: Annotated[str | None, arg("write all metrics here")] = None
+    plots: Annotated[str | None, arg("folder for the PNGs of the first episode")] = None
+    video: Annotated[str | None, arg("mp4 or gif of the first episode")] = None
 
 
 def evaluate_main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -232,12 +224,14 @@ class BenchmarkArgs:
     tendon2r-benchmark --env-config my_arm.yaml --train-steps 300000 --seeds 0 1 2 --out DIR
     """
 
-    env_config: str | None = arg(None, "your arm: train PPO on this file, then compare")
-    train_steps: int | None = arg(None, "PPO steps per run (default: the entries' own)")
-    seeds: list[int] = arg([0], "PPO training seeds (with --env-config)")
-    episodes: int = arg(3, "evaluation episodes per policy (seeds 0 ..)")
-    out: str = arg("results", "folder for benchmark.md, benchmark.json and plots/")
-    run_dir: str | None = arg(None, "training runs (default runs/<env-config name>)")
+    env_config: Annotated[str | None, arg("your arm: train PPO on this file, then compare")] = None
+    train_steps: Annotated[int | None, arg("PPO steps per run (default: the entries' own)")] = None
+    seeds: Annotated[list[int], arg("PPO training seeds (with --env-config)")] = field(
+        default_factory=lambda: [0]
+    )
+    episodes: Annotated[int, arg("evaluation episodes per policy (seeds 0 ..)")] = 3
+    out: Annotated[str, arg("folder for benchmark.md, benchmark.json and plots/")] = "results"
+    run_dir: Annotated[str | None, arg("training runs (default runs/<env-config name>)")] = None
 
 
 def benchmark_main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -274,12 +268,16 @@ class TunePDArgs:
     tendon2r-tune-pd --hyperparams real_arm_fixed --episodes 16 --scan max_delay_phase
     """
 
-    env_config: str = arg("default", "preset name or experiment file")
-    hyperparams: str | None = arg(None, "tune on this ppo.yaml entry's env instead")
-    episodes: int = arg(3, "tuning episodes (seeds 1000 ..; more for an env that draws arms)")
-    out: str | None = arg(None, "write the experiment file with the tuned pd_gains here")
-    scan: str = arg("bandwidth_hz", "the gain to scan (max_delay_phase: gains scheduled on each "
-                    "arm's loop delay)", choices=SCANS)  # fmt: skip
+    env_config: Annotated[str, arg("preset name or experiment file")] = "default"
+    hyperparams: Annotated[str | None, arg("tune on this ppo.yaml entry's env instead")] = None
+    episodes: Annotated[
+        int, arg("tuning episodes (seeds 1000 ..; more for an env that draws arms)")
+    ] = 3
+    out: Annotated[str | None, arg("write the experiment file with the tuned pd_gains here")] = None
+    scan: Annotated[
+        ScanName,
+        arg("the gain to scan (max_delay_phase: gains scheduled on each arm's loop delay)"),
+    ] = "bandwidth_hz"
 
 
 def tune_pd_main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -322,11 +320,13 @@ class ViewArgs:
     tendon2r-view --save out.png       # headless PNG from the side camera
     """
 
-    env_config: str = arg("default", "preset name or experiment file")
-    save: str | None = arg(None, "write a PNG instead of opening the viewer")
-    q_deg: list[float] = arg([20.0, -35.0], "pose: joint A and joint B (deg, in the joint range)")
-    width: int = arg(800, f"PNG width (px, 1 to {MAX_IMAGE_SIDE})")
-    height: int = arg(600, f"PNG height (px, 1 to {MAX_IMAGE_SIDE})")
+    env_config: Annotated[str, arg("preset name or experiment file")] = "default"
+    save: Annotated[str | None, arg("write a PNG instead of opening the viewer")] = None
+    q_deg: Annotated[list[float], arg("pose: joint A and joint B (deg, in the joint range)")] = (
+        field(default_factory=lambda: [20.0, -35.0])
+    )
+    width: Annotated[int, arg(f"PNG width (px, 1 to {MAX_IMAGE_SIDE})")] = 800
+    height: Annotated[int, arg(f"PNG height (px, 1 to {MAX_IMAGE_SIDE})")] = 600
 
 
 def view_main(argv: list[str] | None = None) -> Path | None:
@@ -386,8 +386,8 @@ class ExportArgs:
     episode (the XML is the config's nominal arm).
     """
 
-    env_config: str = arg("default", "preset name or experiment file")
-    out: str | None = arg(None, "output file (default build/<name>.xml)")
+    env_config: Annotated[str, arg("preset name or experiment file")] = "default"
+    out: Annotated[str | None, arg("output file (default build/<name>.xml)")] = None
 
 
 def export_note(cfg: EnvConfig, name: str) -> str:
@@ -445,10 +445,12 @@ class BundleArgs:
     one is complete (written beside it, then renamed into place): a failure leaves it intact.
     """
 
-    name: str | None = arg(None, "bundle name, e.g. default (required)")
-    runs: list[str] = arg([], "run folders written by tendon2r-train")
-    replace: bool = arg(False, "replace the bundle of that name")
-    root: str | None = arg(None, "models folder (default: the package's bundled models)")
+    name: Annotated[str | None, arg("bundle name, e.g. default (required)")] = None
+    runs: Annotated[list[str], arg("run folders written by tendon2r-train")] = field(
+        default_factory=lambda: []
+    )
+    replace: Annotated[bool, arg("replace the bundle of that name")] = False
+    root: Annotated[str | None, arg("models folder (default: the package's bundled models)")] = None
 
 
 def bundle_main(argv: list[str] | None = None) -> Path:

@@ -1,7 +1,7 @@
 """Arm sweep: does learning hold off the presets it was tuned on?
 
     python -m research.studies.arm_sweep                  # research/results/arm_sweep.md and .json
-    python -m research.studies.arm_sweep --arms default --train-steps 2048 --out /tmp/x   # smoke
+    python -m research.studies.arm_sweep --arms default --train-steps 2048 --out runs/x   # smoke
 
 Arms: the bundled presets, the example arm (configs/examples/my_arm.yaml) and ``--n-random``
 arms drawn with ``--arm-seed`` from the course's ranges by tendon2r_gym.arms.draw_arms.  Each

@@ -1,7 +1,7 @@
 """Generalist study: does one policy, trained across random arms, track arms it never saw?
 
     python -m research.studies.generalist      # research/results/generalist.md and .json
-    python -m research.studies.generalist --n-arms 2 --episodes 1 --out /tmp/x      # smoke
+    python -m research.studies.generalist --n-arms 2 --episodes 1 --out runs/x      # smoke
 
 Arms: ``--n-arms`` arms drawn with ``--arm-seed`` from the course's ranges by
 tendon2r_gym.arms.draw_arms (training never draws from this generator: its arms come from the

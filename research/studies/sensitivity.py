@@ -1,7 +1,7 @@
 """Hyperparameter sensitivity: does plain PPO still beat PD with settings nobody tuned for us?
 
     python -m research.studies.sensitivity     # research/results/sensitivity.md and .json
-    python -m research.studies.sensitivity --steps 2048 --variants defaults --out /tmp/x   # smoke
+    python -m research.studies.sensitivity --steps 2048 --variants defaults --out runs/x   # smoke
 
 Each variant is the shipped plain-PPO entry (configs/ppo.yaml ``default_scratch``) with one
 knob changed, trained on the ``default`` preset with one seed and the entry's budget.  A

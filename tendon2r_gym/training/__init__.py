@@ -1,18 +1,24 @@
 """PPO training: typed hyperparameters (hyperparams), SB3 callbacks (callbacks) and the run
 owner (manager).  The SB3 adapter of the native vector env is tendon2r_gym.vector_env_sb3."""
 
-# Before torch: triton's LLVM and Mesa's (a render before training) clash (tendon2r_gym.llvm).
-from tendon2r_gym.llvm import load_triton
-
-load_triton()
-
-
-from tendon2r_gym.training.hyperparams import Hyperparams  # noqa: E402
-from tendon2r_gym.training.manager import (  # noqa: E402
-    Experiment,
-    fine_tune,
-    recorded_hyperparams,
-    train_run,
-)
+from typing import Any
 
 __all__ = ["Experiment", "Hyperparams", "fine_tune", "recorded_hyperparams", "train_run"]
+
+
+def __getattr__(name: str) -> Any:
+    """Imports the torch side (manager) on first use, so that the hyperparameters' module
+    (torch-free) imports in a core install; triton's LLVM is loaded before torch's
+    (tendon2r_gym.llvm: a render before training)."""
+    if name == "Hyperparams":
+        from tendon2r_gym.training.hyperparams import Hyperparams
+
+        return Hyperparams
+    if name in __all__:
+        from tendon2r_gym.llvm import load_triton
+
+        load_triton()
+        from tendon2r_gym.training import manager
+
+        return getattr(manager, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
