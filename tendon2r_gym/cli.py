@@ -32,7 +32,6 @@ if typing.TYPE_CHECKING:
 
 A = TypeVar("A")
 VecEnvName = Literal[VEC_ENVS]  # type: ignore[valid-type]
-PolicyName = Literal[tuple(policy_names())]  # type: ignore[valid-type]
 ScanName = Literal[SCANS]  # type: ignore[valid-type]
 
 
@@ -161,7 +160,7 @@ class EvaluateArgs:
     tendon2r-evaluate --policy ct --env-config my_arm.yaml --plots figs --video run.mp4
     """
 
-    policy: Annotated[PolicyName, arg("policy to run")] = "pd"
+    policy: Annotated[str, arg(f"policy to run: one of {policy_names()} (the registry's)")] = "pd"
     model: Annotated[
         str | None, arg("PPO model zip (default: the bundle named like the preset)")
     ] = None
@@ -180,11 +179,11 @@ def evaluate_main(argv: list[str] | None = None) -> dict[str, Any]:
 
     import tendon2r_gym  # noqa: F401  (registers Tendon2R-v0)
     from tendon2r_gym.evaluation import evaluate, make_policy, resolve_model
-    from tendon2r_gym.plots import plot_trace, save_video
     from tendon2r_gym.rollout import rollout
-    from tendon2r_gym.validation import integer
+    from tendon2r_gym.validation import choice, integer
 
     args = parse(EvaluateArgs, argv)
+    choice("--policy", args.policy, policy_names())  # the registry's names, now
     integer("--episodes", args.episodes, 1, 10**6)
     env_kwargs: dict[str, Any] = {"preset": args.env_config}
     if args.episode_duration is not None:
@@ -203,6 +202,8 @@ def evaluate_main(argv: list[str] | None = None) -> dict[str, Any]:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(metrics, indent=1))
     title = f"{args.policy.upper()} on {Path(args.env_config).stem}"
+    if args.plots or args.video:  # the plots extra
+        from tendon2r_gym.plots import plot_trace, save_video
     if args.plots:
         for path in plot_trace(traces[0], args.plots, title):
             print("wrote", path)
