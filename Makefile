@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 export MUJOCO_GL ?= egl
 
-.PHONY: venv test research-test lint properties wheel-smoke benchmark speed learnability view clean
+.PHONY: venv test research-test lint docs properties wheel-smoke benchmark speed learnability view clean
 
 # The venv is rebuilt only when pyproject.toml changes (torch is a large download).
 $(BIN)/activate: pyproject.toml
@@ -19,6 +19,13 @@ test: venv
 	$(BIN)/ruff check tendon2r_gym scripts tests research
 	$(BIN)/python -m pytest -q -n auto tests research/tests
 	$(MAKE) wheel-smoke
+
+# The docs site (MkDocs Material, strict: a broken link or a missing page fails); the
+# generated pages and README's headline table first (tests/test_docs.py checks both, and
+# builds the site in strict mode, in make test).
+docs: venv
+	$(BIN)/python scripts/gen_docs.py
+	$(BIN)/mkdocs build --strict --site-dir build/site
 
 # The research folder's own tests (make test runs them too).
 research-test: venv

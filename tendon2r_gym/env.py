@@ -161,46 +161,12 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     worst corner), see ``force_need()``.  A fixed limit below that need warns.
 
     ## Version History
-    - v0 (unreleased, so the id stays v0): initial version, then, before any release:
-      - defaults that make the env learnable from scratch, measured by
-        research.studies.learnability (research/results/learnability.md): the bounded "log" tracking
-        reward (was quadratic in deg^2), reward scales ctrl 0.001 and divergence 10 (were
-        0.01 and 1000), and the log-scaled tracking error ``error_log`` in the observation;
-        the observation reordered into named slices (tendon2r_gym.observation);
-      - every argument may come from an experiment file; truncation by a TimeLimit of
-        episode_duration / ctrl_dt steps; ``max_tendon_force: auto``;
-      - any number of tendons, ``pull_only`` motors, ``info["tendon_tension"]`` (was
-        ``tendon_force``, the motor force with the opposite sign);
-      - a diverged step returns the last good observation; construction refuses unstable
-        physics and late-failing arguments;
-      - the task written once (tendon2r_gym.task) for this env and the vector env, which now
-        return the same info keys; the "multiscale" tracking form; the ``default`` and
-        ``report_002`` presets size ``max_tendon_force`` automatically.
-      - one reward for plain and residual PPO: the "log" tracking term lost its constant
-        offset (now in [-1, 0]; VecNormalize divides rewards by the return's std and clips
-        them at 10, so about +1 per step with a nearly constant return was clipped flat, and
-        residual PPO or a normalized rl_zoo3 set-up learned nothing from it); divergence
-        weight 100 (was 10) so that ending an episode never pays; the ``action_rate`` term
-        (0.01) with the last applied command at the end of the observation (after a reset, the
-        rest command: no force, or the pretension for pull-only tendons);
-        ``action_mode="joint_torque"``; the optional ``action_filter_tau``.
-      - real tendons and motors, all off by default (the ideal model and every result
-        unchanged): series-elastic cables on motor spools, pulley friction, motor lag and
-        delay (``mechanism``), measurement noise and delay (``observation_noise``,
-        ``observation_delay``); ``info["tendon_tension"]`` is the cable's tension.
-      - random arms (``mechanism_ranges``, ``observe_arm``, the reset info's ``mechanism``),
-        off by default: the registered observation and results are unchanged.
-      - the "multiscale" tracking reward (was "log") and the action-rate weight 0.1 (was
-        0.01): plain and residual PPO both beat PD on it, with smooth tensions (README, One
-        reward); "log" and "quadratic" stay options.
-      - the optional ``observe_error_rate``, ``observe_feedforward`` and
-        ``observe_force_limit`` (off by default: the registered observation and results are
-        unchanged).
-      - the optional ``action_rate_need`` reward term (weight 0 by default) and
-        ``error_units="action"`` (default "rad"): the registered reward, observation
-        and results are unchanged.
-      - the optional ``tracking_quadratic`` reward term (weight 0 by default): the registered
-        reward is unchanged.
+    Each id's contract is frozen (tendon2r_gym.contract); CHANGELOG.md says what each changed.
+
+    - v1: the default for new work: ``reset_noise_scale`` 0.02 and ``observe_error_rate``,
+      what the shipped plain-PPO entries learn on.
+    - v0: the first id, frozen at its last contract (``reset_noise_scale`` 0.001, no error
+      rate in the observation).
     """  # noqa: E501
 
     metadata = {"render_modes": ["human", "rgb_array", "depth_array"]}

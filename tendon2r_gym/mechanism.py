@@ -1,6 +1,6 @@
 """Mechanism parameters: a frozen, validated description of the tendon-driven 2R arm.
 
-Geometry conventions (see README):
+Geometry conventions (docs/mechanism.md):
 - ``a``: fixed base link, wall (x = 0) to joint A.  ``c``: joint A to joint B.  ``b``: joint B to
   the effector.  The 2R chain has l1 = c and l2 = b.
 - ``R1``, ``R2`` are pulley **diameters**; the pulley radii are ``R1 / 2`` and ``R2 / 2``.

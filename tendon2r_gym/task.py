@@ -38,7 +38,7 @@ DIVERGED_PAST_LIMIT = 0.5  # rad past a joint limit that counts as diverged
 DIVERGED_SPEED = 1e4
 
 #: Default weight of the action-rate term: plain PPO's tension rate within a few times PD's
-#: (README, One reward).
+#: (research/notes/2026-11-28-learning-and-reward.md).
 ACTION_RATE_WEIGHT = 0.1
 
 #: Reward terms: name -> (default weight, what the unscaled term is).  reward = sum of weight *
@@ -62,7 +62,7 @@ TERMS: dict[str, tuple[float, str]] = {
         "weighting.  The multiscale kernels weigh a 0.03 deg error about 13 times a 0.001 deg "
         "one (sigma 0.1), the RMS 900 times, so that on them the few steps that close the "
         "reset's offset, most of a precise policy's RMS, are a few percent of its reward "
-        "(README, One policy for every arm; research/results/transient.md)",
+        "(research/results/transient.md)",
     ),
     "ctrl": (
         0.001,

@@ -19,6 +19,7 @@ ROOT = Path(__file__).resolve().parent.parent
 def _load_gen_docs():
     spec = importlib.util.spec_from_file_location("gen_docs", ROOT / "scripts" / "gen_docs.py")
     module = importlib.util.module_from_spec(spec)
+    sys.modules["gen_docs"] = module  # its dataclass resolves its module's names
     spec.loader.exec_module(module)
     return module
 
@@ -41,13 +42,21 @@ def test_the_committed_pages_are_up_to_date(pages):
 
 def test_check_names_the_stale_page(pages, tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(gen_docs, "generate", lambda root: pages)
+    (tmp_path / "results").mkdir()
+    shutil.copy(ROOT / "results" / "benchmark.json", tmp_path / "results")
+    (tmp_path / "README.md").write_text(gen_docs.README_BEGIN + "\n" + gen_docs.README_END + "\n")
     assert gen_docs.main(["--root", str(tmp_path)]) == 0
     assert gen_docs.main(["--check", "--root", str(tmp_path)]) == 0
     page = tmp_path / "docs" / "models.md"
     page.write_text(page.read_text() + "edited by hand\n")
     assert gen_docs.main(["--check", "--root", str(tmp_path)]) == 1
     err = capsys.readouterr().err
-    assert "models.md" in err and "env.md" not in err
+    assert "models.md" in err and "env.md" not in err and "README" not in err
+    page.write_text(pages["models.md"])
+    readme = tmp_path / "README.md"
+    readme.write_text(readme.read_text().replace("| pd |", "| pd (typed) |", 1))
+    assert gen_docs.main(["--check", "--root", str(tmp_path)]) == 1
+    assert "README.md" in capsys.readouterr().err, "a hand-edited headline table is stale"
 
 
 def test_a_changed_reward_weight_makes_the_env_card_stale(pages, monkeypatch):
