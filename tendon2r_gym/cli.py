@@ -266,7 +266,7 @@ class TunePDArgs:
 
     tendon2r-tune-pd --env-config my_arm.yaml --out my_arm_tuned.yaml
     tendon2r-evaluate --policy pd --env-config my_arm_tuned.yaml
-    tendon2r-tune-pd --hyperparams real_arm_fixed --episodes 16 --scan max_delay_phase
+    tendon2r-tune-pd --hyperparams real_arm --episodes 16 --scan max_delay_phase
     """
 
     env_config: Annotated[str, arg("preset name or experiment file")] = "default"

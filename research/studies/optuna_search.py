@@ -4,7 +4,7 @@
 
 starts ``--workers`` copies of the zoo's own command on this machine:
 
-    python -m rl_zoo3.train --algo ppo --env Tendon2R-v0 --gym-packages tendon2r_gym \\
+    python -m rl_zoo3.train --algo ppo --env Tendon2R-v1 --gym-packages tendon2r_gym \\
         --conf-file configs/rl_zoo3/ppo.yml -optimize --storage STORAGE --study-name NAME ...
 
 and then writes the study's best trial to research/results/optuna.md and .json.  Optuna
@@ -44,7 +44,7 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--trials", type=int, default=4, help="trials per worker")
     p.add_argument("--steps", type=int, default=30000, help="PPO steps per trial")
-    p.add_argument("--env", default="Tendon2R-v0")
+    p.add_argument("--env", default="Tendon2R-v1")
     p.add_argument("--conf-file", default=ZOO_CONF)
     p.add_argument("--storage", default="runs/optuna/tendon2r_ppo.log")
     p.add_argument("--study-name", default="tendon2r_ppo")
