@@ -4,7 +4,7 @@
     python scripts/gen_docs.py --check  # exits 1, naming each page that differs from its source
 
 - ``env.md``, the env card: the Tendon2REnv docstring's sections, its observation and reward
-  tables (tendon2r_gym.observation, tendon2r_gym.task.TERMS), the arguments with their
+  tables (tendon2r_gym.observation, tendon2r_gym.rewards.TERMS), the arguments with their
   EnvConfig defaults, the registered ids with their env-contract hashes, and the version
   history (CHANGELOG.md if the repository has one, else the docstring's).
 - ``models.md``: one card per shipped model (tendon2r_gym.registry) from its bundle's files,
@@ -36,8 +36,8 @@ from tendon2r_gym import observation, registry
 from tendon2r_gym.bundle import MODELS_DIR, bundle_meta, bundled_model
 from tendon2r_gym.env import Tendon2REnv
 from tendon2r_gym.env_config import EnvConfig, arguments
+from tendon2r_gym.rewards import TERMS
 from tendon2r_gym.runs import BEST_METRICS, SUMMARY, RunFolder
-from tendon2r_gym.task import TERMS
 
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = "docs"
@@ -143,7 +143,7 @@ def markdown_indent(text: str) -> str:
 
 
 def reward_table() -> list[str]:
-    """Returns the table of the reward terms (tendon2r_gym.task.TERMS)."""
+    """Returns the table of the reward terms (tendon2r_gym.rewards.TERMS)."""
     return table(
         ("term", "default weight", "the unscaled term"),
         ((code(k), f"{w:g}", doc) for k, (w, doc) in TERMS.items()),

@@ -20,7 +20,7 @@ import numpy as np
 
 from tendon2r_gym.presets import DATA_DIR, load_yaml
 from tendon2r_gym.registry import contract_hash
-from tendon2r_gym.task import TERMS
+from tendon2r_gym.rewards import TERMS
 
 CONTRACTS = DATA_DIR / "contracts.yaml"
 #: The fingerprint rollout: steps, seed and the action at step k, a slow sweep of the range.

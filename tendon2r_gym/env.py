@@ -21,7 +21,8 @@ from tendon2r_gym.model import CAMERA, build_model, tendon_name
 from tendon2r_gym.ops import SCALAR
 from tendon2r_gym.realism import CommandDelay, Drive, Sensors
 from tendon2r_gym.reference import Reference
-from tendon2r_gym.task import Task, arm_params, reference_params, rewards_table
+from tendon2r_gym.rewards import rewards_table
+from tendon2r_gym.task import Task, arm_params, reference_params
 from tendon2r_gym.validation import integer, invalid, real_array
 
 #: MuJoCo's warnings that mean the integration failed (DIVERGENCE_WARNING_IDS: their indices
@@ -90,7 +91,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     with Gaussian noise); the reward and ``info`` stay on the true state.
 
     ## Rewards
-    ``reward = sum(reward_scales[k] * term_k)`` over the terms below (tendon2r_gym.task.TERMS;
+    ``reward = sum(reward_scales[k] * term_k)`` over the terms below (tendon2r_gym.rewards.TERMS;
     each is in ``info`` as ``reward_<k>``, already scaled):
 
     {rewards}

@@ -38,8 +38,8 @@ from tendon2r_gym.mechanism import AUTO, Mechanism
 from tendon2r_gym.model import build_model
 from tendon2r_gym.presets import SECTIONS, load_preset, merge_env_kwargs
 from tendon2r_gym.reference import Reference, ReferenceRanges
+from tendon2r_gym.rewards import ERROR_UNITS, MAX_REWARD_WEIGHT, REWARD_SCALES, TRACKING_FORMS
 from tendon2r_gym.stability import check_stability
-from tendon2r_gym.task import ERROR_UNITS, MAX_REWARD_WEIGHT, REWARD_SCALES, TRACKING_FORMS
 from tendon2r_gym.validation import (
     boolean,
     check_keys,

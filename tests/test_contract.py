@@ -46,7 +46,7 @@ def test_the_contract_sees_a_changed_default_and_a_changed_behaviour(monkeypatch
     finally:
         del gym.registry["Tendon2RTest-v9"]
     assert changed["config"] != base["config"] and changed["rollout"] != base["rollout"]
-    from tendon2r_gym import task
+    from tendon2r_gym import rewards as task
 
     monkeypatch.setitem(task.TERMS, "ctrl", (0.002, task.TERMS["ctrl"][1]))
     assert env_contract("Tendon2R-v1")["reward_terms"] != base["reward_terms"]

@@ -25,7 +25,7 @@ from hypothesis import strategies as st
 import tendon2r_gym  # noqa: F401  (registers Tendon2R-v0)
 from tendon2r_gym.env_config import arguments
 from tendon2r_gym.mechanism import Mechanism
-from tendon2r_gym.task import REWARD_SCALES
+from tendon2r_gym.rewards import REWARD_SCALES
 
 settings.register_profile(
     "ci", max_examples=25, deadline=None, suppress_health_check=list(HealthCheck)

@@ -130,7 +130,7 @@ def test_numpy_numbers_are_numbers(kwargs):
 
 def test_the_largest_reward_weights_give_a_finite_reward():
     """Every weight at its bound, from a start far off the reference: the reward is finite."""
-    from tendon2r_gym.task import MAX_REWARD_WEIGHT, REWARD_SCALES
+    from tendon2r_gym.rewards import MAX_REWARD_WEIGHT, REWARD_SCALES
 
     scales = dict.fromkeys(REWARD_SCALES, MAX_REWARD_WEIGHT)
     env = gym.make("Tendon2R-v0", reward_scales=scales, action_mode="joint_torque")

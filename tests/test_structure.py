@@ -13,13 +13,15 @@ def _module(path: Path) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-def _imports() -> dict[str, set[str]]:
-    """Module -> the package modules it imports at any level (lazy imports included)."""
+def _imports(type_checking: bool = False) -> dict[str, set[str]]:
+    """Module -> the package modules it imports at any level (lazy imports included; with
+    ``type_checking``, also those for annotations only)."""
     modules = {_module(p): p for p in PACKAGE.rglob("*.py")}
     graph = {}
     for name, path in modules.items():
         found = set()
-        for node in _runtime_nodes(ast.parse(path.read_text())):
+        tree = ast.parse(path.read_text())
+        for node in ast.walk(tree) if type_checking else _runtime_nodes(tree):
             if isinstance(node, ast.ImportFrom) and node.module:
                 targets = [node.module, *(f"{node.module}.{a.name}" for a in node.names)]
             elif isinstance(node, ast.Import):
@@ -58,3 +60,10 @@ def test_the_import_graph_has_no_cycle():
     for node in graph:
         if node not in state:
             visit(node, [])
+
+
+def test_no_two_modules_import_each_other_type_checking_included():
+    graph = _imports(type_checking=True)
+    pairs = sorted({tuple(sorted((a, b))) for a, deps in graph.items() for b in deps
+                    if a in graph.get(b, ())})  # fmt: skip
+    assert not pairs, pairs

@@ -18,6 +18,15 @@ def joints(values: Sequence[float], digits: int = 3) -> str:
     return " / ".join(f"{x:.{digits}f}" for x in values)
 
 
+def one_or_more(flag: str, values: list[Any], allowed: str) -> list[Any]:
+    """Returns a list flag's values, refusing none (a flag given without values)."""
+    if not values:
+        from tendon2r_gym.validation import invalid
+
+        raise invalid(flag, values, allowed)
+    return values
+
+
 def save_json(out: Path, name: str, result: dict[str, Any]) -> None:
     """Creates ``out`` and writes ``result`` to ``out/<name>.json``."""
     out.mkdir(parents=True, exist_ok=True)

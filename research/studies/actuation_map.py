@@ -12,9 +12,10 @@ any joint torque (tendon2r_gym.routing.positive_span); two tendons never reach i
 
 from __future__ import annotations
 
-import argparse
 import json
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 import matplotlib
 
@@ -23,17 +24,25 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from tendon2r_gym.actuation import ActuationAnalysis  # noqa: E402
+from tendon2r_gym.cli import arg, parse  # noqa: E402
 from tendon2r_gym.env_config import EnvConfig  # noqa: E402
 from tendon2r_gym.model import build_model  # noqa: E402
 from tendon2r_gym.routing import ROUTINGS  # noqa: E402
 
 
+@dataclass
+class Args:
+    """The actuation map's flags."""
+
+    env_config: Annotated[str, arg("preset name or experiment file")] = "default"
+    out: Annotated[str, arg("the figure (PNG); its numbers go next to it as .json")] = (
+        "research/results/actuation_map.png"
+    )
+    grid: Annotated[int, arg("joint angles per joint")] = 61
+
+
 def main(argv: list[str] | None = None) -> dict:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    p.add_argument("--env-config", default="default", help="preset name or experiment file")
-    p.add_argument("--out", default="research/results/actuation_map.png")
-    p.add_argument("--grid", type=int, default=61)
-    args = p.parse_args(argv)
+    args = parse(Args, argv, __doc__)
     config = EnvConfig.make(args.env_config)
     mech, ref = config.mechanism.replace(pull_only=False), config.reference
     traj = np.degrees(ref.q(np.arange(0, 2.0, 1e-3)))

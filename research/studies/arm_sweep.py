@@ -18,16 +18,17 @@ entry and code would repeat it.
 
 from __future__ import annotations
 
-import argparse
 import json
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
 
 import yaml
 
-from research.studies import joints, save_json
+from research.studies import joints, one_or_more, save_json
 from tendon2r_gym.arms import draw_arms
 from tendon2r_gym.benchmark import benchmark_own_arm
+from tendon2r_gym.cli import arg, parse
 from tendon2r_gym.env_config import ACTION_MODES, EnvConfig
 from tendon2r_gym.metrics import (
     RATE_LIMIT_X_PD,
@@ -43,6 +44,8 @@ from tendon2r_gym.validation import invalid
 PRESETS = ("default", "report_002", "pull_only")
 #: The sweep's learned rows (tendon2r_gym.benchmark.LEARNED labels), by --only's names.
 ROWS = {"scratch": "ppo scratch", "residual": "ppo residual"}
+Row = Literal[tuple(ROWS)]  # type: ignore[valid-type]
+ActionMode = Literal[ACTION_MODES]  # type: ignore[valid-type]
 EXAMPLE = Path(__file__).resolve().parents[2] / "configs" / "examples" / "my_arm.yaml"
 
 
@@ -85,23 +88,29 @@ def _verdict(rows: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def main(argv: list[str] | None = None) -> dict[str, Any]:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    p.add_argument("--n-random", type=int, default=8, help="random course arms")
-    p.add_argument("--arm-seed", type=int, default=2027, help="seed of the random arms")
-    p.add_argument("--arms", nargs="+", default=None, help="only these arms (names)")
-    p.add_argument("--train-steps", type=int, default=None, help="default: the entries' own")
-    p.add_argument("--episodes", type=int, default=3)
-    p.add_argument(
-        "--action-modes", nargs="+", default=list(ACTION_MODES), choices=list(ACTION_MODES)
+@dataclass
+class Args:
+    """The arm sweep's flags."""
+
+    n_random: Annotated[int, arg("random course arms")] = 8
+    arm_seed: Annotated[int, arg("seed of the random arms")] = 2027
+    arms: Annotated[list[str] | None, arg("only these arms (names)")] = None
+    train_steps: Annotated[int | None, arg("default: the entries' own")] = None
+    episodes: Annotated[int, arg("evaluation episodes per arm")] = 3
+    action_modes: Annotated[list[ActionMode], arg("the env's action modes to sweep")] = field(
+        default_factory=lambda: list(ACTION_MODES)
     )
-    p.add_argument("--out", default="research/results")
-    p.add_argument("--run-dir", default="runs/arm_sweep")
-    p.add_argument(
-        "--only", choices=list(ROWS), default=None,
-        help="train only this PPO row; the other's cells come from --out's arm_sweep.json",
-    )  # fmt: skip
-    args = p.parse_args(argv)
+    out: Annotated[str, arg("folder for arm_sweep.md and .json")] = "research/results"
+    run_dir: Annotated[str, arg("the arms' files, training runs and reports")] = "runs/arm_sweep"
+    only: Annotated[
+        Row | None,
+        arg("train only this PPO row; the other's cells come from --out's arm_sweep.json"),
+    ] = None
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    args = parse(Args, argv, __doc__)
+    one_or_more("--action-modes", args.action_modes, f"one or more of {ACTION_MODES}")
     command = command_line(argv, "python -m research.studies.arm_sweep")
     out, runs = Path(args.out), Path(args.run_dir)
     earlier = _earlier(out, args.only)

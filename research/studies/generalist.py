@@ -25,10 +25,10 @@ the specialist of its own action mode.
 
 from __future__ import annotations
 
-import argparse
 import json
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 import yaml
@@ -37,6 +37,7 @@ from research.studies import joints, save_json
 from tendon2r_gym.arms import GEOMETRY, draw_arms
 from tendon2r_gym.benchmark import GENERALISTS, LEARNED
 from tendon2r_gym.bundle import bundle_meta, bundle_names, bundled_model
+from tendon2r_gym.cli import arg, parse
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.evaluation import evaluate
 from tendon2r_gym.learned import (
@@ -57,8 +58,8 @@ from tendon2r_gym.metrics import (
 )
 from tendon2r_gym.observation import OPTIONAL, layout_mask
 from tendon2r_gym.presets import load_yaml, preset_path
+from tendon2r_gym.rewards import REWARD_SCALES
 from tendon2r_gym.runs import RunFolder, command_line, stem_of, training_record, training_summary
-from tendon2r_gym.task import REWARD_SCALES
 from tendon2r_gym.training.hyperparams import LINEAR, Smoothing, linear_schedule
 from tendon2r_gym.validation import invalid
 
@@ -415,27 +416,29 @@ def finetune_curves(
     return out
 
 
+@dataclass
+class Args:
+    """The generalist study's flags."""
+
+    n_arms: Annotated[int, arg("unseen random course arms")] = 32
+    arm_seed: Annotated[int, arg("seed of the unseen arms")] = 9001
+    episodes: Annotated[int, arg("evaluation seeds 0..N-1 per arm")] = 3
+    bundles: Annotated[
+        list[str] | None,
+        arg("bundle names, or NAME@SEED for another bundled seed (default: the shipped "
+            "generalists, their other seeds, then the ablations)"),
+    ] = None  # fmt: skip
+    sweep: Annotated[str, arg("the arm sweep's results")] = "research/results/arm_sweep.json"
+    finetune_arms: Annotated[int, arg("fine-tuning curve on N arms")] = 3
+    finetune_runs: Annotated[str, arg("its training run folders")] = "runs/finetune"
+    finetune_steps: Annotated[
+        int | None, arg("default: a quarter of the specialist's steps (else the entry's)")
+    ] = None
+    out: Annotated[str, arg("folder for generalist.md and .json")] = "research/results"
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    p.add_argument("--n-arms", type=int, default=32, help="unseen random course arms")
-    p.add_argument("--arm-seed", type=int, default=9001, help="seed of the unseen arms")
-    p.add_argument("--episodes", type=int, default=3, help="evaluation seeds 0..N-1 per arm")
-    p.add_argument(
-        "--bundles", nargs="*", default=None,
-        help="bundle names, or NAME@SEED for another bundled seed (default: the shipped "
-        "generalists, their other seeds, then the ablations)",
-    )  # fmt: skip
-    p.add_argument(
-        "--sweep", default="research/results/arm_sweep.json", help="the arm sweep's results"
-    )
-    p.add_argument("--finetune-arms", type=int, default=3, help="fine-tuning curve on N arms")
-    p.add_argument("--finetune-runs", default="runs/finetune", help="its training run folders")
-    p.add_argument(
-        "--finetune-steps", type=int, default=None,
-        help="default: a quarter of the specialist's steps (else the entry's)",
-    )  # fmt: skip
-    p.add_argument("--out", default="research/results")
-    args = p.parse_args(argv)
+    args = parse(Args, argv, __doc__)
     command = command_line(argv, "python -m research.studies.generalist")
     shipped = [b for b in BUNDLES if b in bundle_names()]
     ablations = [b for b in ABLATIONS if b in bundle_names()]

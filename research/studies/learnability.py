@@ -11,21 +11,22 @@ evaluation that beat PD.  The table therefore shows what each choice costs.
 
 from __future__ import annotations
 
-import argparse
 import json
 import multiprocessing
 import shlex
 import tempfile
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 if TYPE_CHECKING:
     from tendon2r_gym.training import Hyperparams
 
 import numpy as np
 
-from research.studies import joints, save_json
+from research.studies import joints, one_or_more, save_json
+from tendon2r_gym.cli import arg, parse
 
 #: Row name -> (what changes, env kwargs, hyperparameter changes).  Rows start from
 #: ``default_scratch`` unless their hyperparameter changes name another ``entry``.
@@ -112,6 +113,7 @@ ROWS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
                         {"action_filter_tau": 0.01}, {"entry": "default"}),
     "plain_ctrl0": ("plain PPO without the ctrl term", {"reward_scales": {"ctrl": 0.0}}, {}),
 }  # fmt: skip
+Row = Literal[tuple(ROWS)]  # type: ignore[valid-type]
 
 
 def row_config(name: str, steps: int) -> Hyperparams:
@@ -151,16 +153,25 @@ def _run(name: str, seed: int, steps: int, root: str) -> dict[str, Any]:
     return {"row": name, **{k: v for k, v in summary.items() if k != "segments"}}
 
 
+@dataclass
+class Args:
+    """The learnability study's flags."""
+
+    steps: Annotated[int, arg("PPO steps per run")] = 150_000
+    seeds: Annotated[list[int], arg("one run per row and seed")] = field(
+        default_factory=lambda: [0, 1, 2]
+    )
+    rows: Annotated[list[Row], arg("the study's rows")] = field(default_factory=lambda: list(ROWS))
+    jobs: Annotated[int, arg("runs in parallel (one per core)")] = 2
+    out: Annotated[str, arg("folder for learnability.md and .json")] = "research/results"
+    run_dir: Annotated[str | None, arg("keep the runs here (default: a temp dir)")] = None
+    render: Annotated[str | None, arg("only re-render the tables of this JSON")] = None
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    p.add_argument("--steps", type=int, default=150_000, help="PPO steps per run")
-    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    p.add_argument("--rows", nargs="+", default=list(ROWS), choices=list(ROWS))
-    p.add_argument("--jobs", type=int, default=2, help="runs in parallel (one per core)")
-    p.add_argument("--out", default="research/results")
-    p.add_argument("--run-dir", default=None, help="keep the runs here (default: a temp dir)")
-    p.add_argument("--render", default=None, help="only re-render the tables of this JSON")
-    args = p.parse_args(argv)
+    args = parse(Args, argv, __doc__)
+    one_or_more("--seeds", args.seeds, "one or more seeds")
+    one_or_more("--rows", args.rows, f"one or more of {list(ROWS)}")
     from tendon2r_gym.runs import command_line
 
     command = command_line(argv, "python -m research.studies.learnability")

@@ -15,18 +15,36 @@ trials.  On many machines, run that same zoo command on each of them with a shar
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import subprocess
 import sys
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
+
+from tendon2r_gym.cli import arg, parse
 
 #: The zoo hyperparameter file, relative to the repository (run from its root, as README does).
 ZOO_CONF = "configs/rl_zoo3/ppo.yml"
 
 
-def zoo_command(args: argparse.Namespace, seed: int) -> list[str]:
+@dataclass
+class Args:
+    """The Optuna search's flags."""
+
+    workers: Annotated[int, arg("zoo processes sharing the study")] = 2
+    trials: Annotated[int, arg("trials per worker")] = 4
+    steps: Annotated[int, arg("PPO steps per trial")] = 30000
+    env: Annotated[str, arg("the Gymnasium id to tune on")] = "Tendon2R-v1"
+    conf_file: Annotated[str, arg("the zoo hyperparameter file")] = ZOO_CONF
+    storage: Annotated[str, arg("the study's Optuna journal file")] = "runs/optuna/tendon2r_ppo.log"
+    study_name: Annotated[str, arg("the study's name in the storage")] = "tendon2r_ppo"
+    log_folder: Annotated[str, arg("the zoo's log folder")] = "runs/optuna"
+    out: Annotated[str, arg("folder for optuna.md and .json")] = "research/results"
+
+
+def zoo_command(args: Args, seed: int) -> list[str]:
     """Returns one worker's rl_zoo3 command."""
     return [
         sys.executable, "-m", "rl_zoo3.train", "--algo", "ppo", "--env", args.env,
@@ -40,17 +58,7 @@ def zoo_command(args: argparse.Namespace, seed: int) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> dict:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    p.add_argument("--workers", type=int, default=2)
-    p.add_argument("--trials", type=int, default=4, help="trials per worker")
-    p.add_argument("--steps", type=int, default=30000, help="PPO steps per trial")
-    p.add_argument("--env", default="Tendon2R-v1")
-    p.add_argument("--conf-file", default=ZOO_CONF)
-    p.add_argument("--storage", default="runs/optuna/tendon2r_ppo.log")
-    p.add_argument("--study-name", default="tendon2r_ppo")
-    p.add_argument("--log-folder", default="runs/optuna")
-    p.add_argument("--out", default="research/results")
-    args = p.parse_args(argv)
+    args = parse(Args, argv, __doc__)
     from tendon2r_gym.runs import command_line
 
     command = command_line(argv, "python -m research.studies.optuna_search")

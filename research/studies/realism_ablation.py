@@ -17,15 +17,16 @@ arm (tendon2r_gym.benchmark.on_its_pd).
 
 from __future__ import annotations
 
-import argparse
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
 
 import numpy as np
 
-from research.studies import joints, save_json
+from research.studies import joints, one_or_more, save_json
 from tendon2r_gym.arms import CONTROLLER, GAIN_UNITS, MechanismRanges
 from tendon2r_gym.benchmark import TUNE_EPISODES, on_its_pd, realism_arms
+from tendon2r_gym.cli import arg, parse
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.evaluation import evaluate
 from tendon2r_gym.gains import gains_of, true_phase_per_hz
@@ -59,18 +60,22 @@ def _record(run: RunFolder) -> dict[str, Any]:
     }
 
 
+@dataclass
+class Args:
+    """The realism ablation's flags."""
+
+    runs: Annotated[list[str], arg("run folders (seed_<n>)")]
+    episodes: Annotated[int, arg("per arm, as make benchmark")] = 3
+    model: Annotated[
+        Literal["best", "last"],
+        arg("each run's best model (by its training evaluations) or its last"),
+    ] = "best"
+    out: Annotated[str, arg("folder for realism_ablation.md and .json")] = "research/results"
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    p.add_argument("--runs", nargs="+", required=True, help="run folders (seed_<n>)")
-    p.add_argument("--episodes", type=int, default=3, help="per arm, as make benchmark")
-    p.add_argument(
-        "--model",
-        choices=("best", "last"),
-        default="best",
-        help="each run's best model (by its training evaluations) or its last",
-    )
-    p.add_argument("--out", default="research/results")
-    args = p.parse_args(argv)
+    args = parse(Args, argv, __doc__)
+    one_or_more("--runs", args.runs, "one or more run folders (seed_<n>)")
     command = command_line(argv, "python -m research.studies.realism_ablation")
     runs = [RunFolder(Path(r)) for r in args.runs]
     records = [_record(run) for run in runs]  # every folder checked before any evaluation

@@ -12,14 +12,15 @@ gives its smoothness on those seeds started on the reference, where training jud
 
 from __future__ import annotations
 
-import argparse
 import multiprocessing
 import tempfile
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
 
-from research.studies import joints, save_json
+from research.studies import joints, one_or_more, save_json
+from tendon2r_gym.cli import arg, parse
 
 ENTRY = "default_scratch"
 
@@ -69,6 +70,7 @@ VARIANTS: dict[str, tuple[str, Any]] = {
     "net_64": ("network 64 x 64", _policy(net_arch=[64, 64])),
     "net_256": ("network 256 x 256", _policy(net_arch=[256, 256])),
 }
+Variant = Literal[tuple(VARIANTS)]  # type: ignore[valid-type]
 
 
 def variant(name: str, steps: int | None) -> Any:
@@ -103,20 +105,27 @@ def _run(name: str, steps: int | None, root: str) -> dict[str, Any]:
     }
 
 
+@dataclass
+class Args:
+    """The sensitivity study's flags."""
+
+    steps: Annotated[int | None, arg("default: the entry's budget")] = None
+    variants: Annotated[list[Variant], arg("the hyperparameter changes to train")] = field(
+        default_factory=lambda: list(VARIANTS)
+    )
+    jobs: Annotated[int, arg("runs in parallel (one per core)")] = 2
+    out: Annotated[str, arg("folder for sensitivity.md and .json")] = "research/results"
+    run_dir: Annotated[
+        str | None,
+        arg("keep the runs here (default: a temp dir); a rerun continues or reuses them"),
+    ] = None
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     from tendon2r_gym.runs import command_line
 
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    p.add_argument("--steps", type=int, default=None, help="default: the entry's budget")
-    p.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
-    p.add_argument("--jobs", type=int, default=2)
-    p.add_argument("--out", default="research/results")
-    p.add_argument(
-        "--run-dir",
-        default=None,
-        help="keep the runs here (default: a temp dir); a rerun continues or reuses them",
-    )
-    args = p.parse_args(argv)
+    args = parse(Args, argv, __doc__)
+    one_or_more("--variants", args.variants, f"one or more of {list(VARIANTS)}")
     command = command_line(argv, "python -m research.studies.sensitivity")
     names = [n for n in args.variants if variant(n, args.steps) is not None]
     skipped = [n for n in args.variants if n not in names]

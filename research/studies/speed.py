@@ -6,7 +6,6 @@ same run; vector envs; PPO training throughput; peak memory.
 
 from __future__ import annotations
 
-import argparse
 import inspect
 import json
 import os
@@ -14,8 +13,9 @@ import subprocess
 import sys
 import threading
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -24,6 +24,8 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
 import tendon2r_gym  # noqa: E402, F401
+from research.studies import one_or_more  # noqa: E402
+from tendon2r_gym.cli import arg, parse  # noqa: E402
 from tendon2r_gym.runs import command_line  # noqa: E402
 from tendon2r_gym.vector_env import ARMS_PER_THREAD  # noqa: E402
 
@@ -404,39 +406,40 @@ def targets(result: dict[str, Any], num_envs: list[int]) -> list[str]:
     return lines
 
 
+@dataclass
+class Args:
+    """The speed benchmark's flags."""
+
+    steps: Annotated[int, arg("per single-env timing")] = 5000
+    single_rounds: Annotated[
+        int,
+        arg("best of, per single-env timing (this machine's speed drifts by 1.5x for seconds "
+            "at a time: many short rounds over all envs catch each env at full speed)"),
+    ] = 15  # fmt: skip
+    ppo_timesteps: Annotated[int, arg("PPO steps per training-throughput setting")] = 200_000
+    eval_freq: Annotated[
+        int, arg("evaluation period (steps) of the run that times the first win over PD")
+    ] = 4096
+    first_win_timesteps: Annotated[int, arg("PPO steps of that run")] = 49152
+    vector_seconds: Annotated[float, arg("per vector-env setting")] = 1.5
+    repeats: Annotated[int, arg("best of, per timing")] = 3
+    num_envs: Annotated[list[int], arg("vector-env sizes N")] = field(
+        default_factory=lambda: [1, 8, 16, 64, 256]
+    )
+    max_processes: Annotated[int, arg("largest N for async/subproc")] = 8
+    out: Annotated[str, arg("folder for speed.md and speed.json")] = "research/results"
+    compare: Annotated[
+        list[str],
+        arg("LABEL=SRC ...: also time other checkouts (a folder holding their tendon2r_gym, e.g. "
+            "a git worktree) against this one, in the same run: single-env overhead and native "
+            "N = 64"),
+    ] = field(default_factory=list)  # fmt: skip
+    only_compare: Annotated[bool, arg("skip every other measurement")] = False
+
+
 def main(argv: list[str] | None = None) -> dict:
-    p = argparse.ArgumentParser(description=__doc__)
-    p.add_argument("--steps", type=int, default=5000, help="per single-env timing")
-    p.add_argument(
-        "--single-rounds",
-        type=int,
-        default=15,
-        help="best of, per single-env timing (this machine's speed drifts by 1.5x for seconds "
-        "at a time: many short rounds over all envs catch each env at full speed)",
-    )
-    p.add_argument("--ppo-timesteps", type=int, default=200_000)
-    p.add_argument(
-        "--eval-freq",
-        type=int,
-        default=4096,
-        help="evaluation period (steps) of the run that times the first win over PD",
-    )
-    p.add_argument("--first-win-timesteps", type=int, default=49152)
-    p.add_argument("--vector-seconds", type=float, default=1.5, help="per vector-env setting")
-    p.add_argument("--repeats", type=int, default=3, help="best of, per timing")
-    p.add_argument("--num-envs", type=int, nargs="+", default=[1, 8, 16, 64, 256])
-    p.add_argument("--max-processes", type=int, default=8, help="largest N for async/subproc")
-    p.add_argument("--out", default="research/results", help="folder for speed.md and speed.json")
-    p.add_argument(
-        "--compare",
-        nargs="+",
-        default=[],
-        metavar="LABEL=SRC",
-        help="also time other checkouts (a folder holding their tendon2r_gym, e.g. a git "
-        "worktree) against this one, in the same run: single-env overhead and native N = 64",
-    )
-    p.add_argument("--only-compare", action="store_true", help="skip every other measurement")
-    args = p.parse_args(argv)
+    args = parse(Args, argv, __doc__)
+    one_or_more("--num-envs", args.num_envs, "one or more vector-env sizes")
     if args.compare or args.only_compare:
         here = str(Path(__file__).resolve().parents[2])
         checkouts = dict(item.split("=", 1) for item in args.compare)

@@ -13,14 +13,16 @@ with the motors held at a constant command).  LIMITS are set 20% below these rat
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import warnings
+from dataclasses import dataclass
+from typing import Annotated
 
 import mujoco
 import numpy as np
 
+from tendon2r_gym.cli import arg, parse
 from tendon2r_gym.mechanism import Mechanism
 from tendon2r_gym.model import build_model
 from tendon2r_gym.stability import LIMITS, rates
@@ -76,10 +78,15 @@ def threshold(case: str, integrator: str, iterations: int) -> float | None:
     return lo if small_diverges else hi
 
 
+@dataclass
+class Args:
+    """The stability limits' flags."""
+
+    iterations: Annotated[int, arg("bisection steps (log scale)")] = 40
+
+
 def main(argv: list[str] | None = None) -> dict:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    p.add_argument("--iterations", type=int, default=40, help="bisection steps (log scale)")
-    args = p.parse_args(argv)
+    args = parse(Args, argv, __doc__)
     out: dict = {}
     for integrator in LIMITS:
         for field in FIELDS:

@@ -9,16 +9,18 @@ second.  The cheapest setting under 0.01 deg on every preset is the recommended 
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 import gymnasium as gym
 import mujoco
 import numpy as np
 
 import tendon2r_gym  # noqa: F401
+from tendon2r_gym.cli import arg, parse
 from tendon2r_gym.observation import Q
 from tendon2r_gym.policies import PDPolicy
 
@@ -53,12 +55,15 @@ def trajectory(preset: str, integrator: str, sim_dt: float, seconds: float = 2.0
     return np.degrees(np.array(qs)), cost
 
 
+@dataclass
+class Args:
+    """The time-step study's flags."""
+
+    out: Annotated[str, arg("folder for timestep_study.md and .json")] = "research/results"
+
+
 def main(argv: list[str] | None = None) -> dict:
-    p = argparse.ArgumentParser(description=__doc__)
-    p.add_argument(
-        "--out", default="research/results", help="folder for timestep_study.md and .json"
-    )
-    args = p.parse_args(argv)
+    args = parse(Args, argv, __doc__)
     rows = []
     for preset in PRESETS:
         ref, _ = trajectory(preset, *REFERENCE)

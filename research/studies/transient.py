@@ -13,14 +13,15 @@ settles precisely but closes the offset slowly.
 
 from __future__ import annotations
 
-import argparse
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 
 from research.studies import joints, save_json
 from research.studies.generalist import action_mode_of, model_of, sweep_arms
+from tendon2r_gym.cli import arg, parse
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.evaluation import evaluate
 from tendon2r_gym.learned import in_model_settings
@@ -64,15 +65,18 @@ def tracking_reward_of(model: Path) -> dict[str, Any]:
     return {k: config[k] for k in REWARD_FIELDS}
 
 
+@dataclass
+class Args:
+    """The transient study's flags."""
+
+    bundle: Annotated[str, arg("a bundle, or NAME@SEED")] = "generalist"
+    episodes: Annotated[int, arg("evaluation seeds 0..N-1 per arm")] = 3
+    sweep: Annotated[str, arg("the arm sweep's results")] = "research/results/arm_sweep.json"
+    out: Annotated[str, arg("folder for transient.md and .json")] = "research/results"
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    p.add_argument("--bundle", default="generalist", help="a bundle, or NAME@SEED")
-    p.add_argument("--episodes", type=int, default=3, help="evaluation seeds 0..N-1 per arm")
-    p.add_argument(
-        "--sweep", default="research/results/arm_sweep.json", help="the arm sweep's results"
-    )
-    p.add_argument("--out", default="research/results")
-    args = p.parse_args(argv)
+    args = parse(Args, argv, __doc__)
     model = model_of(args.bundle)
     own = tracking_reward_of(model)
     seeds = list(range(args.episodes))
