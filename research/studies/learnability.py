@@ -171,7 +171,7 @@ class Args:
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     args = parse(Args, argv, __doc__)
     one_or_more("--seeds", args.seeds, "one or more seeds")
-    one_or_more("--rows", args.rows, f"one or more of {list(ROWS)}")
+    one_or_more("--rows", args.rows, "one or more of the rows --help lists")
     from tendon2r_gym.runs import command_line
 
     command = command_line(argv, "python -m research.studies.learnability")
