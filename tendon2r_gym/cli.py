@@ -175,7 +175,6 @@ class EvaluateArgs:
 
 
 def evaluate_main(argv: list[str] | None = None) -> dict[str, Any]:
-    import gymnasium as gym
 
     import tendon2r_gym  # noqa: F401  (registers Tendon2R-v0)
     from tendon2r_gym.evaluation import evaluate, make_policy, resolve_model
@@ -208,7 +207,9 @@ def evaluate_main(argv: list[str] | None = None) -> dict[str, Any]:
         for path in plot_trace(traces[0], args.plots, title):
             print("wrote", path)
     if args.video:
-        env = gym.make("Tendon2R-v0", render_mode="rgb_array", width=480, height=360, **env_kwargs)
+        from tendon2r_gym.env import make as make_env_as_given
+
+        env = make_env_as_given(render_mode="rgb_array", width=480, height=360, **env_kwargs)
         trace = rollout(make_policy(args.policy, env, model), env, seeds[0], render=True)
         every = max(1, round(1 / 30 / env.unwrapped.ctrl_dt))  # ~30 fps of real time
         print("wrote", save_video(trace.frames[::every], args.video, fps=30))

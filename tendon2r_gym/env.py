@@ -47,6 +47,17 @@ def make_env(preset: str | os.PathLike = "default", **kwargs: Any) -> gym.Env:
     return gym.wrappers.TimeLimit(env, env.config.max_episode_steps)
 
 
+#: The id the library's own tools make envs with: Tendon2R-v0 adds no defaults over a preset,
+#: so the env is exactly what the given kwargs (a model's recorded settings) say.
+BASE_ID = "Tendon2R-v0"
+
+
+def make(**kwargs: Any) -> gym.Env:
+    """``gym.make`` of BASE_ID, through its spec: the same env, wrappers and TimeLimit, without
+    Gymnasium's notice that a newer version exists (it is meant for users' own ids)."""
+    return gym.make(gym.spec(BASE_ID), **kwargs)
+
+
 class Tendon2REnv(MujocoEnv, EzPickle):
     """Tendon-driven 2R planar arm: each joint tracks q_des(t) = amp sin(w t + phase) + bias.
 

@@ -5,7 +5,7 @@ the sections ``mechanism`` (Mechanism fields), ``reference`` (Reference fields) 
 ``reference_ranges`` (ReferenceRanges fields), and the scalar arguments such as ``ctrl_dt``,
 ``episode_duration``, ``fit_to_workspace`` or ``reward_scales``.  The bundled presets are such
 files, shipped inside the package (``tendon2r_gym/data/presets/``); a user's own file is passed
-by path, ``gym.make("Tendon2R-v0", preset="my_arm.yaml")``.  Keyword arguments given to
+by path, ``gym.make("Tendon2R-v1", preset="my_arm.yaml")``.  Keyword arguments given to
 ``gym.make`` override the file: a ``mechanism`` or ``reference`` dict overrides only the fields
 it names (:func:`merge_env_kwargs`).
 

@@ -369,7 +369,8 @@ def test_the_benchmark_runs_a_residual_on_drawn_gains_on_the_arms_tuned_pd(tmp_p
     for name, value in ranges.items():
         (tmp_path / name).mkdir()
         config = EnvConfig.make("real_arm", mechanism_ranges=value).to_dict()
-        (tmp_path / name / "run.json").write_text(json.dumps({"env_config": config}))
+        record = {"seed": 0, "env_kwargs": {}, "env_config": config}
+        (tmp_path / name / "run.json").write_text(json.dumps(record))
         models[name] = tmp_path / name / "best_model.zip"
     arm, tuned = {"preset": "real_arm"}, {"preset": "real_arm", "pd_gains": {"bandwidth_hz": 20}}
     assert on_its_pd(arm, tuned, models["drawn"]) is tuned

@@ -28,7 +28,7 @@ import gymnasium as gym
 import tendon2r_gym  # noqa: F401
 
 def render():
-    env = gym.make("Tendon2R-v0", render_mode="rgb_array", width=64, height=48)
+    env = gym.make("Tendon2R-v1", render_mode="rgb_array", width=64, height=48)
     env.reset(seed=0)
     assert env.render().shape == (48, 64, 3)
     env.close()
@@ -45,7 +45,7 @@ def renderer():
 def load():
     from tendon2r_gym.bundle import bundled_model
     from tendon2r_gym.learned import PPOPolicy
-    env = gym.make("Tendon2R-v0")
+    env = gym.make("Tendon2R-v1")
     PPOPolicy.load(bundled_model("default"), env).predict(env.reset(seed=0)[0])
 
 for step in sys.argv[1:]:
@@ -105,9 +105,9 @@ def triton_loaded():
     return any("libtriton" in line for line in open("/proc/self/maps"))
 
 print(int(triton_loaded()), end=" ")
-gym.make("Tendon2R-v0")
+gym.make("Tendon2R-v1")
 print(int(triton_loaded()), end=" ")
-gym.make("Tendon2R-v0", render_mode="rgb_array")
+gym.make("Tendon2R-v1", render_mode="rgb_array")
 print(int(triton_loaded()), int("torch" in sys.modules))
 """
     proc = _start(backend, code)

@@ -12,10 +12,10 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 
+from tendon2r_gym.env import make as make_env
 from tendon2r_gym.learned import PPOPolicy, Residual
 from tendon2r_gym.metrics import (
     beats,
@@ -118,7 +118,7 @@ class TrackingEvalCallback(BaseCallback):
         self._start = time.perf_counter() - wall_offset_s
         # One env, built once: its mechanism and control period define the PD baseline and
         # the PD inside a residual policy (the rollouts run on the vector env).
-        self._env = gym.make("Tendon2R-v0", **self.env_kwargs)
+        self._env = make_env(**self.env_kwargs)
         self.pd = run.read_json(PD_EVAL)
         if not isinstance(self.pd, dict) or ON_REFERENCE not in self.pd:  # none yet, or older
             self.pd = self.measure(PDPolicy.from_env(self._env))

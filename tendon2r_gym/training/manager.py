@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from tendon2r_gym.env import make as make_env
 from tendon2r_gym.env_config import EnvConfig
 from tendon2r_gym.history import stacked
 from tendon2r_gym.learned import make_training_env
@@ -233,13 +234,12 @@ def _load_newest(run: RunFolder, venv: Any, hp: Hyperparams) -> tuple[Any, Any]:
 def initial_model(hp: Hyperparams) -> tuple[Path, Path]:
     """Returns (model zip, VecNormalize pkl) of ``hp.init_from`` (a bundle's primary seed, or
     a model file) after checking that it covers the run's env and residual scale."""
-    import gymnasium as gym
 
     from tendon2r_gym.bundle import model_path
     from tendon2r_gym.learned import Residual, trained_model
 
     source = hp.init_from
-    env = gym.make("Tendon2R-v0", **hp.env_kwargs)
+    env = make_env(**hp.env_kwargs)
     zip_path, stats, meta = trained_model(model_path(source), env, "init_from")
     if Residual.from_record(meta).active != hp.residual.active:
         kind = "a residual model (residual_scale > 0)" if hp.residual.active else "a plain model"
