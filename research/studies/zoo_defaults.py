@@ -13,7 +13,6 @@ eval seeds of the same id, and PD on the same episodes.
 
 from __future__ import annotations
 
-import argparse
 import importlib.metadata
 import importlib.resources
 import os
@@ -21,12 +20,14 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
 
 import yaml
 
 from research.studies import joints, save_json
+from tendon2r_gym.cli import arg, parse
 from tendon2r_gym.metrics import SETTLE_S
 from tendon2r_gym.runs import command_line
 from tendon2r_gym.validation import integer, invalid
@@ -82,7 +83,7 @@ def train(
         "model": str(run / f"{env_id}.zip"),
         "vecnormalize": str(run / env_id / "vecnormalize.pkl"),
         "wall_time_s": wall,
-        "command": " ".join(cmd),
+        "command": " ".join(["python", *cmd[1:]]),
     }
 
 
@@ -154,21 +155,32 @@ def pd_metrics(env_id: str, seeds: list[int]) -> dict[str, Any]:
     return metrics
 
 
+EnvId = Literal[ENV_IDS]  # type: ignore[valid-type]
+
 #: Metrics kept per run (tendon2r_gym.metrics.tracking_metrics).
 KEPT = ("rms_deg", "settled_rms_deg", "max_deg", "diverged_episodes", "episodes", "steps")
 
 
+@dataclass
+class Args:
+    """The study's arguments (module docstring)."""
+
+    steps: Annotated[int, arg("PPO steps per run")] = 500_000
+    seeds: Annotated[list[int], arg("training seeds")] = field(default_factory=lambda: [0])
+    env_ids: Annotated[list[EnvId], arg("env ids to train on")] = field(
+        default_factory=lambda: list(ENV_IDS)
+    )
+    eval_seeds: Annotated[list[int], arg("evaluation episodes' seeds")] = field(
+        default_factory=lambda: [0, 1, 2]
+    )
+    zoo_entry: Annotated[str, arg("the entry of rl_zoo3's ppo.yml")] = ZOO_ENTRY
+    threads: Annotated[int, arg("torch threads (rl_zoo3 --num-threads)")] = 1
+    out: Annotated[str, arg("folder for zoo_defaults.md and .json")] = "research/results"
+    run_dir: Annotated[str | None, arg("keep the runs here (default: a temp dir)")] = None
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    p.add_argument("--steps", type=int, default=500_000, help="PPO steps per run")
-    p.add_argument("--seeds", type=int, nargs="+", default=[0])
-    p.add_argument("--env-ids", nargs="+", default=list(ENV_IDS), choices=ENV_IDS)
-    p.add_argument("--eval-seeds", type=int, nargs="+", default=[0, 1, 2])
-    p.add_argument("--zoo-entry", default=ZOO_ENTRY, help="the entry of rl_zoo3's ppo.yml")
-    p.add_argument("--threads", type=int, default=1, help="torch threads (rl_zoo3 --num-threads)")
-    p.add_argument("--out", default="research/results")
-    p.add_argument("--run-dir", default=None, help="keep the runs here (default: a temp dir)")
-    args = p.parse_args(argv)
+    args = parse(Args, argv, __doc__)
     integer("steps", args.steps, 1, 10**9)
     integer("threads", args.threads, 1, 256)
     hyperparams = zoo_hyperparams(args.zoo_entry, args.steps)
@@ -180,7 +192,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "seeds": args.seeds,
         "eval_seeds": args.eval_seeds,
         "zoo_entry": args.zoo_entry,
-        "zoo_file": str(zoo_file()),
+        "zoo_file": "rl_zoo3/hyperparams/ppo.yml (installed)",
         "rl_zoo3_version": importlib.metadata.version("rl_zoo3"),
         "hyperparams": hyperparams,
         "env_kwargs": {env_id: env_kwargs(env_id) for env_id in ids},
