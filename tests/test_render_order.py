@@ -44,9 +44,10 @@ def renderer():
 
 def load():
     from tendon2r_gym.bundle import bundled_model
-    from tendon2r_gym.learned import PPOPolicy
-    env = gym.make("Tendon2R-v1")
-    PPOPolicy.load(bundled_model("default"), env).predict(env.reset(seed=0)[0])
+    from tendon2r_gym.learned import PPOPolicy, model_settings
+    model = bundled_model("default")
+    env = gym.make("Tendon2R-v1", **model_settings(model))
+    PPOPolicy.load(model, env).predict(env.reset(seed=0)[0])
 
 for step in sys.argv[1:]:
     globals()[step]()
