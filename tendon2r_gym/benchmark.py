@@ -17,10 +17,10 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 
 from tendon2r_gym.bundle import bundle_meta, bundle_names, bundled_model
+from tendon2r_gym.env import make as make_env
 from tendon2r_gym.evaluation import BASELINE, evaluate, names
 from tendon2r_gym.learned import (
     MODEL_SETTINGS,
@@ -115,7 +115,7 @@ def not_covered(bundle: str, env_kwargs: dict[str, Any]) -> str | None:
     model = bundled_model(bundle)
     kwargs = in_model_settings(model, env_kwargs)
     try:
-        trained_model(model, gym.make("Tendon2R-v0", **kwargs), bundle)
+        trained_model(model, make_env(**kwargs), bundle)
     except ValueError as e:
         return str(e)
     return None

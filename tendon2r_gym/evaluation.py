@@ -11,6 +11,7 @@ from typing import Any
 import gymnasium as gym
 
 from tendon2r_gym.bundle import bundle_names, bundled_model
+from tendon2r_gym.env import make as make_env
 from tendon2r_gym.metrics import tracking_metrics
 from tendon2r_gym.policies import ComputedTorquePolicy, PDPolicy
 from tendon2r_gym.rollout import Policy, Trace, rollouts
@@ -94,7 +95,7 @@ def evaluate(
     options: dict[str, Any] | None = None,
 ) -> tuple[dict[str, Any], list[Trace]]:
     """Rolls policy ``name`` out on ``seeds``; returns (metrics, traces)."""
-    probe = gym.make("Tendon2R-v0", **env_kwargs)
+    probe = make_env(**env_kwargs)
     policy = make_policy(name, probe, model)
     probe.close()
     traces = rollouts(policy, env_kwargs, seeds, options)

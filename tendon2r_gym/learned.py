@@ -36,6 +36,7 @@ import numpy as np
 
 from tendon2r_gym import observation
 from tendon2r_gym.arms import CONTROLLER, MechanismRanges, gain_field, reference_ranges
+from tendon2r_gym.env import make as make_env
 from tendon2r_gym.env_config import EnvConfig, low_pass_alpha
 from tendon2r_gym.files import (
     check_model_spaces,
@@ -266,7 +267,7 @@ def make_training_env(
     ``residual`` is active.  ``zero_obs`` names observation entries
     (tendon2r_gym.observation) to blank out, for ablations: a constant zero carries no
     information."""
-    env = gym.make("Tendon2R-v0", **env_kwargs)
+    env = make_env(**env_kwargs)
     if zero_obs:
         keep = observation.mask(zero_obs, env.observation_space.shape[0])
         env = gym.wrappers.TransformObservation(env, lambda o: o * keep, env.observation_space)

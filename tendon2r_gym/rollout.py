@@ -77,7 +77,7 @@ def rollouts(
 ) -> list[Trace]:
     """Runs one deterministic episode per seed, all at once on the native vector env (one arm
     per seed, the policy called on the batch of observations).  Each episode equals
-    ``rollout`` on ``gym.make("Tendon2R-v0", **env_kwargs)`` with that seed, bit for bit."""
+    ``rollout`` on ``tendon2r_gym.env.make(**env_kwargs)`` with that seed, bit for bit."""
     from tendon2r_gym.vector_env import Tendon2RVectorEnv
 
     n = len(seeds)
