@@ -34,7 +34,7 @@ import gymnasium as gym
 import tendon2r_gym  # noqa: F401  (registers the env ids)
 from tendon2r_gym import observation, registry
 from tendon2r_gym.bundle import MODELS_DIR, bundle_meta, bundled_model
-from tendon2r_gym.env import Tendon2REnv
+from tendon2r_gym.env import CARD_SECTIONS, Tendon2REnv
 from tendon2r_gym.env_config import EnvConfig, arguments
 from tendon2r_gym.rewards import TERMS
 from tendon2r_gym.runs import BEST_METRICS, SUMMARY, RunFolder
@@ -43,16 +43,7 @@ ROOT = Path(__file__).resolve().parent.parent
 DOCS = "docs"
 GENERATED = ("env.md", "models.md", "results.md")
 #: The env card's sections, in Gymnasium's order (the Tendon2REnv docstring's ``##`` headings).
-ENV_SECTIONS = (
-    "Description",
-    "Action Space",
-    "Observation Space",
-    "Rewards",
-    "Starting State",
-    "Episode End",
-    "Arguments",
-    "Version History",
-)
+ENV_SECTIONS = CARD_SECTIONS
 ENV_NAME = "Tendon2R"  # the registered ids' name: Tendon2R-v<N>
 
 

@@ -47,6 +47,17 @@ def make_env(preset: str | os.PathLike = "default", **kwargs: Any) -> gym.Env:
     return gym.wrappers.TimeLimit(env, env.config.max_episode_steps)
 
 
+#: The env card's sections, in Gymnasium's order: the ``##`` headings of Tendon2REnv's docstring.
+CARD_SECTIONS = (
+    "Description",
+    "Action Space",
+    "Observation Space",
+    "Rewards",
+    "Starting State",
+    "Episode End",
+    "Arguments",
+    "Version History",
+)
 #: The id the library's own tools make envs with: Tendon2R-v0 adds no defaults over a preset,
 #: so the env is exactly what the given kwargs (a model's recorded settings) say.
 BASE_ID = "Tendon2R-v0"

@@ -415,16 +415,9 @@ def test_documented_defaults_match_the_signature():
     assert set(rows) == set(params)
     for name, text in rows.items():
         assert ast.literal_eval(text) == params[name], name
-    for section in (
-        "Description",
-        "Action Space",
-        "Observation Space",
-        "Rewards",
-        "Starting State",
-        "Episode End",
-        "Arguments",
-        "Version History",
-    ):
+    from tendon2r_gym.env import CARD_SECTIONS
+
+    for section in CARD_SECTIONS:
         assert f"## {section}" in doc
     assert tendon2r_gym.__version__
 
