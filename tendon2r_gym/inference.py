@@ -9,13 +9,13 @@ loop amplifies those bits until whole benchmark figures differ.
 :func:`predict` evaluates the same actor in float64 with numpy's elementwise operations only
 (multiply, add, divide: IEEE-754 correctly rounded whatever the CPU's instruction set) in an
 order fixed here: each sum of a layer as a pairwise tree, tanh from :func:`exp` of a fixed
-polynomial; no BLAS and no libm.  It covers SB3's ActorCriticPolicy with a flattening
-feature extractor (also :class:`~tendon2r_gym.training.split_view.MaskedFlatten`), Linear
-layers with Tanh or ReLU, and a Box action whose deterministic action is the mean, clipped
-to the action space; it reads the weights at each call (training evaluates a model whose
-weights change).  Its actions equal SB3's to float32 rounding (its input is rounded to
-float32 as SB3's is).  Another policy, or a stochastic action, runs through SB3's
-``predict``.
+polynomial; no BLAS, no libm, no threads.  It covers SB3's ActorCriticPolicy as SB3 builds
+it (its MlpPolicy, and :class:`~tendon2r_gym.training.split_view.SplitViewPolicy`'s masked
+input): a flattened Box observation, Linear layers with Tanh or ReLU, and a Box action whose
+deterministic action is the mean, clipped to the action space.  It reads the weights again
+whenever they change (training evaluates its live model).  Its actions equal SB3's to
+float32 rounding (its input is rounded to float32, as SB3's is, and so is its action).
+Another policy, or a stochastic action, runs through SB3's ``predict``.
 """
 
 from __future__ import annotations
@@ -83,13 +83,16 @@ def actor_layers(policy: Any) -> list[tuple[str, Any]] | None:
     from gymnasium import spaces
     from stable_baselines3.common.distributions import DiagGaussianDistribution
     from stable_baselines3.common.policies import ActorCriticPolicy
-    from stable_baselines3.common.torch_layers import FlattenExtractor
+    from stable_baselines3.common.torch_layers import FlattenExtractor, MlpExtractor
     from torch import nn
 
     from tendon2r_gym.training.split_view import MaskedFlatten
 
+    as_built = ("_predict", "get_distribution", "extract_features", "_get_action_dist_from_latent")
     if not (
         isinstance(policy, ActorCriticPolicy)
+        and all(getattr(type(policy), f) is getattr(ActorCriticPolicy, f) for f in as_built)
+        and type(policy.mlp_extractor) is MlpExtractor
         and isinstance(policy.observation_space, spaces.Box)
         and isinstance(policy.action_space, spaces.Box)
         and isinstance(policy.action_dist, DiagGaussianDistribution)
