@@ -12,6 +12,7 @@ chose its checkpoint (configs/ppo.yaml eval_seeds).
 from __future__ import annotations
 
 import json
+import math
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -62,7 +63,7 @@ def _fmt(pair: list[float] | None, digits: int = 4) -> str:
     return "-" if pair is None else " / ".join(f"{v:.{digits}f}" for v in pair)
 
 
-#: Re-evaluations of every row with its policy's observations perturbed in their last bits
+#: Re-evaluations of every row with its policy's commands perturbed in their last float32 bits
 #: (evaluation.Jittered, seeds 1 .. REPRO_RUNS): a row's ``reproducible_to`` is, per joint,
 #: the largest change of its RMS error among them.
 REPRO_RUNS = 2
@@ -351,13 +352,14 @@ NOTES = [
     "checkpoint. Train wall time: one run on 2 CPU cores. First beat PD: the first",
     "evaluation during training (on the eval seeds) whose RMS was <= PD's on both joints.",
     "Reproducible to: per joint, the largest change of the row's RMS error among "
-    f"{REPRO_RUNS} reruns",
-    f"whose policy sees its observations perturbed by one part in {1 / JITTER:.0f} (float32's",
-    "rounding, more than the last bits another CPU's kernels change); where it is below",
-    f"{PRINTED:g} deg the figures keep their printed digits, elsewhere the closed loop",
-    "amplifies the last bits of its arithmetic. A learned policy's network runs in float64",
-    "in a fixed order of operations (tendon2r_gym.inference): the same bits whatever the",
-    "CPU and torch's threads.",
+    f"{REPRO_RUNS} reruns in",
+    f"which every command of its policy is scaled by 1 +- 2^{math.log2(JITTER):.0f} (float32's "
+    "rounding: what",
+    "another CPU's float32 kernels changed in a network's action); below "
+    f"{PRINTED:g} deg the figures",
+    "keep their printed digits, above it the closed loop amplifies the last bits of its",
+    "arithmetic. A learned policy's network runs in float64 in a fixed order of operations",
+    "(tendon2r_gym.inference): the same bits whatever the CPU and torch's threads.",
 ]
 
 
@@ -578,7 +580,7 @@ def realism_lines(rows: list[dict[str, Any]]) -> list[str]:
         "(PD (tuned)). PD (tuned): PD with the gains `tendon2r-tune-pd` finds on that arm "
         f"({TUNE_EPISODES} held-out episodes; its bandwidth in Hz). RMS error A / B (deg); for "
         "a residual, (its worst joint as a multiple of PD's); *to x / y*: the figure changes "
-        "by up to x / y deg in reruns with its policy's observations perturbed in their last "
+        "by up to x / y deg in reruns with its policy's commands perturbed in their last "
         "bits (reproducible to, above); a figure without it keeps its printed digits.",
         "",
         "| arm | PD | PD (tuned) | CT | " + " | ".join(p[1] for p in learned) + " |",

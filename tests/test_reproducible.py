@@ -1,5 +1,5 @@
 """Reproducible figures: a learned policy's actions are the same bits whatever torch's threads
-and CPU kernels (tendon2r_gym.inference)."""
+and CPU kernels (tendon2r_gym.inference), and a benchmark rerun gives the same rows."""
 
 import hashlib
 import math
@@ -80,6 +80,29 @@ def _digest(bundle: str) -> str:
     return hashlib.sha256(inference.predict(model, _observations(model))[0].tobytes()).hexdigest()
 
 
+#: A short benchmark: the ideal-trained residual of the realism section on the arm where it
+#: moved most between machines, three episodes (SB3 batches them: a batch of three).
+SHORT_ARM = "perturbed 3"
+SHORT_SEEDS = [0, 1, 2]
+
+
+def _short_rows(learned_only: bool = False) -> list[dict]:
+    from tendon2r_gym import benchmark
+
+    kwargs = {**dict(benchmark.realism_arms())[SHORT_ARM], "episode_duration": 0.2}
+    model = bundled_model(benchmark.REALISM_BUNDLE)
+    if learned_only:
+        rows = [benchmark._row("short", "ppo residual", "ppo", kwargs, SHORT_SEEDS, model, None)]
+    else:
+        rows = benchmark.compare("short", kwargs, {"ppo residual": [model]}, SHORT_SEEDS, None)
+    return [{k: v for k, v in r.items() if k != "eval_s"} for r in rows]  # eval_s: wall time
+
+
+def _fingerprint() -> str:
+    """The actors' actions on fixed observations and the short benchmark's learned row."""
+    return repr(([_digest(b) for b in BUNDLES], _short_rows(learned_only=True)))
+
+
 #: What another machine changes in torch: its CPU kernels (ATen's and MKL's instruction set,
 #: MKL's code branch) and its threads.
 MACHINES = {
@@ -90,22 +113,66 @@ MACHINES = {
 }
 
 
-def test_the_exact_actor_is_the_same_bits_on_other_kernels_and_threads():
-    """The actions' bits do not depend on torch's threads nor on the kernels another CPU
-    would run (simulated with torch's and MKL's dispatch variables in a fresh process; MKL_CBWR
-    alone changes SB3's float32 actions here)."""
-    here = [_digest(b) for b in BUNDLES]
+def test_a_rerun_gives_the_same_bits_on_other_kernels_and_threads():
+    """The actors' actions and the benchmark's rows do not depend on torch's threads nor on
+    the kernels another CPU would run (simulated with torch's and MKL's dispatch variables
+    in a fresh process; MKL_CBWR alone changes SB3's float32 actions here)."""
+    here = _fingerprint()
     threads = torch.get_num_threads()
     try:
         torch.set_num_threads(1 if threads > 1 else 2)
-        assert [_digest(b) for b in BUNDLES] == here
+        assert _fingerprint() == here
     finally:
         torch.set_num_threads(threads)
-    code = "import test_reproducible as t; print(*(t._digest(b) for b in t.BUNDLES))"
+    code = "import test_reproducible as t; f = t._fingerprint(); print(); print(f)"
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     path = os.pathsep.join([root, os.path.join(root, "tests")])
     env = {**os.environ, **MACHINES, "PYTHONPATH": path}
     out = subprocess.run(
         [sys.executable, "-c", code], cwd=root, env=env, capture_output=True, text=True, check=True
     )
-    assert out.stdout.split()[-len(BUNDLES) :] == here
+    assert out.stdout.strip().splitlines()[-1] == here
+
+
+def test_a_figure_within_its_tolerance_keeps_its_printed_digits_on_other_arithmetic(
+    monkeypatch,
+):
+    """The rows' tolerances are measured by the run itself; where a row's is below the
+    printed precision, SB3's float32 network (another machine's arithmetic, in the last
+    float32 bits) prints the same figures."""
+    from tendon2r_gym.benchmark import PRINTED, REPRO_RUNS, _fmt
+
+    ours = _short_rows()
+    assert REPRO_RUNS >= 1 and all(len(r["rms_deg_jittered"]) == REPRO_RUNS for r in ours)
+    for r in ours:
+        change = np.max(np.abs(np.subtract(r["rms_deg_jittered"], r["rms_deg"])), axis=0)
+        assert r["reproducible_to"] == change.tolist()
+    monkeypatch.setattr(inference, "predict", lambda m, *a: m.predict(*a))
+    theirs = _short_rows()
+    assert [r["policy"] for r in theirs] == [r["policy"] for r in ours]
+    learned = [(a, b) for a, b in zip(ours, theirs, strict=True) if "model" in a]
+    assert learned and all(a["rms_deg"] != b["rms_deg"] for a, b in learned), "float32"
+    for a, b in zip(ours, theirs, strict=True):
+        if max(a["reproducible_to"]) < PRINTED:
+            assert _fmt(a["rms_deg"]) == _fmt(b["rms_deg"]), a["policy"]
+
+
+def test_the_tables_print_each_rows_tolerance_beside_it():
+    from tendon2r_gym.benchmark import PRINTED, realism_lines, table
+
+    row = {"env": "e", "policy": "pd", "rms_deg": [0.1, 0.2], "max_deg": [0.3, 0.4]}
+    lines = table([{**row, "reproducible_to": [0.0, 3.2e-9]}])
+    assert lines[0].split(" | ")[3] == "reproducible to (deg)"
+    assert "| e | pd | 0.1000 / 0.2000 | 0 / 3.2e-09 | 0.300 / 0.400 |" in lines[2]
+    cell = lambda rms, tol: {"rms_deg": rms, "reproducible_to": tol, **force}  # noqa: E731
+    force = {"rms_tension_N": [1.0] * 3, "rms_tension_rate_N_per_s": [1.0] * 3}
+    arm = {
+        "arm": "a", "pd": cell([1.0, 1.0], [0.0, 0.0]), "ct": cell([0.5, 0.5], [1e-9, 0.0]),
+        "pd_tuned": {**cell([0.5, 0.5], [0.0, 0.0]), "bandwidth_hz": 12.3},
+        "ppo": cell([2.5, 7.2], [1.3, PRINTED]), "randomized": cell([0.2, 0.1], [PRINTED / 2, 0]),
+    }  # fmt: skip
+    text = "\n".join(realism_lines([arm]))
+    assert (
+        "| a | 1.0000 / 1.0000 | 0.5000 / 0.5000 (12.3 Hz) | 0.5000 / 0.5000 | "
+        "2.5000 / 7.2000 *to 1.3 / 5e-05* (7.20x) | 0.2000 / 0.1000 (0.20x) |" in text
+    )
