@@ -58,18 +58,29 @@ def relu(x: np.ndarray) -> np.ndarray:
     return np.maximum(x, 0.0)
 
 
+#: Products held at once by :func:`linear` (256 kB of float64: a chunk stays in cache).
+CHUNK = 32768
+
+
 def linear(x: np.ndarray, weight: np.ndarray, bias: np.ndarray | None) -> np.ndarray:
     """Returns x @ weight.T + bias (``x`` (n, in), ``weight`` (out, in)), each sum over ``in``
     as a pairwise tree of elementwise adds (a fixed order, no BLAS): padded with zeros to a
-    power of two, the first half plus the second, until one is left."""
-    n_in = x.shape[1]
+    power of two, the first half plus the second, until one is left; a chunk of outputs at a
+    time (which does not change any sum's order)."""
+    (n, n_in), n_out = x.shape, weight.shape[0]
     width = 1 << max(n_in - 1, 0).bit_length()  # the next power of two
-    terms = np.zeros((width, x.shape[0], weight.shape[0]))  # (in, n, out): a block per input
-    np.multiply(x.T[:, :, None], weight.T[:, None, :], out=terms[:n_in])
-    while width > 1:
-        width //= 2
-        np.add(terms[:width], terms[width : 2 * width], out=terms[:width])
-    return terms[0] if bias is None else terms[0] + bias
+    step = max(1, CHUNK // (width * n))
+    out = np.empty((n, n_out))
+    buffer = np.zeros((width, n, min(step, n_out)))  # (in, n, out): a block per input
+    for lo in range(0, n_out, step):
+        terms = buffer[:, :, : min(step, n_out - lo)]
+        np.multiply(x.T[:, :, None], weight[lo : lo + step].T[:, None, :], out=terms[:n_in])
+        half = width
+        while half > 1:
+            half //= 2
+            np.add(terms[:half], terms[half : 2 * half], out=terms[:half])
+        out[:, lo : lo + step] = terms[0]
+    return out if bias is None else out + bias
 
 
 def _as64(tensor: Any) -> np.ndarray:

@@ -65,6 +65,15 @@ def test_the_exact_actor_follows_weights_changed_in_place():
     assert not np.allclose(after, before)
 
 
+def test_a_layer_sums_in_one_order_whatever_its_chunks(monkeypatch):
+    rng = np.random.default_rng(0)
+    x, weight, bias = rng.normal(size=(16, 60)), rng.normal(size=(256, 60)), rng.normal(size=256)
+    whole = inference.linear(x, weight, bias)
+    np.testing.assert_allclose(whole, x @ weight.T + bias, rtol=0, atol=1e-12)
+    monkeypatch.setattr(inference, "CHUNK", 1)  # one output at a time
+    assert np.array_equal(inference.linear(x, weight, bias), whole)
+
+
 def test_exp_and_tanh_are_accurate_to_float64_rounding():
     x = np.concatenate([np.linspace(-30, 30, 20001), [0.0, -0.0, 1e-300, -1e-12, 700.0]])
     tanh = inference.tanh(x)
