@@ -12,6 +12,7 @@ chose its checkpoint (configs/ppo.yaml eval_seeds).
 from __future__ import annotations
 
 import json
+import math
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -21,7 +22,7 @@ import numpy as np
 
 from tendon2r_gym.bundle import bundle_meta, bundle_names, bundled_model
 from tendon2r_gym.env import make as make_env
-from tendon2r_gym.evaluation import BASELINE, evaluate, names
+from tendon2r_gym.evaluation import BASELINE, JITTER, evaluate, names
 from tendon2r_gym.learned import (
     MODEL_SETTINGS,
     in_model_settings,
@@ -60,6 +61,42 @@ HELD_OUT = [
 
 def _fmt(pair: list[float] | None, digits: int = 4) -> str:
     return "-" if pair is None else " / ".join(f"{v:.{digits}f}" for v in pair)
+
+
+#: Re-evaluations of every row with its policy's commands perturbed in their last float32 bits
+#: (evaluation.Jittered, seeds 1 .. REPRO_RUNS): a row's ``reproducible_to`` is, per joint,
+#: the largest change of its RMS error among them.
+REPRO_RUNS = 2
+#: A figure printed to 4 decimals keeps its digits (to a unit of the last) when it changes
+#: by less than this.
+PRINTED = 5e-5
+
+
+def jittered_rms(
+    policy: str,
+    env_kwargs: dict[str, Any],
+    seeds: list[int],
+    model: Path | None,
+    options: dict[str, Any] | None = None,
+) -> list[list[float]]:
+    """Returns the RMS error per joint of each of the REPRO_RUNS re-evaluations of a row with
+    jittered observations."""
+    return [
+        evaluate(policy, env_kwargs, seeds, model, options, jitter=k)[0]["rms_deg"]
+        for k in range(1, REPRO_RUNS + 1)
+    ]
+
+
+def reproducible_to(rms_deg: list[float], jittered: list[list[float]]) -> list[float]:
+    """Returns per joint the largest change of ``rms_deg`` among its jittered
+    re-evaluations (0 without any)."""
+    if not jittered:
+        return [0.0] * len(rms_deg)
+    return np.max(np.abs(np.subtract(jittered, rms_deg)), axis=0).tolist()
+
+
+def _tol(pair: list[float] | None) -> str:
+    return "-" if pair is None else " / ".join(f"{v:.2g}" for v in pair)
 
 
 def compare(
@@ -149,7 +186,15 @@ def _row(
 ) -> dict[str, Any]:
     start = time.perf_counter()
     metrics, traces = evaluate(policy, env_kwargs, seeds, model)
-    row = {**metrics, "env": name, "policy": label, "eval_s": round(time.perf_counter() - start, 1)}
+    jittered = jittered_rms(policy, env_kwargs, seeds, model)
+    row = {
+        **metrics,
+        "reproducible_to": reproducible_to(metrics["rms_deg"], jittered),
+        "rms_deg_jittered": jittered,
+        "env": name,
+        "policy": label,
+        "eval_s": round(time.perf_counter() - start, 1),
+    }
     if model is not None:
         s = training_summary(model)
         row.update(
@@ -178,12 +223,15 @@ def shown_path(path: Path) -> str:
 def _spread(name: str, label: str, per_seed: list[dict[str, Any]]) -> dict[str, Any]:
     rms = [r["rms_deg"] for r in per_seed]
     beat = [r["first_beat_pd"] for r in per_seed]
+    mean = np.mean(rms, axis=0).tolist()
+    jittered = np.mean([r["rms_deg_jittered"] for r in per_seed], axis=0).tolist()
     return {
         "env": name,
         "policy": f"{label} ({len(per_seed)} seeds)",
         "training_seeds": [r["train_seed"] for r in per_seed],
         "rms_deg_per_seed": rms,
-        "rms_deg": np.mean(rms, axis=0).tolist(),
+        "rms_deg": mean,
+        "reproducible_to": reproducible_to(mean, jittered),
         "rms_deg_std": np.std(rms, axis=0).tolist(),
         "max_deg": np.mean([r["max_deg"] for r in per_seed], axis=0).tolist(),
         "train_steps": int(np.mean([r["train_steps"] for r in per_seed])),
@@ -200,7 +248,7 @@ def _print(row: dict[str, Any]) -> None:
     std = f" +- {_fmt(row['rms_deg_std'])}" if "rms_deg_std" in row else ""
     print(
         f"{row['env']:11s} {row['policy']:24s} RMS {_fmt(row['rms_deg'])}{std} deg  "
-        f"max {_fmt(row['max_deg'], 3)} deg",
+        f"max {_fmt(row['max_deg'], 3)} deg  reproducible to {_tol(row.get('reproducible_to'))}",
         flush=True,
     )
 
@@ -263,21 +311,21 @@ def _beat(value: Any) -> str:
 def table(rows: list[dict[str, Any]], quoted: dict[str, tuple] | None = None) -> list[str]:
     """Returns the markdown table of benchmark rows."""
     lines = [
-        "| env | policy | RMS error A / B (deg) | max error (deg) | RMS tension (N) | peak "
-        "tension (N) | RMS tension rate (N/s) | steps pushing | saturated | train steps | train "
-        "wall (s) | first beat PD (steps / wall) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| env | policy | RMS error A / B (deg) | reproducible to (deg) | max error (deg) | RMS "
+        "tension (N) | peak tension (N) | RMS tension rate (N/s) | steps pushing | saturated | "
+        "train steps | train wall (s) | first beat PD (steps / wall) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name in dict.fromkeys(r["env"] for r in rows):
         for r in (r for r in rows if r["env"] == name):
             if "missing" in r:
-                lines.append(f"| {name} | {r['policy']} | {r['missing']} |" + " |" * 9)
+                lines.append(f"| {name} | {r['policy']} | {r['missing']} |" + " |" * 10)
                 continue
             std = f" ± {_fmt(r['rms_deg_std'])}" if "rms_deg_std" in r else ""
             learned = "train_steps" in r
             lines.append(
                 f"| {name} | {shown_policy(r)} | {_fmt(r['rms_deg'])}{std} | "
-                f"{_fmt(r['max_deg'], 3)} "
+                f"{_tol(r.get('reproducible_to'))} | {_fmt(r['max_deg'], 3)} "
                 f"| {_fmt(r.get('rms_tension_N'))} | {_fmt(r.get('max_tension_N'))} | "
                 f"{_fmt(r.get('rms_tension_rate_N_per_s'), 2)} | "
                 f"{r.get('negative_tension_steps', '')} | {_fmt(r.get('saturated_fraction'), 3)} | "
@@ -287,7 +335,7 @@ def table(rows: list[dict[str, Any]], quoted: dict[str, tuple] | None = None) ->
         if quoted and name in quoted:
             label, rms, mx = quoted[name]
             lines.append(
-                f"| {name} | *quoted: {label}* | {_fmt(rms, 2)} | {_fmt(mx, 2)} |" + " |" * 8
+                f"| {name} | *quoted: {label}* | {_fmt(rms, 2)} | | {_fmt(mx, 2)} |" + " |" * 8
             )
     return lines
 
@@ -303,6 +351,15 @@ NOTES = [
     "seeds, each evaluated on the benchmark seeds, not on the seeds that chose its",
     "checkpoint. Train wall time: one run on 2 CPU cores. First beat PD: the first",
     "evaluation during training (on the eval seeds) whose RMS was <= PD's on both joints.",
+    "Reproducible to: per joint, the largest change of the row's RMS error among "
+    f"{REPRO_RUNS} reruns in",
+    f"which every command of its policy is scaled by 1 +- 2^{math.log2(JITTER):.0f} (float32's "
+    "rounding: what",
+    "another CPU's float32 kernels changed in a network's action); below "
+    f"{PRINTED:g} deg the figures",
+    "keep their printed digits, above it the closed loop amplifies the last bits of its",
+    "arithmetic. A learned policy's network runs in float64 in a fixed order of operations",
+    "(tendon2r_gym.inference): the same bits whatever the CPU and torch's threads.",
 ]
 
 
@@ -357,9 +414,13 @@ def benchmark_bundled(episodes: int, out: Path, command: str) -> dict[str, Any]:
         "PPO residual trained on random references (configs/ppo.yaml `random_reference`) and",
         "PD, on fixed references the model never trained on (tendon2r_gym.benchmark.HELD_OUT):",
         "",
-        "| policy | mean RMS error A / B (deg) |",
-        "|---|---|",
-        *(f"| {r['policy']} | {r.get('missing') or _fmt(r['rms_deg_mean'])} |" for r in held),
+        "| policy | mean RMS error A / B (deg) | reproducible to (deg) |",
+        "|---|---|---|",
+        *(
+            f"| {r['policy']} | {r.get('missing') or _fmt(r['rms_deg_mean'])} | "
+            f"{_tol(r.get('reproducible_to'))} |"
+            for r in held
+        ),
         "",
         *realism_lines(real),
     ]
@@ -465,15 +526,22 @@ def realism(episodes: int) -> list[dict[str, Any]]:
         tuned = {**kwargs, "pd_gains": scan.gains.to_dict()}
         for key, _, policy, bundle in policies:
             model = bundled_model(bundle) if bundle else None
-            metrics, _ = evaluate(policy, on_its_pd(kwargs, tuned, model), seeds, model)
+            on = on_its_pd(kwargs, tuned, model)
+            metrics, _ = evaluate(policy, on, seeds, model)
             row[key] = {
                 k: metrics[k] for k in ("rms_deg", "rms_tension_N", "rms_tension_rate_N_per_s")
             }
+            row[key]["reproducible_to"] = reproducible_to(
+                metrics["rms_deg"], jittered_rms(policy, on, seeds, model)
+            )
         metrics, _ = evaluate("pd", tuned, seeds)
         row["pd_tuned"] = {
             "rms_deg": metrics["rms_deg"],
             "rms_tension_rate_N_per_s": metrics["rms_tension_rate_N_per_s"],
             "bandwidth_hz": scan.chosen,
+            "reproducible_to": reproducible_to(
+                metrics["rms_deg"], jittered_rms("pd", tuned, seeds, None)
+            ),
         }
         rows.append(row)
         shown = "  ".join(f"{k} {_fmt(row[k]['rms_deg'])}" for k in [p[0] for p in policies])
@@ -511,20 +579,24 @@ def realism_lines(rows: list[dict[str, Any]]) -> list[str]:
         "(`pd_tuned_phase`), and here on the gains `tendon2r-tune-pd` finds on each arm "
         "(PD (tuned)). PD (tuned): PD with the gains `tendon2r-tune-pd` finds on that arm "
         f"({TUNE_EPISODES} held-out episodes; its bandwidth in Hz). RMS error A / B (deg); for "
-        "a residual, (its worst joint as a multiple of PD's).",
+        "a residual, (its worst joint as a multiple of PD's); *to x / y*: the figure changes "
+        "by up to x / y deg in reruns with its policy's commands perturbed in their last "
+        "bits (reproducible to, above); a figure without it keeps its printed digits.",
         "",
         "| arm | PD | PD (tuned) | CT | " + " | ".join(p[1] for p in learned) + " |",
         "|---|---|---|---|" + "---|" * len(learned),
     ]
     worst = lambda r, key, base: worst_ratio(r[key]["rms_deg"], r[base]["rms_deg"])  # noqa: E731
     for r in rows:
-        cells = [f"{_fmt(r[k]['rms_deg'])} ({worst(r, k, 'pd'):.2f}x)" for k, *_ in learned]
+        cells = [
+            f"{_fmt(r[k]['rms_deg'])}{_unsure(r[k])} ({worst(r, k, 'pd'):.2f}x)"
+            for k, *_ in learned
+        ]
         tuned = r["pd_tuned"]
         lines.append(
-            f"| {r['arm']} | {_fmt(r['pd']['rms_deg'])} | {_fmt(tuned['rms_deg'])} "
-            f"({tuned['bandwidth_hz']:.3g} Hz) | {_fmt(r['ct']['rms_deg'])} | "
-            + " | ".join(cells)
-            + " |"
+            f"| {r['arm']} | {_fmt(r['pd']['rms_deg'])}{_unsure(r['pd'])} | "
+            f"{_fmt(tuned['rms_deg'])}{_unsure(tuned)} ({tuned['bandwidth_hz']:.3g} Hz) | "
+            f"{_fmt(r['ct']['rms_deg'])}{_unsure(r['ct'])} | " + " | ".join(cells) + " |"
         )
     lines.append("")
     for key, label, *_ in learned:
@@ -542,6 +614,12 @@ def realism_lines(rows: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
+def _unsure(cell: dict[str, Any]) -> str:
+    """Returns " *to x / y*" for a figure whose reruns change its printed digits, else ""."""
+    tol = cell.get("reproducible_to")
+    return f" *to {_tol(tol)}*" if tol is not None and max(tol) >= PRINTED else ""
+
+
 def held_out() -> list[dict[str, Any]]:
     """PD and the random-reference PPO on HELD_OUT, with the env the model trained on."""
     meta = bundle_meta("random_reference")
@@ -551,14 +629,16 @@ def held_out() -> list[dict[str, Any]]:
     env_kwargs = training_record(model)["env_kwargs"]
     rows = []
     for policy in ("pd", "ppo"):  # PD is the baseline that needs no knowledge of the reference
-        errs = [
-            evaluate(policy, env_kwargs, [i], model if policy == "ppo" else None,
-                     options={"reference": ref})[0]["rms_deg"]
-            for i, ref in enumerate(HELD_OUT)
-        ]  # fmt: skip
+        learned = model if policy == "ppo" else None
+        errs, jittered = [], []
+        for i, ref in enumerate(HELD_OUT):
+            options = {"reference": ref}
+            errs.append(evaluate(policy, env_kwargs, [i], learned, options)[0]["rms_deg"])
+            jittered.append(jittered_rms(policy, env_kwargs, [i], learned, options))
+        mean = np.mean(errs, axis=0).tolist()
         rows.append(
-            {"policy": policy, "rms_deg_per_reference": errs,
-             "rms_deg_mean": np.mean(errs, axis=0).tolist()}
+            {"policy": policy, "rms_deg_per_reference": errs, "rms_deg_mean": mean,
+             "reproducible_to": reproducible_to(mean, np.mean(jittered, axis=0).tolist())}
         )  # fmt: skip
         print(f"held-out {policy:4s} mean RMS {_fmt(rows[-1]['rms_deg_mean'])} deg", flush=True)
     return rows

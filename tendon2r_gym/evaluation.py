@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 
 from tendon2r_gym.bundle import bundle_names, bundled_model
 from tendon2r_gym.env import make as make_env
@@ -87,16 +88,51 @@ def _entry(name: str) -> PolicyEntry:
     return POLICIES[name]
 
 
+#: The relative size of :class:`Jittered`'s perturbations: float32's rounding (2**-24).
+JITTER = 2.0**-24
+
+
+class Jittered:
+    """``policy`` with every entry of each command it returns scaled by 1 + JITTER or
+    1 - JITTER (drawn per entry and step from ``seed``): its command with other last float32
+    bits, as another CPU's float32 kernels would give.  Where the closed loop amplifies such
+    bits, the rollouts' figures change; elsewhere they stay."""
+
+    def __init__(self, policy: Policy, seed: int) -> None:
+        self.policy, self.rng = policy, np.random.default_rng(seed)
+
+    def reset(self, info: dict[str, Any]) -> None:
+        reset = getattr(self.policy, "reset", None)
+        if callable(reset):
+            reset(info)
+
+    def predict(
+        self,
+        observation: np.ndarray,
+        state: Any = None,
+        episode_start: Any = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, Any]:
+        action, state = self.policy.predict(observation, state, episode_start, deterministic)
+        action = np.asarray(action, dtype=np.float64)
+        sign = self.rng.choice([-1.0, 1.0], size=action.shape)
+        return action * (1.0 + sign * JITTER), state
+
+
 def evaluate(
     name: str,
     env_kwargs: dict[str, Any],
     seeds: list[int],
     model: str | Path | None = None,
     options: dict[str, Any] | None = None,
+    jitter: int | None = None,
 ) -> tuple[dict[str, Any], list[Trace]]:
-    """Rolls policy ``name`` out on ``seeds``; returns (metrics, traces)."""
+    """Rolls policy ``name`` out on ``seeds``; returns (metrics, traces).  ``jitter``: the
+    policy is :class:`Jittered` with that seed."""
     probe = make_env(**env_kwargs)
     policy = make_policy(name, probe, model)
     probe.close()
+    if jitter is not None:
+        policy = Jittered(policy, jitter)
     traces = rollouts(policy, env_kwargs, seeds, options)
     return {"policy": name, **tracking_metrics(traces)}, traces

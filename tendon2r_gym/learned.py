@@ -34,7 +34,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from tendon2r_gym import observation
+from tendon2r_gym import inference, observation
 from tendon2r_gym.arms import CONTROLLER, MechanismRanges, gain_field, reference_ranges
 from tendon2r_gym.env import make as make_env
 from tendon2r_gym.env_config import EnvConfig, low_pass_alpha
@@ -566,7 +566,7 @@ class PPOPolicy:
         norm = self.vecnormalize.normalize_obs(seen) if self.vecnormalize is not None else seen
         if self._history is not None:  # emptied first where an episode starts
             norm = self._history.push(norm, episode_start)
-        action, state = self.model.predict(norm, state, episode_start, deterministic)
+        action, state = inference.predict(self.model, norm, state, episode_start, deterministic)
         if self.pd is None:
             return np.clip(action, -1.0, 1.0).astype(np.float32), state
         base, _ = self.pd.predict(obs)

@@ -77,6 +77,7 @@ ERROR_UNITS = ("rad", "action")
 #: 0.01 deg (the "log" form alone is flat below about sigma / 10).
 MULTISCALE = (0.01, 0.1, 1.0, 10.0)
 
+
 def rewards_table() -> str:
     """Returns the docstring list of the reward terms (the env's docstring embeds it)."""
     return "\n".join(f"- ``{k}`` (weight {w:g}): {doc}." for k, (w, doc) in TERMS.items())

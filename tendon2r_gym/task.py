@@ -96,7 +96,6 @@ def to_action(arm: Sequence[Any], v1: Any, v2: Any) -> tuple[Any, Any]:
     return r00 * v1 + r01 * v2, r10 * v1 + r11 * v2
 
 
-
 def signed_log(ops: Ops, x: Any, scale: float) -> Any:
     """Returns sign(x) log(1 + |x| / scale): linear below ``scale``, logarithmic above (the
     observation's ``error_log`` and ``error_rate_log``)."""
