@@ -41,7 +41,7 @@ sys.meta_path.insert(0, Block())
 import gymnasium as gym
 
 import tendon2r_gym  # noqa: F401
-from tendon2r_gym.policies import ComputedTorquePolicy, PDPolicy
+from tendon2r_gym.policies.baselines import ComputedTorquePolicy, PDPolicy
 
 env = gym.make("Tendon2R-v0")
 obs, _ = env.reset(seed=0)
@@ -59,9 +59,9 @@ from pathlib import Path
 import gymnasium as gym
 
 import tendon2r_gym
-from tendon2r_gym.bundle import bundled_model
-from tendon2r_gym.learned import PPOPolicy
-from tendon2r_gym.policies import PDPolicy
+from tendon2r_gym.policies.bundle import bundled_model
+from tendon2r_gym.policies.learned import PPOPolicy
+from tendon2r_gym.policies.baselines import PDPolicy
 
 repo = Path(sys.argv[1])
 assert repo not in Path(tendon2r_gym.__file__).parents, tendon2r_gym.__file__

@@ -4,13 +4,14 @@
     python scripts/gen_docs.py --check  # exits 1, naming each page that differs from its source
 
 - ``env.md``, the env card: the Tendon2REnv docstring's sections, its observation and reward
-  tables (tendon2r_gym.observation, tendon2r_gym.rewards.TERMS), the arguments with their
+  tables (tendon2r_gym.task.observation, tendon2r_gym.task.rewards.TERMS), the arguments with their
   EnvConfig defaults, the registered ids with their env-contract hashes, and the version
   history (CHANGELOG.md if the repository has one, else the docstring's).
-- ``models.md``: one card per shipped model (tendon2r_gym.registry) from its bundle's files,
+- ``models.md``: one card per shipped model (tendon2r_gym.policies.registry) from its bundle's
+files,
   and the benchmark rows that ran it.
 - ``results.md``: the benchmark tables of ``results/benchmark.json`` and of each own-arm
-  report ``results/<name>/benchmark.json``, by tendon2r_gym.benchmark's own row formatting.
+  report ``results/<name>/benchmark.json``, by tendon2r_gym.app.benchmark's own row formatting.
 
 Every figure comes from a JSON file or from the code; no page is edited by hand.
 """
@@ -32,14 +33,18 @@ from typing import Any
 import gymnasium as gym
 
 import tendon2r_gym  # noqa: F401  (registers the env ids)
-from tendon2r_gym import observation, registry
-from tendon2r_gym.bundle import MODELS_DIR, bundle_meta, bundled_model
-from tendon2r_gym.env import CARD_SECTIONS, Tendon2REnv
-from tendon2r_gym.env_config import EnvConfig, arguments
-from tendon2r_gym.rewards import TERMS
-from tendon2r_gym.runs import BEST_METRICS, SUMMARY, RunFolder
+from tendon2r_gym.app import report
+from tendon2r_gym.envs.env import CARD_SECTIONS, Tendon2REnv
+from tendon2r_gym.envs.env_config import EnvConfig, arguments
+from tendon2r_gym.policies import registry
+from tendon2r_gym.policies.bundle import MODELS_DIR, bundle_meta, bundled_model
+from tendon2r_gym.policies.runs import BEST_METRICS, SUMMARY, RunFolder
+from tendon2r_gym.task import observation
+from tendon2r_gym.task.rewards import TERMS
 
 ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:  # the research studies render their own results
+    sys.path.insert(0, str(ROOT))
 DOCS = "docs"
 GENERATED = ("env.md", "models.md", "results.md")
 #: The env card's sections, in Gymnasium's order (the Tendon2REnv docstring's ``##`` headings).
@@ -94,8 +99,8 @@ def page(lines: Iterable[str]) -> str:
 
 # -- the env card --------------------------------------------------------------------------------
 def env_contract_hash(env_id: str) -> str:
-    """Returns the pinned contract hash of a registered id (tendon2r_gym.contract)."""
-    from tendon2r_gym.contract import pinned
+    """Returns the pinned contract hash of a registered id (tendon2r_gym.policies.contract)."""
+    from tendon2r_gym.policies.contract import pinned
 
     return pinned()[env_id]
 
@@ -134,7 +139,7 @@ def markdown_indent(text: str) -> str:
 
 
 def reward_table() -> list[str]:
-    """Returns the table of the reward terms (tendon2r_gym.rewards.TERMS)."""
+    """Returns the table of the reward terms (tendon2r_gym.task.rewards.TERMS)."""
     return table(
         ("term", "default weight", "the unscaled term"),
         ((code(k), f"{w:g}", doc) for k, (w, doc) in TERMS.items()),
@@ -256,7 +261,8 @@ def env_page(root: Path = ROOT) -> str:
     found["Version History"] = version_history(root, found["Version History"])
     lines = [
         header(
-            "the Tendon2REnv docstring, tendon2r_gym.observation, tendon2r_gym.task and EnvConfig"
+            "the Tendon2REnv docstring, tendon2r_gym.task.observation, tendon2r_gym.envs.task "
+            "and EnvConfig"
         ),
         "",
         "# The env: Tendon2R",
@@ -271,7 +277,8 @@ def env_page(root: Path = ROOT) -> str:
         "```",
         "",
         "The registered ids, each made with its default arguments. Env contract: the hash of the",
-        "env config that `gym.make(id)` builds (`tendon2r_gym.registry.contract_hash`), as a",
+        "env config that `gym.make(id)` builds",
+        "(`tendon2r_gym.policies.registry.contract_hash`), as a",
         "training run records it; each shipped model names the contract of the env it was",
         "trained on ([Shipped models](models.md)).",
         "",
@@ -299,11 +306,11 @@ def benchmark_reports(root: Path) -> dict[str, dict[str, Any]]:
 def benchmark_rows(model: str, reports: dict[str, dict[str, Any]]) -> list[list[str]]:
     """Returns, for each benchmark row that ran ``model`` (its path as benchmark.json records
     it), the report, env, RMS, worst joint against PD and tension rate against PD."""
-    from tendon2r_gym.metrics import smoothness_x_pd, worst_ratio
+    from tendon2r_gym.evaluation.metrics import smoothness_x_pd, worst_ratio
 
     out = []
-    for path, report in reports.items():
-        rows = report.get("rows", [])
+    for path, record in reports.items():
+        rows = record.get("rows", [])
         for r in (r for r in rows if r.get("model") == model and "rms_deg" in r):
             pd = next((p for p in rows if p["env"] == r["env"] and p["policy"] == "pd"), None)
             worst = rate = "-"
@@ -318,13 +325,14 @@ def benchmark_rows(model: str, reports: dict[str, dict[str, Any]]) -> list[list[
 def non_default_settings(model: Path) -> dict[str, Any]:
     """Returns the model's settings (learned.model_settings) that differ from EnvConfig's
     defaults: what the env it runs in must set, whatever the arm."""
-    from tendon2r_gym.learned import model_settings
+    from tendon2r_gym.policies.learned import model_settings
 
     defaults = {f.name: f.default for f in dataclasses.fields(EnvConfig)}
     return {k: v for k, v in model_settings(model).items() if v != defaults[k]}
 
 
-#: The experiment file the CLI runs a model of each registry group on (tendon2r_gym.registry
+#: The experiment file the CLI runs a model of each registry group on
+#: (tendon2r_gym.policies.registry
 #: GROUPS): its own preset ({env}), or your arm for a generalist; a model of another group
 #: needs its recorded env kwargs (the Python example).
 CLI_ENV = {"preset": "{env}", "realism": "{env}", "generalist": "my_arm.yaml"}
@@ -346,9 +354,9 @@ def use_it(line: registry.Shipped, shown_settings: str) -> list[str]:
         "```python",
         "import gymnasium as gym",
         "import tendon2r_gym  # registers the ids",
-        "from tendon2r_gym.bundle import bundled_model",
-        "from tendon2r_gym.learned import PPOPolicy, model_settings",
-        "from tendon2r_gym.runs import training_record",
+        "from tendon2r_gym.policies.bundle import bundled_model",
+        "from tendon2r_gym.policies.learned import PPOPolicy, model_settings",
+        "from tendon2r_gym.policies.runs import training_record",
         "",
         f'model = bundled_model("{name}")  # the primary seed; bundled_model("{name}", seed)',
         f'env = gym.make("{env_id}", **training_record(model)["env_kwargs"])  # its training env',
@@ -507,7 +515,7 @@ def models_page(root: Path = ROOT) -> str:
         "# Shipped models",
         "",
         "Every model the package ships, from one registry (`tendon2r_gym/data/shipped.yaml`,",
-        "`tendon2r_gym.registry.shipped()`). Each is a bundle under",
+        "`tendon2r_gym.policies.registry.shipped()`). Each is a bundle under",
         f"`tendon2r_gym/data/{MODELS_DIR.name}/<name>/`: its training seeds (the first is the",
         "primary one, which `tendon2r-evaluate` and `bundled_model` use), each with the model, its",
         "VecNormalize statistics and its run's records. The env contract is the hash of the env",
@@ -524,7 +532,7 @@ def models_page(root: Path = ROOT) -> str:
 
 # -- the results ---------------------------------------------------------------------------------
 #: A model path recorded as the machine's absolute path of the package: shown relative to it,
-#: as tendon2r_gym.benchmark.shown_path records paths.
+#: as tendon2r_gym.app.benchmark.shown_path records paths.
 ABSOLUTE_PACKAGE_PATH = re.compile(r"(?<![\w.])/\S*?/(tendon2r_gym/data/)")
 
 
@@ -538,69 +546,38 @@ def relative_paths(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 def bundled_section(result: dict[str, Any]) -> list[str]:
     """Returns the bundled presets' section (``tendon2r-benchmark``, results/benchmark.json)."""
-    from tendon2r_gym import benchmark as bm
-
-    rows = relative_paths(result["rows"])
-    lines = [
+    result = {**result, "rows": relative_paths(result["rows"])}
+    return [
         "## The bundled presets",
         "",
         f"`results/benchmark.json`, produced by `{result['command']}` (`make benchmark`); every",
         "figure comes from that run except the rows marked *quoted*, the lab reports' own.",
         "",
-        *bm.NOTES,
-        "",
-        *bm.table(rows, bm.REPORT_ROWS),
-        "",
-        "Learned rows against PD (RMS <= PD on both joints?) and against computed torque:",
-        "",
-        *bm.verdicts(rows),
-        "",
-        "### Pull-only tendons against push-pull",
-        "",
-        *bm.tension_comparison(rows),
+        *report.bundled_sections(result, level=3),
     ]
-    if held := result.get("held_out"):
-        lines += [
-            "",
-            "### Held-out references",
-            "",
-            "PD and the residual trained on random references (`random_reference`) on",
-            "references it never trained on (`tendon2r_gym.benchmark.HELD_OUT`):",
-            "",
-            *table(
-                ("policy", "mean RMS error A / B (deg)"),
-                ((r["policy"], r.get("missing") or bm._fmt(r["rms_deg_mean"])) for r in held),
-            ),
-        ]
-    if real := result.get("realism"):
-        lines += ["", *(("#" + x if x.startswith("## ") else x) for x in bm.realism_lines(real))]
-    return lines
 
 
 def own_arm_section(path: str, result: dict[str, Any]) -> list[str]:
     """Returns one own-arm report's section (``tendon2r-benchmark --env-config FILE``)."""
-    from tendon2r_gym import benchmark as bm
+    result = {**result, "rows": relative_paths(result["rows"])}
+    return [f"### {Path(path).parent.name}", "", f"`{path}`:", *report.own_arm_sections(result)]
 
-    rows = relative_paths(result["rows"])
-    mech = result.get("env_config", {}).get("mechanism", {})
-    lines = [
-        f"### {Path(path).parent.name}",
+
+def realism_section(root: Path) -> list[str]:
+    """Returns the real-arm study's section (research/results/realism.json), if it ran."""
+    path = root / "research" / "results" / "realism.json"
+    if not path.is_file():
+        return []
+    from research.studies.realism import realism_lines
+
+    result = json.loads(path.read_text())
+    title, *body = realism_lines(result["rows"])
+    return [
+        title,
         "",
-        f"`{path}`, produced by `{result['command']}`.",
+        f"`research/results/realism.json`, produced by `{result['command']}`.",
+        *body,
     ]
-    if "force_need_N" in result and "max_tendon_force" in mech:
-        lines += [
-            f"Force limit {mech['max_tendon_force']:g} N; inverse dynamics of the reference "
-            f"needs {result['force_need_N']:.3g} N.",
-        ]
-    return [*lines, "", *bm.table(rows), "", *bm.verdicts(without_partial_smoothness(rows))]
-
-
-def without_partial_smoothness(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Returns rows for tendon2r_gym.benchmark.verdicts, which compares tensions when a row
-    has ``rms_tension_N``: a row recorded without its tension rate keeps its errors only."""
-    rate, tension = "rms_tension_rate_N_per_s", "rms_tension_N"
-    return [r if rate in r else {k: v for k, v in r.items() if k != tension} for r in rows]
 
 
 def results_page(root: Path = ROOT) -> str:
@@ -608,7 +585,9 @@ def results_page(root: Path = ROOT) -> str:
     reports = benchmark_reports(root)
     main = reports.pop("results/benchmark.json", None)
     lines = [
-        header("results/benchmark.json and results/*/benchmark.json"),
+        header(
+            "results/benchmark.json, results/*/benchmark.json and research/results/realism.json"
+        ),
         "",
         "# Results",
         "",
@@ -623,6 +602,8 @@ def results_page(root: Path = ROOT) -> str:
         lines += ["`results/benchmark.json` is missing: `make benchmark` writes it."]
     else:
         lines += bundled_section(main)
+    if real := realism_section(root):
+        lines += ["", *real]
     if reports:
         lines += [
             "",

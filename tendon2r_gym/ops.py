@@ -1,6 +1,6 @@
 """Elementwise operations for formulas written once and run on Python floats or numpy arrays.
 
-The task (tendon2r_gym.task) and the moment-arm condition number are written as plain
+The task (tendon2r_gym.envs.task) and the moment-arm condition number are written as plain
 arithmetic with the few functions below passed in: :data:`SCALAR` (``math``, for the single
 env, where scalar math on two joints is several times faster than numpy) or :data:`BATCH`
 (numpy over N arms, for the vector env).  Both give the same bits: numpy's float64 sin and cos

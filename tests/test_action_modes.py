@@ -6,11 +6,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from tendon2r_gym import observation as L
-from tendon2r_gym.env import Tendon2REnv
-from tendon2r_gym.evaluation import evaluate
-from tendon2r_gym.learned import NO_RESIDUAL, Residual, ResidualPDWrapper
-from tendon2r_gym.policies import PDPolicy
+from tendon2r_gym.envs.env import Tendon2REnv
+from tendon2r_gym.evaluation.evaluator import evaluate
+from tendon2r_gym.policies.baselines import PDPolicy
+from tendon2r_gym.policies.learned import NO_RESIDUAL, Residual, ResidualPDWrapper
+from tendon2r_gym.task import observation as L
 
 
 @pytest.mark.parametrize("preset", ["default", "pull_only"])
@@ -167,7 +167,7 @@ def test_bad_action_filter_names_the_field():
 def test_a_model_runs_only_in_the_action_semantics_it_was_trained_in(field, trained, deployed):
     """A model's actions mean tensions or joint torques, filtered or not: another setting is a
     ValueError naming it, and a run recorded before the setting existed takes its default."""
-    from tendon2r_gym.learned import check_model_env
+    from tendon2r_gym.policies.learned import check_model_env
 
     def recorded(**kw):
         config = gym.make("Tendon2R-v0", **kw).unwrapped.config
@@ -184,8 +184,8 @@ def test_residual_relative_to_need_scales_each_joint_by_its_torque_need():
     """residual_relative_to "need": the residual on joint j is residual_scale * torque_need_j /
     max_torque_j times the action (the arm's inverse-dynamics need over its torque range), on
     each drawn arm; tension mode and unknown values are refused."""
-    from tendon2r_gym.actuation import TorqueToTension
-    from tendon2r_gym.mechanism import Mechanism
+    from tendon2r_gym.simulation.actuation import TorqueToTension
+    from tendon2r_gym.simulation.mechanism import Mechanism
 
     kwargs = {"preset": "generalist", "action_mode": "joint_torque"}
     env = ResidualPDWrapper(gym.make("Tendon2R-v0", **kwargs), 1.5, residual_relative_to="need")
@@ -195,7 +195,7 @@ def test_residual_relative_to_need_scales_each_joint_by_its_torque_need():
     scales, action = [], np.array([0.2, -0.3], dtype=np.float32)
     for seed in (0, 1):
         obs, info = env.reset(seed=seed)
-        need = env.unwrapped.arm.torque_need
+        need = env.unwrapped.arm.needs.torque_need
         assert np.array_equal(info["torque_need_Nm"], need) and min(need) > 0
         scale = (
             1.5

@@ -7,11 +7,11 @@ import sys
 
 import pytest
 
-from tendon2r_gym import evaluation
-from tendon2r_gym.benchmark import FINETUNED, GENERALISTS, LEARNED, compare
-from tendon2r_gym.cli import EvaluateArgs, benchmark_main, evaluate_main, parse
-from tendon2r_gym.evaluation import BASELINE, PolicyEntry, names
-from tendon2r_gym.policies import PDPolicy
+from tendon2r_gym.app.benchmark import FINETUNED, GENERALISTS, LEARNED, compare
+from tendon2r_gym.app.cli import EvaluateArgs, benchmark_main, evaluate_main, parse
+from tendon2r_gym.evaluation import evaluator as evaluation
+from tendon2r_gym.evaluation.evaluator import BASELINE, PolicyEntry, names
+from tendon2r_gym.policies.baselines import PDPolicy
 
 ARM = """\
 mechanism: {R1: 0.025, R2: 0.049, a: 0.068, b: 0.056, c: 0.091}
@@ -62,7 +62,7 @@ def test_evaluate_argument_errors_are_clear(tmp_path, argv, match):
 
 def test_a_bad_argument_is_a_one_line_error_with_exit_code_2():
     proc = subprocess.run(
-        [sys.executable, "-c", "from tendon2r_gym.cli import evaluate; evaluate()", "--policy",
+        [sys.executable, "-c", "from tendon2r_gym.app.cli import evaluate; evaluate()", "--policy",
          "pd", "--episodes", "0"],
         capture_output=True, text=True,
     )  # fmt: skip
@@ -70,13 +70,10 @@ def test_a_bad_argument_is_a_one_line_error_with_exit_code_2():
     assert proc.stderr.strip().startswith("error: --episodes = 0 is invalid")
 
 
-def test_benchmark_on_bundled_models(tmp_path, monkeypatch):
-    """Every bundled model loads and runs; the realism section on its first two arms (the
-    real arm and one perturbed: each arm tunes PD, the bulk of the benchmark's time)."""
-    from tendon2r_gym import benchmark
+def test_benchmark_on_bundled_models(tmp_path):
+    """Every bundled model loads and runs, and the page is the report of the JSON record."""
+    from tendon2r_gym.app import report
 
-    arms = benchmark.realism_arms()[:2]
-    monkeypatch.setattr(benchmark, "realism_arms", lambda: arms)
     result = benchmark_main(["--episodes", "1", "--out", str(tmp_path)])
     md = (tmp_path / "benchmark.md").read_text()
     assert "| default | pd |" in md and "quoted" in md
@@ -88,11 +85,9 @@ def test_benchmark_on_bundled_models(tmp_path, monkeypatch):
     models = [r["model"] for r in result["rows"] if "model" in r]
     assert models and all(m.startswith("tendon2r_gym/data/models/") for m in models), models
     assert json.loads((tmp_path / "benchmark.json").read_text())["rows"]
-    assert [r["arm"] for r in result["realism"]] == [name for name, _ in arms]
-    for row in result["realism"]:
-        policies = ("pd", "pd_tuned", "ct", "ppo", "randomized")
-        assert all(len(row[k]["rms_deg"]) == 2 for k in policies), row
-        assert f"| {row['arm']} |" in md
+    record = json.loads((tmp_path / "benchmark.json").read_text())
+    assert md == "\n".join(report.bundled_page(record)) + "\n"
+    assert all(len(r["reproducible_to"]) == 2 for r in result["rows"])
 
 
 def test_benchmark_on_your_own_arm(tmp_path):
@@ -167,9 +162,9 @@ def test_benchmark_runs_a_model_in_the_action_mode_it_trained_in(tmp_path, monke
     reference and episodes in those settings, in the benchmark and in the generalist study,
     and its rows say so; PD's rows stay in the env's settings."""
     from research.studies import generalist as generalist_study
-    from tendon2r_gym.benchmark import shown_policy
-    from tendon2r_gym.evaluation import evaluate
-    from tendon2r_gym.learned import settings_on
+    from tendon2r_gym.app.report import shown_policy
+    from tendon2r_gym.evaluation.evaluator import evaluate
+    from tendon2r_gym.policies.learned import settings_on
     from tendon2r_gym.training import Experiment, Hyperparams
 
     env = {"preset": "default", "episode_duration": 0.05}
@@ -205,8 +200,8 @@ def test_evaluate_runs_a_bundle_in_the_settings_it_trained_in(tmp_path):
     runs the model in its own action mode, as the benchmark does, and records it."""
     from pathlib import Path
 
-    from tendon2r_gym.bundle import bundled_model
-    from tendon2r_gym.learned import model_settings
+    from tendon2r_gym.policies.bundle import bundled_model
+    from tendon2r_gym.policies.learned import model_settings
 
     arm = Path(__file__).resolve().parents[1] / "configs" / "examples" / "course_arm.yaml"
     out = tmp_path / "m.json"

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from tendon2r_gym import EnvConfig
-from tendon2r_gym.env_config import FORCE_HEADROOM
-from tendon2r_gym.evaluation import evaluate
+from tendon2r_gym.envs.env_config import FORCE_HEADROOM
+from tendon2r_gym.evaluation.evaluator import evaluate
 from tendon2r_gym.presets import PRESET_DIR, list_presets, load_yaml
 
 #: The course mechanism of the issue: it needs about 0.8 N, more than the old fixed 0.5 N.
@@ -101,7 +101,7 @@ def test_force_need_matches_the_peak_force_of_computed_torque():
     default preset (from the reference, no error to correct) never asks much more."""
     cfg = EnvConfig.make("default")
     metrics, _ = evaluate("ct", {"preset": "default"}, [0])
-    assert max(metrics["max_tension_N"]) == pytest.approx(cfg.force_need, rel=0.1)
+    assert max(metrics["max_tension_N"]) == pytest.approx(cfg.needs.force_need, rel=0.1)
 
 
 def test_reference_ranges_use_their_worst_corner():
@@ -112,7 +112,7 @@ def test_reference_ranges_use_their_worst_corner():
     }
     fixed = EnvConfig.make("default", reference={"amp_deg": [5, 5], "freq_hz": [0.5, 0.5]})
     ranged = EnvConfig.make("default", reference_ranges=ranges)
-    assert ranged.force_need > fixed.force_need
+    assert ranged.needs.force_need > fixed.needs.force_need
 
 
 def _course_draw(rng):

@@ -1,4 +1,4 @@
-"""Each registered env id's contract is pinned (tendon2r_gym.contract): changing the env's
+"""Each registered env id's contract is pinned (tendon2r_gym.policies.contract): changing the env's
 defaults, observation, reward, actions, reset or episode length fails here until the id's
 version is raised and CHANGELOG.md says what changed."""
 
@@ -9,7 +9,7 @@ import gymnasium as gym
 import pytest
 
 import tendon2r_gym
-from tendon2r_gym.contract import env_contract, env_contract_hash, pinned
+from tendon2r_gym.policies.contract import env_contract, env_contract_hash, pinned
 
 IDS = sorted(i for i in gym.registry if re.fullmatch(r"Tendon2R(Residual)?-v\d+", i))
 CHANGELOG = Path(__file__).resolve().parents[1] / "CHANGELOG.md"
@@ -39,14 +39,14 @@ def test_the_changelog_describes_each_id(env_id):
 def test_the_contract_sees_a_changed_default_and_a_changed_behaviour(monkeypatch):
     base = env_contract("Tendon2R-v1")
     assert env_contract("Tendon2R-v1") == base, "deterministic"
-    gym.register(id="Tendon2RTest-v9", entry_point="tendon2r_gym.env:make_env",
+    gym.register(id="Tendon2RTest-v9", entry_point="tendon2r_gym.envs.env:make_env",
                  kwargs={**tendon2r_gym.VERSIONS["v1"], "reset_noise_scale": 0.03})  # fmt: skip
     try:
         changed = env_contract("Tendon2RTest-v9")
     finally:
         del gym.registry["Tendon2RTest-v9"]
     assert changed["config"] != base["config"] and changed["rollout"] != base["rollout"]
-    from tendon2r_gym import rewards as task
+    from tendon2r_gym.task import rewards as task
 
     monkeypatch.setitem(task.TERMS, "ctrl", (0.002, task.TERMS["ctrl"][1]))
     assert env_contract("Tendon2R-v1")["reward_terms"] != base["reward_terms"]

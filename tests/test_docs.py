@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from tendon2r_gym.env_config import arguments
-from tendon2r_gym.registry import shipped
+from tendon2r_gym.envs.env_config import arguments
+from tendon2r_gym.policies.registry import shipped
 
 ROOT = Path(__file__).resolve().parent.parent
 

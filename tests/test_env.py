@@ -16,8 +16,8 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import tendon2r_gym
 from tendon2r_gym import EnvConfig, Tendon2REnv
-from tendon2r_gym import observation as L
-from tendon2r_gym.env_config import COMPUTED
+from tendon2r_gym.envs.env_config import COMPUTED
+from tendon2r_gym.task import observation as L
 
 
 def _rollout(env, seed, n=50):
@@ -200,7 +200,7 @@ def test_feedforward_entry_is_the_references_acceleration_in_action_units():
         dt, ref = u.config.ctrl_dt, u.reference
         mid = u.data.time + dt / 2
         ddq = -ref.amp_rad * ref.omega_array**2 * np.sin(ref.omega_array * mid + ref.phase_rad)
-        expected = np.array(u.arm.rate_to_action) @ (dt * ddq)
+        expected = np.array(u.arm.needs.rate_to_action) @ (dt * ddq)
         assert np.all(np.abs(expected) > 1e-6)
         np.testing.assert_allclose(obs[where], expected, rtol=1e-9)
         seen.append(obs[where])
@@ -220,8 +220,8 @@ def test_action_unit_entries_are_refused_on_an_arm_with_a_joint_no_tendon_spans(
     infinite rate_to_action) is refused at construction, named, and the arm itself is not."""
     mechanism = {"routing": [[1, 0], [-1, 0]], "max_tendon_force": 5.0}
     env = Tendon2REnv(mechanism=mechanism)
-    assert np.all(np.isinf(env.config.rate_to_action[1]))
-    assert np.all(np.isfinite(env.config.rate_to_action[0]))
+    assert np.all(np.isinf(env.config.needs.rate_to_action[1]))
+    assert np.all(np.isfinite(env.config.needs.rate_to_action[0]))
     with pytest.raises(ValueError, match=rf"{field} = {value!r} .*{allowed} on an arm with a"):
         Tendon2REnv(mechanism=mechanism, **{field: value})
 
@@ -415,7 +415,7 @@ def test_documented_defaults_match_the_signature():
     assert set(rows) == set(params)
     for name, text in rows.items():
         assert ast.literal_eval(text) == params[name], name
-    from tendon2r_gym.env import CARD_SECTIONS
+    from tendon2r_gym.envs.env import CARD_SECTIONS
 
     for section in CARD_SECTIONS:
         assert f"## {section}" in doc
@@ -436,9 +436,9 @@ def test_readme_python_examples_run():
 
 
 def test_multiscale_tracking_reward_is_bounded_and_keeps_a_gradient_near_zero():
-    from tendon2r_gym.env_config import EnvConfig
+    from tendon2r_gym.envs.env_config import EnvConfig
+    from tendon2r_gym.envs.task import RAD_PER_DEG, Task
     from tendon2r_gym.ops import SCALAR
-    from tendon2r_gym.task import RAD_PER_DEG, Task
 
     task = Task(EnvConfig.make(tracking_form="multiscale"))
     log = Task(EnvConfig.make(tracking_form="log"))
@@ -460,8 +460,8 @@ def test_effort_term_charges_the_commanded_tension(preset):
     """The ctrl term is the commanded tension as a fraction of the force limit: slack tendons
     cost nothing (pull-only: command -1; push-pull: 0) and a tendon at its limit costs 1, in
     both envs; in joint-torque mode it is the normalized torque."""
+    from tendon2r_gym.envs.task import Task
     from tendon2r_gym.ops import SCALAR
-    from tendon2r_gym.task import Task
 
     def effort(task, command):
         zero = [0.0] * len(command)
@@ -483,13 +483,13 @@ def test_effort_term_charges_the_commanded_tension(preset):
 
 
 def test_torque_rate_need_is_the_peak_rate_of_inverse_dynamics_along_the_reference():
-    """EnvConfig.torque_rate_need (the phase grid's d tau / dt) against mj_inverse of the
+    """EnvConfig.needs.torque_rate_need (the phase grid's d tau / dt) against mj_inverse of the
     compiled model along the reference in time, differenced in time: the grid bounds every
     start phase, so the trajectory's peak is at most the grid's; with one joint moving, the
     trajectory covers the grid's phases and the two agree."""
     import mujoco
 
-    from tendon2r_gym.model import build_model
+    from tendon2r_gym.simulation.model import build_model
 
     for amp_b in (0.0, 13.06):
         cfg = EnvConfig.make(action_mode="joint_torque", reference={"amp_deg": [21.45, amp_b]})
@@ -510,7 +510,7 @@ def test_torque_rate_need_is_the_peak_rate_of_inverse_dynamics_along_the_referen
                 rows.append(data.qfrc_inverse[:2].copy())
             torques.append(np.array(rows))
         peak = np.max(np.abs((torques[1] - torques[0]) / dt), axis=0)
-        need = np.array(cfg.torque_rate_need)
+        need = np.array(cfg.needs.torque_rate_need)
         assert np.all(peak <= need * 1.02), (peak, need)
         if amp_b == 0.0:  # joint A alone: one phase, the grid's own
             np.testing.assert_allclose(peak[0], need[0], rtol=0.02)
@@ -520,13 +520,13 @@ def test_action_rate_need_counts_the_rate_in_multiples_of_the_arms_own():
     """The action_rate_need term of a step is -sum log(1 + (d / s)^2) with s the joint's
     torque-rate need per control step over its torque range, on the episode's drawn arm;
     a tension-mode env refuses a weight for it, naming the field."""
-    from tendon2r_gym.actuation import TorqueToTension
+    from tendon2r_gym.simulation.actuation import TorqueToTension
 
     env = gym.make("Tendon2R-v0", preset="generalist", action_mode="joint_torque",
                    reward_scales={"action_rate_need": 2.0})  # fmt: skip
     env.reset(seed=3)
     arm = env.unwrapped.arm
-    s = (np.array(arm.torque_rate_need) * arm.ctrl_dt
+    s = (np.array(arm.needs.torque_rate_need) * arm.ctrl_dt
          / TorqueToTension(arm.mechanism).max_torque)  # fmt: skip
     a0, a1 = np.array([0.2, -0.1], np.float32), np.array([0.25, -0.3], np.float32)
     env.step(a0)
@@ -558,7 +558,7 @@ def test_tracking_quadratic_is_the_squared_error_in_degrees_and_off_by_default()
 
 
 def test_control_authority_is_the_speed_a_full_joint_torque_adds_in_one_step():
-    """EnvConfig.control_authority against the compiled model: from rest at a q on the
+    """EnvConfig.needs.control_authority against the compiled model: from rest at a q on the
     reference's path, a joint-torque action on joint j alone adds ctrl_dt max_torque_j
     (M^-1)_jj(q) per unit of action to that joint's speed in one control step (the simulated
     response to a small action, which no tendon saturates, minus the rest action's), and its
@@ -590,13 +590,13 @@ def test_control_authority_is_the_speed_a_full_joint_torque_adds_in_one_step():
         expected = cfg.ctrl_dt * env._torque_map.max_torque * np.diag(np.linalg.inv(M))[:2]
         np.testing.assert_allclose(gained[k], expected, rtol=0.02)
     peak = gained.max(axis=0)
-    authority = np.array(cfg.control_authority)
+    authority = np.array(cfg.needs.control_authority)
     assert np.all(peak <= authority * 1.02), (peak, authority)
     assert np.all(peak >= authority * 0.9), (peak, authority)
 
 
 def test_rate_to_action_is_the_action_that_changes_the_speeds_in_one_step():
-    """EnvConfig.rate_to_action against the compiled model: from rest at the reference's bias,
+    """EnvConfig.needs.rate_to_action against the compiled model: from rest at the reference's bias,
     a small joint-torque action a changes the joints' speeds by dq in one control step, and
     rate_to_action dq gives a back (each joint's action moves the other's speed too)."""
     import mujoco
@@ -604,7 +604,7 @@ def test_rate_to_action_is_the_action_that_changes_the_speeds_in_one_step():
     env = Tendon2REnv(action_mode="joint_torque")
     env.reset(seed=0)
     model, data = env.model, env.data
-    rate_to_action = np.array(env.config.rate_to_action)
+    rate_to_action = np.array(env.config.needs.rate_to_action)
     for a in ([0.2, 0.0], [0.0, 0.2], [-0.1, 0.15]):
         speeds = []
         for action in (np.zeros(2), np.array(a)):
@@ -629,8 +629,8 @@ def test_error_units_action_log_scale_the_actions_that_close_the_error_and_its_r
     logged = np.r_[L.ERROR_LOG, L.error_rate_slice(3, 2)]
     np.testing.assert_array_equal(np.delete(obs, logged), np.delete(plain_obs, logged))
     arm = env.arm
-    assert arm.rate_to_action != env.config.rate_to_action  # the drawn arm's own
-    rate_to_action = np.array(arm.rate_to_action)
+    assert arm.needs.rate_to_action != env.config.needs.rate_to_action  # the drawn arm's own
+    rate_to_action = np.array(arm.needs.rate_to_action)
     de = env.reference.qdot(env.data.time) - obs[L.DQ]
     for where, y in ((L.ERROR_LOG, rate_to_action @ (obs[L.ERROR] / arm.ctrl_dt)),
                      (L.error_rate_slice(3, 2), rate_to_action @ de)):  # fmt: skip

@@ -10,9 +10,9 @@ import pytest
 import yaml
 
 import tendon2r_gym  # noqa: F401  (registers Tendon2R-v0)
-from tendon2r_gym.cli import export_main, view_main
+from tendon2r_gym.app.cli import export_main, view_main
 from tendon2r_gym.presets import list_presets, load_yaml, merge_env_kwargs, preset_path
-from tendon2r_gym.realism import PERTURBATIONS, Drive
+from tendon2r_gym.simulation.realism import PERTURBATIONS, Drive
 
 STEPS = 1000
 #: Realism fields that the env applies in Python, not in the model (the XML's comment says so).

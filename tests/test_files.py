@@ -15,10 +15,11 @@ import gymnasium as gym
 import pytest
 
 import tendon2r_gym  # noqa: F401  (registers Tendon2R-v0)
-from tendon2r_gym import bundle, cli
-from tendon2r_gym.bundle import bundle_meta, bundle_names, bundle_runs, bundled_model
-from tendon2r_gym.files import load_model, load_vecnormalize
-from tendon2r_gym.learned import PPOPolicy
+from tendon2r_gym.app import cli
+from tendon2r_gym.policies import bundle
+from tendon2r_gym.policies.bundle import bundle_meta, bundle_names, bundle_runs, bundled_model
+from tendon2r_gym.policies.files import load_model, load_vecnormalize
+from tendon2r_gym.policies.learned import PPOPolicy
 from tendon2r_gym.presets import MODELS_DIR
 
 REPO = Path(__file__).resolve().parents[1]
@@ -77,7 +78,7 @@ def test_bundle_refuses_a_name_that_is_not_one_plain_folder(models, runs, tmp_pa
 def test_bundle_without_name_is_a_one_line_error_with_exit_code_2(models, runs):
     script = Path(sys.executable).with_name("tendon2r-bundle")  # the console entry
     cmd = [str(script)] if script.is_file() else [
-        sys.executable, "-c", "from tendon2r_gym.cli import bundle; bundle()"]  # fmt: skip
+        sys.executable, "-c", "from tendon2r_gym.app.cli import bundle; bundle()"]  # fmt: skip
     env = {
         **os.environ,
         "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]),

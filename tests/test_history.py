@@ -1,4 +1,5 @@
-"""The policy's observation history (tendon2r_gym.history): SB3's VecFrameStack at stride 1,
+"""The policy's observation history (tendon2r_gym.policies.history): SB3's VecFrameStack at stride
+1,
 every stride-th frame otherwise, emptied at each episode start, terminal observations too."""
 
 import gymnasium as gym
@@ -6,7 +7,7 @@ import numpy as np
 import pytest
 from stable_baselines3.common.vec_env import DummyVecEnv, VecFrameStack
 
-from tendon2r_gym.history import FrameHistory, StridedFrameStack, stacked
+from tendon2r_gym.policies.history import FrameHistory, StridedFrameStack, stacked
 
 KWARGS = {"preset": "default", "episode_duration": 0.012}  # 12 steps: episodes end
 

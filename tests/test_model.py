@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from tendon2r_gym import ActuationAnalysis, Mechanism, build_model
-from tendon2r_gym.model import JOINTS, motor_name, tendon_name
+from tendon2r_gym.simulation.model import JOINTS, motor_name, tendon_name
 
 
 def _forward(model, q):

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from tendon2r_gym import Tendon2REnv
-from tendon2r_gym.cli import evaluate_main
-from tendon2r_gym.evaluation import evaluate
-from tendon2r_gym.metrics import tracking_metrics
-from tendon2r_gym.observation import ERROR, Q_DES
-from tendon2r_gym.policies import ComputedTorquePolicy, Gains, PDPolicy
-from tendon2r_gym.rollout import rollout, rollouts
+from tendon2r_gym.app.cli import evaluate_main
+from tendon2r_gym.evaluation.evaluator import evaluate
+from tendon2r_gym.evaluation.metrics import tracking_metrics
+from tendon2r_gym.evaluation.rollout import rollout, rollouts
+from tendon2r_gym.policies.baselines import ComputedTorquePolicy, Gains, PDPolicy
+from tendon2r_gym.task.observation import ERROR, Q_DES
 
 
 def test_pd_removes_a_step_error():
@@ -70,8 +70,8 @@ def test_ct_follows_each_episodes_reference_under_reference_ranges():
 def test_settled_rms_leaves_out_the_resets_transient():
     """settled_rms_deg is the RMS error after each episode's first SETTLE_S: an error only
     inside that window counts in rms_deg and not there."""
-    from tendon2r_gym.metrics import SETTLE_S
-    from tendon2r_gym.rollout import Trace
+    from tendon2r_gym.evaluation.metrics import SETTLE_S
+    from tendon2r_gym.evaluation.rollout import Trace
 
     steps, dt = 100, 0.001
     time = dt * np.arange(1, steps + 1)
@@ -206,7 +206,7 @@ def test_tendon_command_is_the_damped_inverse_of_the_moment_arms():
 
 
 def test_residual_wrapper_with_zero_residual_is_pd():
-    from tendon2r_gym.learned import Residual, make_training_env
+    from tendon2r_gym.policies.learned import Residual, make_training_env
 
     wrapped = make_training_env({"preset": "default"}, Residual(0.5))
     plain = Tendon2REnv()

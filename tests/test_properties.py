@@ -23,9 +23,9 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 import tendon2r_gym  # noqa: F401  (registers Tendon2R-v0)
-from tendon2r_gym.env_config import arguments
-from tendon2r_gym.mechanism import Mechanism
-from tendon2r_gym.rewards import REWARD_SCALES
+from tendon2r_gym.envs.env_config import arguments
+from tendon2r_gym.simulation.mechanism import Mechanism
+from tendon2r_gym.task.rewards import REWARD_SCALES
 
 settings.register_profile(
     "ci", max_examples=25, deadline=None, suppress_health_check=list(HealthCheck)

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from tendon2r_gym import Mechanism, build_model
-from tendon2r_gym.actuation import ActuationAnalysis, TorqueToTension, distribute
-from tendon2r_gym.evaluation import evaluate
-from tendon2r_gym.model import motor_name, tendon_name
-from tendon2r_gym.routing import positive_span
+from tendon2r_gym.evaluation.evaluator import evaluate
+from tendon2r_gym.simulation.actuation import ActuationAnalysis, TorqueToTension, distribute
+from tendon2r_gym.simulation.model import motor_name, tendon_name
+from tendon2r_gym.simulation.routing import positive_span
 
 
 def test_a_positive_motor_force_lengthens_the_tendon():

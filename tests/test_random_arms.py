@@ -5,13 +5,13 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from tendon2r_gym import observation
-from tendon2r_gym.arms import COURSE, GEOMETRY, MechanismRanges
-from tendon2r_gym.env_config import EnvConfig
-from tendon2r_gym.learned import check_model_env
-from tendon2r_gym.mechanism import Mechanism
-from tendon2r_gym.policies import ComputedTorquePolicy, PDPolicy
-from tendon2r_gym.reference import Reference
+from tendon2r_gym.envs.env_config import EnvConfig
+from tendon2r_gym.policies.baselines import ComputedTorquePolicy, PDPolicy
+from tendon2r_gym.policies.learned import check_model_env
+from tendon2r_gym.simulation.mechanism import Mechanism
+from tendon2r_gym.task import observation
+from tendon2r_gym.task.arms import COURSE, GEOMETRY, MechanismRanges
+from tendon2r_gym.task.reference import Reference
 
 CABLES = {"tendon_elasticity": [2000.0, 6000.0], "motor_tau": [0.001, 0.004]}
 #: Random motor and sensor delays (whole control steps, 0 to 3).
@@ -64,7 +64,7 @@ def test_observe_arm_needs_ranges():
 def test_one_arm_observed_over_given_ranges():
     """arm_feature_ranges: one fixed arm's slice is its fields normalized over those ranges,
     as a generalist trained on them saw it, in both envs; the arm itself is not drawn."""
-    from tendon2r_gym.vector_env import Tendon2RVectorEnv
+    from tendon2r_gym.envs.vector_env import Tendon2RVectorEnv
 
     kwargs = {"preset": "default", "observe_arm": True, "arm_feature_ranges": "course"}
     config = EnvConfig.make(**kwargs)
@@ -197,7 +197,7 @@ def test_fixed_reference_option_on_random_arms():
 def test_a_residual_policy_follows_the_arm_in_rollouts():
     """PPOPolicy's inner PD follows each episode's arm (rollouts call reset(info)): with a
     zero residual it acts exactly as PD does on every drawn arm."""
-    from tendon2r_gym.learned import PPOPolicy, Residual
+    from tendon2r_gym.policies.learned import PPOPolicy, Residual
 
     class Zero:
         def predict(self, obs, state=None, episode_start=None, deterministic=True):
@@ -215,7 +215,7 @@ def test_real_arm_ranges_are_the_perturbed_arms_ranges():
     """mechanism_ranges: real_arm draws the cables, motors and sensors of the benchmark's
     perturbed arms (one home: realism.PERTURBATIONS), and every draw has the real arm's model
     layout."""
-    from tendon2r_gym.realism import PERTURBATIONS
+    from tendon2r_gym.simulation.realism import PERTURBATIONS
 
     env = gym.make("Tendon2R-v0", preset="real_arm", mechanism_ranges="real_arm")
     ranges = env.unwrapped.config.mechanism_ranges
@@ -225,33 +225,6 @@ def test_real_arm_ranges_are_the_perturbed_arms_ranges():
         _, info = env.reset(seed=seed)
         assert not ranges.violations(env.unwrapped.arm)
         assert env.unwrapped.model.nq == nq
-
-
-def test_realism_lines_report_each_residual_against_pd():
-    from tendon2r_gym.benchmark import realism_lines
-
-    force = lambda f: {"rms_tension_N": [f] * 3, "rms_tension_rate_N_per_s": [10 * f] * 3}  # noqa: E731
-    row = lambda pd, ppo, rnd: {  # noqa: E731
-        "pd": {"rms_deg": pd, **force(1.0)}, "ct": {"rms_deg": [0.01, 0.01]},
-        "pd_tuned": {"rms_deg": [0.5, 0.5], "bandwidth_hz": 12.3},
-        "ppo": {"rms_deg": ppo, **force(2.0)}, "randomized": {"rms_deg": rnd, **force(0.5)},
-    }  # fmt: skip
-    rows = [
-        {"arm": "a", **row([1.0, 1.0], [2.0, 0.5], [0.5, 0.25])},
-        {"arm": "b", **row([1.0, 2.0], [0.5, 0.5], [0.5, 2.5])},
-    ]
-    text = "\n".join(realism_lines(rows))
-    assert (
-        "| a | 1.0000 / 1.0000 | 0.5000 / 0.5000 (12.3 Hz) | 0.0100 / 0.0100 | "
-        "2.0000 / 0.5000 (2.00x) |" in text
-    )
-    assert "residual (ideal-trained): <= PD on both joints on 1 of 2 arms" in text
-    assert (
-        "residual (randomized): <= PD on both joints on 1 of 2 arms; median worst-joint "
-        "ratio 0.88" in text
-    )
-    assert "residual (randomized): <= PD tuned per arm on both joints on 1 of 2 arms" in text
-    assert "residual (ideal-trained): RMS tension 2.00x PD's, RMS tension rate 2.00x" in text
 
 
 def test_delays_and_noise_are_drawn_per_episode_in_whole_steps():
@@ -280,7 +253,7 @@ def test_delays_and_noise_are_drawn_per_episode_in_whole_steps():
 
 @pytest.mark.parametrize("steps", [[0, 2, 1], [2, 2, 2]])
 def test_command_delay_holds_each_arm_its_own_steps(steps):
-    from tendon2r_gym.realism import CommandDelay
+    from tendon2r_gym.simulation.realism import CommandDelay
 
     delay = CommandDelay(max(steps), 3, 1)
     for i, k in enumerate(steps):
@@ -296,7 +269,7 @@ def test_command_delay_holds_each_arm_its_own_steps(steps):
 def test_a_list_of_ranges_merges_in_order():
     """``[real_arm, {...}]``: the named set's ranges, then the mapping's, a later range of a
     field replacing an earlier one in place."""
-    from tendon2r_gym.realism import PERTURBATIONS
+    from tendon2r_gym.simulation.realism import PERTURBATIONS
 
     merged = MechanismRanges.from_value(
         ["real_arm", {"motor_tau": [0.002, 0.003], "pd_bandwidth_hz": [10.0, 40.0]}]
@@ -310,7 +283,7 @@ def test_drawn_pd_gains_are_each_episodes_and_pd_follows_them():
     """pd_bandwidth_hz drawn: each reset draws a bandwidth inside the range, reports the
     episode's gains in the reset info and observes it (normalized) in the arm slice; PD and a
     residual's PD use it: kp = (2 pi bandwidth)^2 on the arm."""
-    from tendon2r_gym.learned import ResidualPDWrapper
+    from tendon2r_gym.policies.learned import ResidualPDWrapper
 
     lo, hi = 10.0, 40.0
     kwargs = {"preset": "real_arm", "observe_arm": True}
@@ -338,7 +311,7 @@ def test_a_model_trained_on_drawn_gains_runs_on_the_users_tuned_gains():
     """Deployed on one arm, a residual trained on drawn PD gains runs the PD of the arm's own
     gains (what tendon2r-tune-pd wrote) and sees them; gains outside its training range, or
     none where a phase was drawn, are refused by name."""
-    from tendon2r_gym.learned import arm_features, deployed_gains
+    from tendon2r_gym.policies.learned import arm_features, deployed_gains
 
     ranges = ["real_arm", {"pd_bandwidth_hz": [10.0, 40.0]}]
     trained = EnvConfig.make("real_arm", mechanism_ranges=ranges, observe_arm=True,
@@ -357,31 +330,10 @@ def test_a_model_trained_on_drawn_gains_runs_on_the_users_tuned_gains():
         check_model_env(phase, arm, "model")
 
 
-def test_the_benchmark_runs_a_residual_on_drawn_gains_on_the_arms_tuned_pd(tmp_path):
-    """In the realism section (and its ablation) a residual trained on drawn PD gains runs on
-    the arm with the gains tendon2r-tune-pd found there; any other policy on the arm as is."""
-    import json
-
-    from tendon2r_gym.benchmark import on_its_pd
-
-    ranges = {"drawn": ["real_arm", {"pd_bandwidth_hz": [10.0, 40.0]}], "fixed": "real_arm"}
-    models = {}
-    for name, value in ranges.items():
-        (tmp_path / name).mkdir()
-        config = EnvConfig.make("real_arm", mechanism_ranges=value).to_dict()
-        record = {"seed": 0, "env_kwargs": {}, "env_config": config}
-        (tmp_path / name / "run.json").write_text(json.dumps(record))
-        models[name] = tmp_path / name / "best_model.zip"
-    arm, tuned = {"preset": "real_arm"}, {"preset": "real_arm", "pd_gains": {"bandwidth_hz": 20}}
-    assert on_its_pd(arm, tuned, models["drawn"]) is tuned
-    assert on_its_pd(arm, tuned, models["fixed"]) is arm
-    assert on_its_pd(arm, tuned, None) is arm
-
-
 def test_a_drawn_delay_phase_schedules_each_episodes_pd_on_its_loop_delay():
     """pd_max_delay_phase drawn (the env's own gains set none): each episode's PD is held to
     the drawn phase over the arm's loop delay, and the env builds and observes it."""
-    from tendon2r_gym.gains import loop_delay
+    from tendon2r_gym.task.gains import loop_delay
 
     kwargs = {"preset": "real_arm", "observe_arm": True}
     ranges = ["real_arm", {"pd_max_delay_phase": [0.3, 0.6]}]
@@ -402,7 +354,7 @@ def test_a_tuned_phase_draws_each_arms_bandwidth_as_a_tuning_would_pick_it():
     """pd_tuned_phase: each episode's bandwidth takes a phase in the range of the drawn arm's
     true loop (w tau / sqrt(density_scale)), clipped to pd_bandwidth_hz's range, so a heavier
     or faster arm gets a stiffer PD; the rule survives the run's record (to_dict)."""
-    from tendon2r_gym.gains import loop_delay, tuned_bandwidth
+    from tendon2r_gym.task.gains import loop_delay, tuned_bandwidth
 
     lo, hi, phase = 10.0, 40.0, (0.5, 0.7)
     ranges = ["real_arm", {"pd_bandwidth_hz": [lo, hi], "pd_tuned_phase": list(phase)}]

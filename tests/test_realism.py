@@ -1,4 +1,5 @@
-"""Real tendons and motors (tendon2r_gym.realism), checked on the compiled MuJoCo model."""
+"""Real tendons and motors (tendon2r_gym.simulation.realism), checked on the compiled MuJoCo
+model."""
 
 import math
 
@@ -8,11 +9,10 @@ import numpy as np
 import pytest
 
 from tendon2r_gym import Mechanism, build_model
-from tendon2r_gym.arms import MechanismRanges
-from tendon2r_gym.mechanism import REALISM_LIMITS
-from tendon2r_gym.model import motor_name, to_xml
-from tendon2r_gym.realism import Drive, cable_tensions
-from tendon2r_gym.stability import rates
+from tendon2r_gym.simulation.mechanism import REALISM_LIMITS
+from tendon2r_gym.simulation.model import motor_name, to_xml
+from tendon2r_gym.simulation.realism import Drive, cable_tensions
+from tendon2r_gym.simulation.stability import rates
 
 PUSH_PULL = Mechanism(max_tendon_force=1.0)
 PULL_ONLY = Mechanism(routing="n_plus_1", pull_only=True, max_tendon_force=1.0)
@@ -218,7 +218,7 @@ def test_env_starts_at_rest_and_reports_cable_tension(preset):
 def test_late_observation_is_the_state_k_steps_before():
     """observation_delay = k ctrl_dt: the observed q and dq are the true ones of k steps before
     (the reset state until then); reward and info stay on the true state."""
-    from tendon2r_gym.observation import DQ, Q
+    from tendon2r_gym.task.observation import DQ, Q
 
     k = 3
     env = gym.make("Tendon2R-v0", observation_delay=k * 0.001)
@@ -239,7 +239,7 @@ def test_late_observation_is_the_state_k_steps_before():
 
 
 def test_noise_has_its_std_and_the_same_seed_gives_the_same_noise():
-    from tendon2r_gym.observation import DQ, Q
+    from tendon2r_gym.task.observation import DQ, Q
 
     std = (1e-3, 0.05)
     env = gym.make("Tendon2R-v0", observation_noise=list(std))
@@ -259,31 +259,11 @@ def test_noise_has_its_std_and_the_same_seed_gives_the_same_noise():
         gym.make("Tendon2R-v0", observation_delay=0.0015)
 
 
-def test_real_arm_preset_and_perturbed_arms():
-    """real_arm turns every effect on over the pull_only arm; the perturbed arms are valid,
-    seeded and inside PERTURBATIONS; PD keeps real_arm stable."""
-    from tendon2r_gym.benchmark import perturbed_arms
-    from tendon2r_gym.env_config import EnvConfig
-    from tendon2r_gym.evaluation import evaluate
-    from tendon2r_gym.realism import PERTURBATIONS
-
-    real, ideal = EnvConfig.make("real_arm"), EnvConfig.make("pull_only")
-    assert all(getattr(real.mechanism, k) > 0 for k in REALISM_LIMITS) and real.sensed
-    assert real.mechanism.ideal() == ideal.mechanism  # same arm, same auto force limit
-    arms = perturbed_arms("real_arm", 4, 7)
-    assert arms == perturbed_arms("real_arm", 4, 7) != perturbed_arms("real_arm", 4, 8)
-    ranges = MechanismRanges.from_value(PERTURBATIONS)
-    for kwargs in arms:
-        assert not ranges.violations(EnvConfig.make(**kwargs))
-    metrics, _ = evaluate("pd", {"preset": "real_arm"}, [0])
-    assert max(metrics["rms_deg"]) < 1.0  # stable (the ideal arm: 0.09 deg)
-
-
 def test_model_errors_change_the_simulated_arm_and_not_the_controllers_model():
     """density_scale scales every moving mass and inertia of the compiled model, and
     extra_joint_damping adds to each joint's damping; PD's and CT's model stays the nominal
     one, and the stability criterion sees the true inertia and damping."""
-    from tendon2r_gym.policies import ComputedTorquePolicy, PDPolicy
+    from tendon2r_gym.policies.baselines import ComputedTorquePolicy, PDPolicy
 
     nominal = PUSH_PULL.replace(joint_damping=1e-6)
     wrong = nominal.replace(density_scale=1.7, extra_joint_damping=3e-6)
@@ -307,10 +287,10 @@ def test_model_errors_change_the_simulated_arm_and_not_the_controllers_model():
 def test_a_model_of_the_ideal_arm_loads_on_the_real_one_only():
     """check_model_env compares the nominal arms: real cables and sensors are deployment
     conditions, another geometry is another arm."""
-    from tendon2r_gym.learned import check_model_env
+    from tendon2r_gym.policies.learned import check_model_env
 
     recorded = gym.make("Tendon2R-v0", preset="pull_only").unwrapped.config.to_dict()
-    from tendon2r_gym import observation
+    from tendon2r_gym.task import observation
 
     recorded["observation"] = observation.layout(3, 3)
     check_model_env(recorded, gym.make("Tendon2R-v0", preset="real_arm"), "model")
@@ -326,7 +306,7 @@ def test_moment_arm_rows_are_the_dense_matrix(preset):
     """MomentArms.rows (floats, the env's info) is MomentArms.dense (the array PD reads) bit for
     bit, on the ideal model and on a realistic one (spools, friction tendons, sparse ten_J),
     and the info's condition number is actuation.cond of it."""
-    from tendon2r_gym.actuation import cond
+    from tendon2r_gym.simulation.actuation import cond
 
     env = gym.make("Tendon2R-v0", preset=preset)
     env.reset(seed=0)

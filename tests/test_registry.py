@@ -6,10 +6,10 @@ import shlex
 
 import pytest
 
-from tendon2r_gym.bundle import bundle_meta, bundle_names, bundled_model
-from tendon2r_gym.env_config import EnvConfig
-from tendon2r_gym.registry import GROUPS, contract_hash, names, shipped
-from tendon2r_gym.runs import RunFolder, stem_of
+from tendon2r_gym.envs.env_config import EnvConfig
+from tendon2r_gym.policies.bundle import bundle_meta, bundle_names, bundled_model
+from tendon2r_gym.policies.registry import GROUPS, contract_hash, names, shipped
+from tendon2r_gym.policies.runs import RunFolder, stem_of
 from tendon2r_gym.training import Hyperparams
 
 

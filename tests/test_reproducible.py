@@ -1,5 +1,5 @@
 """Reproducible figures: a learned policy's actions are the same bits whatever torch's threads
-and CPU kernels (tendon2r_gym.inference), and a benchmark rerun gives the same rows."""
+and CPU kernels (tendon2r_gym.policies.inference), and a benchmark rerun gives the same rows."""
 
 import hashlib
 import math
@@ -12,8 +12,8 @@ import pytest
 import torch
 from stable_baselines3 import PPO
 
-from tendon2r_gym import inference
-from tendon2r_gym.bundle import bundled_model
+from tendon2r_gym.policies import inference
+from tendon2r_gym.policies.bundle import bundled_model
 
 #: A plain MlpPolicy (three commands, residual) and a SplitViewPolicy (masked actor input).
 BUNDLES = ("pull_only", "real_arm")
@@ -42,11 +42,11 @@ def test_the_exact_actor_is_sb3s_deterministic_predict_to_float32_rounding(bundl
 
 
 def test_every_model_the_benchmark_runs_has_an_exact_actor():
-    from tendon2r_gym import benchmark
-    from tendon2r_gym.bundle import bundle_meta
+    from tendon2r_gym.app import benchmark
+    from tendon2r_gym.policies.bundle import bundle_meta
 
     names = {p + s for p in benchmark.PRESETS for s, _ in benchmark.LEARNED.values()}
-    names |= {"random_reference", benchmark.REALISM_BUNDLE, benchmark.RANDOMIZED_BUNDLE}
+    names |= {"random_reference", "real_arm"}  # and the real-arm study's residual
     for name in sorted(names):
         for seed in bundle_meta(name)["seeds"]:
             policy = PPO.load(bundled_model(name, seed), device="cpu").policy
@@ -89,17 +89,19 @@ def _digest(bundle: str) -> str:
     return hashlib.sha256(inference.predict(model, _observations(model))[0].tobytes()).hexdigest()
 
 
-#: A short benchmark: the ideal-trained residual of the realism section on the arm where it
-#: moved most between machines, three episodes (SB3 batches them: a batch of three).
-SHORT_ARM = "perturbed 3"
+#: A short benchmark: the residual trained on the ideal pull-only arm, on the same arm with
+#: real cables, motors and sensors (where its figures move most with its last bits), three
+#: episodes (SB3 batches them: a batch of three).
+SHORT_ARM = {"preset": "real_arm", "episode_duration": 0.2}
+SHORT_BUNDLE = "pull_only"
 SHORT_SEEDS = [0, 1, 2]
 
 
 def _short_rows(learned_only: bool = False) -> list[dict]:
-    from tendon2r_gym import benchmark
+    from tendon2r_gym.app import benchmark
 
-    kwargs = {**dict(benchmark.realism_arms())[SHORT_ARM], "episode_duration": 0.2}
-    model = bundled_model(benchmark.REALISM_BUNDLE)
+    kwargs = SHORT_ARM
+    model = bundled_model(SHORT_BUNDLE)
     if learned_only:
         rows = [benchmark._row("short", "ppo residual", "ppo", kwargs, SHORT_SEEDS, model, None)]
     else:
@@ -149,7 +151,9 @@ def test_a_figure_within_its_tolerance_keeps_its_printed_digits_on_other_arithme
     """The rows' tolerances are measured by the run itself; where a row's is below the
     printed precision, SB3's float32 network (another machine's arithmetic, in the last
     float32 bits) prints the same figures."""
-    from tendon2r_gym.benchmark import PRINTED, REPRO_RUNS, _fmt
+    from tendon2r_gym.app.report import PRINTED
+    from tendon2r_gym.app.report import fmt as _fmt
+    from tendon2r_gym.evaluation.evaluator import REPRO_RUNS
 
     ours = _short_rows()
     assert REPRO_RUNS >= 1 and all(len(r["rms_deg_jittered"]) == REPRO_RUNS for r in ours)
@@ -167,21 +171,9 @@ def test_a_figure_within_its_tolerance_keeps_its_printed_digits_on_other_arithme
 
 
 def test_the_tables_print_each_rows_tolerance_beside_it():
-    from tendon2r_gym.benchmark import PRINTED, realism_lines, table
+    from tendon2r_gym.app.report import table
 
     row = {"env": "e", "policy": "pd", "rms_deg": [0.1, 0.2], "max_deg": [0.3, 0.4]}
     lines = table([{**row, "reproducible_to": [0.0, 3.2e-9]}])
     assert lines[0].split(" | ")[3] == "reproducible to (deg)"
     assert "| e | pd | 0.1000 / 0.2000 | 0 / 3.2e-09 | 0.300 / 0.400 |" in lines[2]
-    cell = lambda rms, tol: {"rms_deg": rms, "reproducible_to": tol, **force}  # noqa: E731
-    force = {"rms_tension_N": [1.0] * 3, "rms_tension_rate_N_per_s": [1.0] * 3}
-    arm = {
-        "arm": "a", "pd": cell([1.0, 1.0], [0.0, 0.0]), "ct": cell([0.5, 0.5], [1e-9, 0.0]),
-        "pd_tuned": {**cell([0.5, 0.5], [0.0, 0.0]), "bandwidth_hz": 12.3},
-        "ppo": cell([2.5, 7.2], [1.3, PRINTED]), "randomized": cell([0.2, 0.1], [PRINTED / 2, 0]),
-    }  # fmt: skip
-    text = "\n".join(realism_lines([arm]))
-    assert (
-        "| a | 1.0000 / 1.0000 | 0.5000 / 0.5000 (12.3 Hz) | 0.5000 / 0.5000 | "
-        "2.5000 / 7.2000 *to 1.3 / 5e-05* (7.20x) | 0.2000 / 0.1000 (0.20x) |" in text
-    )

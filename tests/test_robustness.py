@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from tendon2r_gym import Mechanism, Reference, ReferenceRanges
-from tendon2r_gym.env import Tendon2REnv
-from tendon2r_gym.model import build_model
-from tendon2r_gym.stability import LIMITS, rates
+from tendon2r_gym.envs.env import Tendon2REnv
+from tendon2r_gym.simulation.model import build_model
+from tendon2r_gym.simulation.stability import LIMITS, rates
 
 RANGES = {"amp_deg": [[5, 20], [5, 20]], "freq_hz": [[0.5, 3], [0.5, 3]],
           "bias_deg": [[-10, 10], [-10, 10]]}  # fmt: skip
@@ -130,7 +130,7 @@ def test_numpy_numbers_are_numbers(kwargs):
 
 def test_the_largest_reward_weights_give_a_finite_reward():
     """Every weight at its bound, from a start far off the reference: the reward is finite."""
-    from tendon2r_gym.rewards import MAX_REWARD_WEIGHT, REWARD_SCALES
+    from tendon2r_gym.task.rewards import MAX_REWARD_WEIGHT, REWARD_SCALES
 
     scales = dict.fromkeys(REWARD_SCALES, MAX_REWARD_WEIGHT)
     env = gym.make("Tendon2R-v0", reward_scales=scales, action_mode="joint_torque")
@@ -141,7 +141,7 @@ def test_the_largest_reward_weights_give_a_finite_reward():
 
 
 def test_the_vector_env_takes_numpy_seeds():
-    from tendon2r_gym.vector_env import Tendon2RVectorEnv
+    from tendon2r_gym.envs.vector_env import Tendon2RVectorEnv
 
     envs = Tendon2RVectorEnv(2)
     a, _ = envs.reset(seed=np.array([3, 4]))

@@ -16,8 +16,8 @@ import yaml
 from stable_baselines3 import PPO
 from test_training import _tiny, _train
 
-from tendon2r_gym.cli import TrainArgs, experiment, parse, train_main
-from tendon2r_gym.runs import RunFolder, saved_steps, training_record
+from tendon2r_gym.app.cli import TrainArgs, experiment, parse, train_main
+from tendon2r_gym.policies.runs import RunFolder, saved_steps, training_record
 from tendon2r_gym.training import Experiment, Hyperparams, manager
 from tendon2r_gym.training.manager import RunWriteError
 
@@ -179,7 +179,7 @@ def after_checkpoint(self, steps):
         setattr(os, name, guard(getattr(os, name)))
 
 manager.Segment.checkpoint = after_checkpoint
-from tendon2r_gym.cli import train
+from tendon2r_gym.app.cli import train
 train()
 """
 
@@ -218,7 +218,7 @@ def test_a_failed_write_keeps_the_last_state_and_the_run_resumes(tmp_path, monke
     """A full disk while recording an evaluation: training stops with a RunWriteError (a
     ValueError: the command's one-line error) naming the folder and the OS error, after
     saving last_model where the run stood, from which --resume continues."""
-    from tendon2r_gym.runs import RunFolder as Folder
+    from tendon2r_gym.policies.runs import RunFolder as Folder
 
     append = Folder.append_evaluation
 

@@ -11,7 +11,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import VecNormalize
 
 import tendon2r_gym  # noqa: F401 (registers Tendon2R-v0)
-from tendon2r_gym.runs import CONFIG, RunFolder
+from tendon2r_gym.policies.runs import CONFIG, RunFolder
 from tendon2r_gym.training import Hyperparams, train_run
 from tendon2r_gym.training.hyperparams import Smoothing
 from tendon2r_gym.training.manager import _load_newest

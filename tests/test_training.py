@@ -14,13 +14,13 @@ import yaml
 from stable_baselines3 import PPO
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
-from tendon2r_gym.bundle import bundle_meta, bundle_runs, bundled_model
-from tendon2r_gym.cli import TrainArgs, experiment, parse, train_main
-from tendon2r_gym.evaluation import evaluate
-from tendon2r_gym.learned import PPOPolicy, residual_command
-from tendon2r_gym.metrics import beats, selection_rank, within_limits
+from tendon2r_gym.app.cli import TrainArgs, experiment, parse, train_main
+from tendon2r_gym.evaluation.evaluator import evaluate
+from tendon2r_gym.evaluation.metrics import beats, selection_rank, within_limits
+from tendon2r_gym.policies.bundle import bundle_meta, bundle_runs, bundled_model
+from tendon2r_gym.policies.learned import PPOPolicy, residual_command
+from tendon2r_gym.policies.runs import RunFolder
 from tendon2r_gym.presets import PPO_CONFIG
-from tendon2r_gym.runs import RunFolder
 from tendon2r_gym.training import Hyperparams
 from tendon2r_gym.training.hyperparams import scaled_schedule
 
@@ -242,7 +242,7 @@ def test_hyperparams_are_validated_once_naming_the_field(field, value, match):
 
 def _start_training(tmp_path, seeds, steps, *more):
     config = _tiny(tmp_path, steps=steps, checkpoint_minutes=0.005)
-    cmd = [sys.executable, "-c", "from tendon2r_gym.cli import train; train()", "--config",
+    cmd = [sys.executable, "-c", "from tendon2r_gym.app.cli import train; train()", "--config",
            str(config), "--hyperparams", "tiny", "--run-dir", str(tmp_path / "run"), "--seeds",
            *map(str, seeds), *more]  # fmt: skip
     env = {**os.environ, "MUJOCO_GL": "egl"}
@@ -381,7 +381,7 @@ def test_fine_tuning_starts_from_a_generalists_weights_on_an_arm_inside_its_rang
 def test_the_registered_fine_tune_trains_on_its_generalists_reward():
     """generalist_finetune trains on the reward its source entry trained on (tracking form,
     sigma, every weight), as the env resolves them; only the arm differs."""
-    from tendon2r_gym.env_config import EnvConfig
+    from tendon2r_gym.envs.env_config import EnvConfig
 
     tune = Hyperparams.from_entry("generalist_finetune")
     source = Hyperparams.from_entry(tune.init_from)
@@ -398,7 +398,7 @@ def test_a_filtered_residual_trains_deploys_and_fine_tunes_with_its_filter(tmp_p
     """residual_filter_tau: run.json records it; PPOPolicy.load adds PD to the model's residual
     through the same filter, restarted with each episode; the eval callback's score is the
     loaded policy's; a fine-tune takes its source's filter; it needs a residual."""
-    from tendon2r_gym.evaluation import evaluate
+    from tendon2r_gym.evaluation.evaluator import evaluate
 
     tau = 0.005
     _train(_tiny(tmp_path, residual_filter_tau=tau), tmp_path / "run")
@@ -440,8 +440,8 @@ def test_a_residual_relative_to_the_need_trains_deploys_and_fine_tunes_with_it(t
     each joint's torque need over its torque range, the same in one env and in the vector
     rollouts (one arm, several episodes); a fine-tune takes its source's scale, a plain entry
     none; it needs a residual in joint-torque mode."""
-    from tendon2r_gym.evaluation import evaluate
-    from tendon2r_gym.rollout import rollout
+    from tendon2r_gym.evaluation.evaluator import evaluate
+    from tendon2r_gym.evaluation.rollout import rollout
 
     env = {"action_mode": "joint_torque"}
     _train(_tiny(tmp_path, residual=1.5, env=env, residual_relative_to="need"), tmp_path / "run")
@@ -452,7 +452,7 @@ def test_a_residual_relative_to_the_need_trains_deploys_and_fine_tunes_with_it(t
     single = gym.make("Tendon2R-v0", **kwargs)
     policy = PPOPolicy.load(model_path, single)
     config = single.unwrapped.config
-    scale = 1.5 * np.array(config.torque_need) / policy.pd.actuation.max_torque
+    scale = 1.5 * np.array(config.needs.torque_need) / policy.pd.actuation.max_torque
     assert 0 < scale.min() and scale.max() < 1.5
     obs, info = single.reset(seed=1)
     policy.reset(info)
@@ -525,8 +525,8 @@ def test_a_residual_trained_on_tuned_gains_is_scored_and_loaded_with_them(tmp_pa
     """pd_gains of the training env are the residual's PD everywhere: the eval callback's
     score equals a fresh evaluation of the loaded best model on an env without pd_gains
     (PPOPolicy.load takes the recorded gains), and the PD under it uses them."""
-    from tendon2r_gym.evaluation import evaluate
-    from tendon2r_gym.gains import Gains
+    from tendon2r_gym.evaluation.evaluator import evaluate
+    from tendon2r_gym.task.gains import Gains
 
     config = _tiny(tmp_path)
     cfg = yaml.safe_load(config.read_text())
@@ -551,7 +551,7 @@ def test_arm_features_for_one_network_only(tmp_path, hidden, who):
     import torch
     from stable_baselines3 import PPO
 
-    from tendon2r_gym.observation import arm_slice
+    from tendon2r_gym.task.observation import arm_slice
 
     config = _tiny(tmp_path)
     cfg = yaml.safe_load(config.read_text())
@@ -586,8 +586,8 @@ def test_one_drawn_field_hidden_from_the_actor():
     fields; the critic reads them all.  An unknown field is refused by name."""
     import torch
 
-    from tendon2r_gym.env_config import EnvConfig
-    from tendon2r_gym.observation import arm_slice
+    from tendon2r_gym.envs.env_config import EnvConfig
+    from tendon2r_gym.task.observation import arm_slice
 
     env_kwargs = {"preset": "generalist", "observe_arm": True, "episode_duration": 0.1}
     hp = Hyperparams.from_entry("default").replace(
@@ -621,9 +621,9 @@ def test_a_model_that_observed_its_arm_runs_on_one_fixed_arm(tmp_path, force_lim
     the very features the training env would compute for that arm, and acts on them.  A model
     that observed the force limit runs on the arm's env with the model's settings
     (in_model_settings, as the benchmark makes it), which observes that arm's own limit."""
-    from tendon2r_gym.arms import MechanismRanges
-    from tendon2r_gym.evaluation import evaluate
-    from tendon2r_gym.learned import in_model_settings
+    from tendon2r_gym.evaluation.evaluator import evaluate
+    from tendon2r_gym.policies.learned import in_model_settings
+    from tendon2r_gym.task.arms import MechanismRanges
 
     config = _tiny(tmp_path)
     cfg = yaml.safe_load(config.read_text())
@@ -670,8 +670,8 @@ def test_frame_stack_trains_resumes_and_deploys_as_sb3_stacks(tmp_path, stride):
     policy's.  A run resumes with its stack."""
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
-    from tendon2r_gym.evaluation import evaluate
-    from tendon2r_gym.history import stacked
+    from tendon2r_gym.evaluation.evaluator import evaluate
+    from tendon2r_gym.policies.history import stacked
 
     config = _tiny(tmp_path, frame_stack=3, frame_stride=stride)
     run_dir = tmp_path / "run"
@@ -719,9 +719,9 @@ def test_fine_tuning_a_generalist_that_observed_its_arm(tmp_path):
     features over the source's ranges; deployed on the arm's plain env it appends them
     (the same actions as on an env that observes them) and reproduces its training
     evaluation; it is refused on another arm."""
-    from tendon2r_gym.arms import MechanismRanges
-    from tendon2r_gym.env_config import EnvConfig
-    from tendon2r_gym.evaluation import evaluate
+    from tendon2r_gym.envs.env_config import EnvConfig
+    from tendon2r_gym.evaluation.evaluator import evaluate
+    from tendon2r_gym.task.arms import MechanismRanges
 
     config = _tiny(tmp_path)
     cfg = yaml.safe_load(config.read_text())

@@ -7,19 +7,19 @@ import numpy as np
 import pytest
 import yaml
 
-from tendon2r_gym.env_config import EnvConfig
-from tendon2r_gym.evaluation import evaluate
-from tendon2r_gym.gains import Gains, default_gains, loop_delay
-from tendon2r_gym.learned import PPOPolicy, Residual, ResidualPDWrapper
-from tendon2r_gym.mechanism import Mechanism
-from tendon2r_gym.policies import ComputedTorquePolicy, PDPolicy
-from tendon2r_gym.tuning import (
+from tendon2r_gym.envs.env_config import EnvConfig
+from tendon2r_gym.evaluation.evaluator import evaluate
+from tendon2r_gym.evaluation.tuning import (
     GRID_RATIO,
     MIN_BANDWIDTH_HZ,
     bandwidth_grid,
     delay_phase_grid,
     tune_pd,
 )
+from tendon2r_gym.policies.baselines import ComputedTorquePolicy, PDPolicy
+from tendon2r_gym.policies.learned import PPOPolicy, Residual, ResidualPDWrapper
+from tendon2r_gym.simulation.mechanism import Mechanism
+from tendon2r_gym.task.gains import Gains, default_gains, loop_delay
 
 #: An arm whose motor lag and delays make the default 30 Hz PD diverge.
 LAGGING = {"preset": "real_arm", "mechanism": {"motor_delay": 0.002, "motor_tau": 0.004},
@@ -89,7 +89,7 @@ def test_tuning_finds_stable_gains_where_the_default_diverges():
 
 
 def test_tune_pd_command_writes_a_file_that_tunes_to_itself(tmp_path):
-    from tendon2r_gym.cli import tune_pd_main
+    from tendon2r_gym.app.cli import tune_pd_main
 
     arm = tmp_path / "arm.yaml"
     overrides = {k: v for k, v in LAGGING.items() if k != "preset"}

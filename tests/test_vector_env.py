@@ -4,15 +4,15 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from tendon2r_gym.policies import PDPolicy
-from tendon2r_gym.vector_env import Tendon2RVectorEnv
+from tendon2r_gym.envs.vector_env import Tendon2RVectorEnv
+from tendon2r_gym.policies.baselines import PDPolicy
 
 RANGES = {"amp_deg": [[5, 20], [5, 20]], "freq_hz": [[0.5, 3], [0.5, 3]],
           "bias_deg": [[-10, 10], [-10, 10]]}  # fmt: skip
-#: Every realism effect on (tendon2r_gym.realism).
+#: Every realism effect on (tendon2r_gym.simulation.realism).
 REAL = {"tendon_elasticity": 3000.0, "tendon_damping": 1.0, "tendon_friction": 0.01,
         "motor_tau": 0.004, "motor_delay": 0.002}  # fmt: skip
-#: Random arms with random cables and motors (tendon2r_gym.arms.MechanismRanges).
+#: Random arms with random cables and motors (tendon2r_gym.task.arms.MechanismRanges).
 ARMS = {"c": [0.08, 0.1], "tendon_elasticity": [2000.0, 6000.0], "motor_tau": [0.001, 0.004],
         "tendon_friction": [0.005, 0.02], "joint_damping": [0.0, 1e-4]}  # fmt: skip
 
@@ -155,7 +155,7 @@ def test_bad_constructor_arguments_raise_naming_the_field(kwargs, match):
 
 def test_default_threads_follow_the_number_of_arms(monkeypatch):
     """One MuJoCo thread per ARMS_PER_THREAD arms, at least one, at most the usable CPUs."""
-    from tendon2r_gym import vector_env
+    from tendon2r_gym.envs import vector_env
 
     monkeypatch.setattr(vector_env.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
     per = vector_env.ARMS_PER_THREAD
@@ -192,8 +192,8 @@ def test_sb3_adapter_steps_like_dummy_vec_env(kwargs):
     episodes."""
     from stable_baselines3.common.env_util import make_vec_env
 
-    from tendon2r_gym.learned import Residual, make_training_env
-    from tendon2r_gym.vector_env_sb3 import SB3VecEnv
+    from tendon2r_gym.policies.learned import Residual, make_training_env
+    from tendon2r_gym.training.vector_env_sb3 import SB3VecEnv
 
     native = SB3VecEnv(Tendon2RVectorEnv(3, autoreset_mode="SameStep", **kwargs), Residual(0.5))
     dummy = make_vec_env(make_training_env, n_envs=3,
@@ -221,8 +221,8 @@ def test_sb3_adapter_filters_the_residual_as_the_wrapper_does():
     ResidualPDWrapper's, each slot's restarting with its episode (8-step episodes here)."""
     from stable_baselines3.common.env_util import make_vec_env
 
-    from tendon2r_gym.learned import Residual, make_training_env
-    from tendon2r_gym.vector_env_sb3 import SB3VecEnv
+    from tendon2r_gym.policies.learned import Residual, make_training_env
+    from tendon2r_gym.training.vector_env_sb3 import SB3VecEnv
 
     kwargs = {"episode_duration": 0.008}
     filtered = Residual(0.5, filter_tau=0.004)
@@ -269,8 +269,8 @@ def test_sb3_adapter_scales_the_residual_to_each_arms_need_as_the_wrapper_does()
     slot's arm, through every autoreset to a new arm."""
     from stable_baselines3.common.env_util import make_vec_env
 
-    from tendon2r_gym.learned import Residual, make_training_env
-    from tendon2r_gym.vector_env_sb3 import SB3VecEnv
+    from tendon2r_gym.policies.learned import Residual, make_training_env
+    from tendon2r_gym.training.vector_env_sb3 import SB3VecEnv
 
     kwargs = {"preset": "generalist", "action_mode": "joint_torque", "episode_duration": 0.008}
     need = Residual(1.5, relative_to="need")

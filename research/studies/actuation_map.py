@@ -7,7 +7,7 @@ and why pull-only tendons need three.
 
 cond(J) near 1 means the tendons drive both joints equally well.  The margin (deg) is pi minus
 the largest angular gap between the moment-arm rows: > 0 where pull-only tendons can produce
-any joint torque (tendon2r_gym.routing.positive_span); two tendons never reach it.
+any joint torque (tendon2r_gym.simulation.routing.positive_span); two tendons never reach it.
 """
 
 from __future__ import annotations
@@ -23,11 +23,11 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from tendon2r_gym.actuation import ActuationAnalysis  # noqa: E402
-from tendon2r_gym.cli import arg, parse  # noqa: E402
-from tendon2r_gym.env_config import EnvConfig  # noqa: E402
-from tendon2r_gym.model import build_model  # noqa: E402
-from tendon2r_gym.routing import ROUTINGS  # noqa: E402
+from tendon2r_gym.app.cli import arg, parse  # noqa: E402
+from tendon2r_gym.envs.env_config import EnvConfig  # noqa: E402
+from tendon2r_gym.simulation.actuation import ActuationAnalysis  # noqa: E402
+from tendon2r_gym.simulation.model import build_model  # noqa: E402
+from tendon2r_gym.simulation.routing import ROUTINGS  # noqa: E402
 
 
 @dataclass

@@ -4,7 +4,7 @@
     python -m research.studies.arm_sweep --arms default --train-steps 2048 --out runs/x   # smoke
 
 Arms: the bundled presets, the example arm (configs/examples/my_arm.yaml) and ``--n-random``
-arms drawn with ``--arm-seed`` from the course's ranges by tendon2r_gym.arms.draw_arms.  Each
+arms drawn with ``--arm-seed`` from the course's ranges by tendon2r_gym.task.arms.draw_arms.  Each
 arm is written as an experiment file and run through the same code path as
 ``tendon2r-benchmark --env-config ARM.yaml``: plain and residual PPO trained with the shipped
 hyperparameters (one seed, no per-arm tuning), then PD, CT and both on the same episodes.
@@ -26,23 +26,23 @@ from typing import Annotated, Any, Literal
 import yaml
 
 from research.studies import joints, one_or_more, save_json
-from tendon2r_gym.arms import draw_arms
-from tendon2r_gym.benchmark import benchmark_own_arm
-from tendon2r_gym.cli import arg, parse
-from tendon2r_gym.env_config import ACTION_MODES, EnvConfig
-from tendon2r_gym.metrics import (
+from tendon2r_gym.app.benchmark import benchmark_own_arm
+from tendon2r_gym.app.cli import arg, parse
+from tendon2r_gym.envs.env_config import ACTION_MODES, EnvConfig
+from tendon2r_gym.evaluation.metrics import (
     RATE_LIMIT_X_PD,
     TENSION_LIMIT_X_PD,
     beats,
     smoothness_x_pd,
     within_limits,
 )
+from tendon2r_gym.policies.runs import command_line
 from tendon2r_gym.presets import load_yaml, preset_path
-from tendon2r_gym.runs import command_line
+from tendon2r_gym.task.arms import draw_arms
 from tendon2r_gym.validation import invalid
 
 PRESETS = ("default", "report_002", "pull_only")
-#: The sweep's learned rows (tendon2r_gym.benchmark.LEARNED labels), by --only's names.
+#: The sweep's learned rows (tendon2r_gym.app.benchmark.LEARNED labels), by --only's names.
 ROWS = {"scratch": "ppo scratch", "residual": "ppo residual"}
 Row = Literal[tuple(ROWS)]  # type: ignore[valid-type]
 ActionMode = Literal[ACTION_MODES]  # type: ignore[valid-type]

@@ -4,7 +4,7 @@
     python -m research.studies.generalist --n-arms 2 --episodes 1 --out runs/x      # smoke
 
 Arms: ``--n-arms`` arms drawn with ``--arm-seed`` from the course's ranges by
-tendon2r_gym.arms.draw_arms (training never draws from this generator: its arms come from the
+tendon2r_gym.task.arms.draw_arms (training never draws from this generator: its arms come from the
 envs' own seeded generators), each an experiment file; plus the arm sweep's arms
 (research/results/arm_sweep.json) that lie inside the generalist's ranges, with their per-arm
 specialists (the sweep's residuals, trained on that arm alone, one per action mode).
@@ -19,7 +19,8 @@ the specialist's training steps: does it reach the specialist's error within the
 Summary per learned policy: the fraction of arms where it is <= PD on both joints, the
 median worst-joint ratio of its RMS error to PD's, its RMS tension and tension rate as
 multiples of PD's (median and largest), the arms where it keeps the smoothness limits
-(tendon2r_gym.metrics) and where it is also <= PD, and the fraction of arms where it is <=
+(tendon2r_gym.evaluation.metrics) and where it is also <= PD, and the fraction of arms where it is
+<=
 the specialist of its own action mode.
 """
 
@@ -34,20 +35,11 @@ import numpy as np
 import yaml
 
 from research.studies import joints, save_json
-from tendon2r_gym.arms import GEOMETRY, draw_arms
-from tendon2r_gym.benchmark import GENERALISTS, LEARNED
-from tendon2r_gym.bundle import bundle_meta, bundle_names, bundled_model
-from tendon2r_gym.cli import arg, parse
-from tendon2r_gym.env_config import EnvConfig
-from tendon2r_gym.evaluation import evaluate
-from tendon2r_gym.learned import (
-    Residual,
-    feature_ranges,
-    in_model_settings,
-    model_settings,
-    observes_arm,
-)
-from tendon2r_gym.metrics import (
+from tendon2r_gym.app.benchmark import GENERALISTS, LEARNED
+from tendon2r_gym.app.cli import arg, parse
+from tendon2r_gym.envs.env_config import EnvConfig
+from tendon2r_gym.evaluation.evaluator import evaluate
+from tendon2r_gym.evaluation.metrics import (
     RATE_LIMIT_X_PD,
     SETTLE_S,
     TENSION_LIMIT_X_PD,
@@ -56,10 +48,25 @@ from tendon2r_gym.metrics import (
     smoothness_x_pd,
     worst_ratio,
 )
-from tendon2r_gym.observation import OPTIONAL, layout_mask
+from tendon2r_gym.policies.bundle import bundle_meta, bundle_names, bundled_model
+from tendon2r_gym.policies.learned import (
+    Residual,
+    feature_ranges,
+    in_model_settings,
+    model_settings,
+    observes_arm,
+)
+from tendon2r_gym.policies.runs import (
+    RunFolder,
+    command_line,
+    stem_of,
+    training_record,
+    training_summary,
+)
 from tendon2r_gym.presets import load_yaml, preset_path
-from tendon2r_gym.rewards import REWARD_SCALES
-from tendon2r_gym.runs import RunFolder, command_line, stem_of, training_record, training_summary
+from tendon2r_gym.task.arms import GEOMETRY, draw_arms
+from tendon2r_gym.task.observation import OPTIONAL, layout_mask
+from tendon2r_gym.task.rewards import REWARD_SCALES
 from tendon2r_gym.training.hyperparams import LINEAR, Smoothing, linear_schedule
 from tendon2r_gym.validation import invalid
 
@@ -224,7 +231,8 @@ def specialist_rms(arm: dict[str, Any], mode: str) -> list[float] | None:
 def summarize(arms: dict[str, Any], bundles: list[str]) -> dict[str, Any]:
     """Returns, per bundle, over the unseen arms it covers: <= PD fraction, median and worst
     worst-joint ratio to PD, median and largest RMS-tension and tension-rate ratios to PD, the
-    arms where it keeps the smoothness limits (tendon2r_gym.metrics: of a residual or of plain
+    arms where it keeps the smoothness limits (tendon2r_gym.evaluation.metrics: of a residual or of
+    plain
     PPO) and those where it is also <= PD; over the sweep arms it covers: <= specialist
     fraction."""
     out = {}
@@ -310,7 +318,7 @@ def arm_seen_by(model_path: Path) -> str:
 
 
 def optional_entries(model_path: Path) -> str:
-    """Returns the optional observation entries (tendon2r_gym.observation.OPTIONAL) a bundled
+    """Returns the optional observation entries (tendon2r_gym.task.observation.OPTIONAL) a bundled
     model observed, as its run recorded its layout ("none" without any), then "errors in
     action units" where its errors were (error_units)."""
     recorded = training_record(model_path)["env_config"]
@@ -373,8 +381,8 @@ def finetune_curves(
     on the entry's evaluation seeds), with the generalist zero-shot and PD on the same
     episodes at step 0; and its best model's RMS on the study's ``seeds`` (the episodes the
     specialist was scored on), beside the specialist's."""
+    from tendon2r_gym.policies.runs import EVALUATIONS, SUMMARY
     from tendon2r_gym.presets import PPO_CONFIG
-    from tendon2r_gym.runs import EVALUATIONS, SUMMARY
     from tendon2r_gym.training import Experiment, Hyperparams, fine_tune
 
     out: dict[str, Any] = {}
@@ -457,7 +465,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     compared = ("generalist", PULL_ONLY_PRESET, "generalist_scratch", *ABLATIONS)
     result["ablation"] = ablation([b for b in compared if b in bundle_names()])
     for name, arm in arms.items():
-        arm["control_authority"] = list(EnvConfig.make(**arm["env_kwargs"]).control_authority)
+        arm["control_authority"] = list(EnvConfig.make(**arm["env_kwargs"]).needs.control_authority)
         arm["rows"] = evaluate_arm(arm["env_kwargs"], bundles, seeds)
         result["arms"][name] = arm
         result["summary"] = summarize(result["arms"], bundles)
@@ -489,7 +497,8 @@ def write(result: dict[str, Any], out: Path) -> None:
         "",
         f"Produced by `{result['command']}`. RMS tracking error (deg, joint A / B) over "
         f"evaluation seeds {result['seeds']}; for a generalist, (its worst joint's RMS as a "
-        "multiple of PD's). Unseen arms: drawn by tendon2r_gym.arms.draw_arms with a seed that "
+        "multiple of PD's). Unseen arms: drawn by tendon2r_gym.task.arms.draw_arms with a "
+        "seed that "
         "training never uses; sweep arms: research/results/arm_sweep.md, with their own "
         "specialist. "
         "generalist: residual on PD in joint-torque mode, its residual through a first-order "
@@ -602,7 +611,7 @@ def write(result: dict[str, Any], out: Path) -> None:
         "",
         "## Per arm",
         "",
-        "Control authority: each joint's EnvConfig.control_authority, the most its speed "
+        "Control authority: each joint's EnvConfig.needs.control_authority, the most its speed "
         "changes in one control step per unit of normalized joint-torque action (rad/s).",
         "",
         "| arm | R1 / R2 / a / b / c (mm) | control authority A / B (rad/s) | PD | CT | "
@@ -646,7 +655,7 @@ def transient_lines(arms: dict[str, Any], bundles: list[str]) -> list[str]:
         "",
         f"RMS error (deg, A / B) over whole episodes, and after each episode's first "
         f"{1000 * SETTLE_S:g} ms (settled: the transient that closes the reset's noise left "
-        f"out; tendon2r_gym.metrics.settled_rms_deg), for the generalist's seeds; the "
+        f"out; tendon2r_gym.evaluation.metrics.settled_rms_deg), for the generalist's seeds; the "
         f"specialist ({mode} mode) over whole episodes, all the sweep records.",
         "",
         "| arm | specialist | " + " | ".join(f"{b}: whole (settled)" for b in shown) + " |",
@@ -664,7 +673,8 @@ def transient_lines(arms: dict[str, Any], bundles: list[str]) -> list[str]:
 
 def _residual(config: dict[str, Any]) -> str:
     """Returns a run's residual (its recorded hyperparameters) as the ablation table shows it:
-    its scale and what the scale is relative to (tendon2r_gym.learned: each command's range,
+    its scale and what the scale is relative to (tendon2r_gym.policies.learned: each command's
+    range,
     a tendon's in tension mode, a joint's in joint-torque mode, or each joint's need), or none
     (plain PPO)."""
     residual = Residual.from_record(config)

@@ -26,7 +26,7 @@ if TYPE_CHECKING:
 import numpy as np
 
 from research.studies import joints, one_or_more, save_json
-from tendon2r_gym.cli import arg, parse
+from tendon2r_gym.app.cli import arg, parse
 
 #: Row name -> (what changes, env kwargs, hyperparameter changes).  Rows start from
 #: ``default_scratch`` unless their hyperparameter changes name another ``entry``.
@@ -145,7 +145,7 @@ def row_config(name: str, steps: int) -> Hyperparams:
 
 
 def _run(name: str, seed: int, steps: int, root: str) -> dict[str, Any]:
-    from tendon2r_gym.runs import RunFolder, seed_dir
+    from tendon2r_gym.policies.runs import RunFolder, seed_dir
     from tendon2r_gym.training import train_run
 
     run = RunFolder(seed_dir(Path(root) / name, seed))
@@ -172,7 +172,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     args = parse(Args, argv, __doc__)
     one_or_more("--seeds", args.seeds, "one or more seeds")
     one_or_more("--rows", args.rows, "one or more of the rows --help lists")
-    from tendon2r_gym.runs import command_line
+    from tendon2r_gym.policies.runs import command_line
 
     command = command_line(argv, "python -m research.studies.learnability")
     if args.render:  # re-render the tables of an earlier run's JSON (no training)
@@ -239,7 +239,7 @@ def _mean_rate(runs: list[dict[str, Any]]) -> float | None:
 
 def pd_tension_rate(env_kwargs: dict[str, Any], seeds: list[int]) -> float:
     """Returns PD's RMS tension rate (N/s) over tendons on the eval seeds."""
-    from tendon2r_gym.evaluation import evaluate
+    from tendon2r_gym.evaluation.evaluator import evaluate
 
     metrics, _ = evaluate("pd", env_kwargs, seeds)
     return float(np.sqrt(np.mean(np.square(metrics["rms_tension_rate_N_per_s"]))))

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
 
-from tendon2r_gym.cli import arg, parse
+from tendon2r_gym.app.cli import arg, parse
 
 #: The zoo hyperparameter file, relative to the repository (run from its root, as README does).
 ZOO_CONF = "configs/rl_zoo3/ppo.yml"
@@ -59,7 +59,7 @@ def zoo_command(args: Args, seed: int) -> list[str]:
 
 def main(argv: list[str] | None = None) -> dict:
     args = parse(Args, argv, __doc__)
-    from tendon2r_gym.runs import command_line
+    from tendon2r_gym.policies.runs import command_line
 
     command = command_line(argv, "python -m research.studies.optuna_search")
     Path(args.storage).parent.mkdir(parents=True, exist_ok=True)

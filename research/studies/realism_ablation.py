@@ -1,5 +1,5 @@
 """What the randomized residual sees, its network and its PD: finished real-arm runs on the
-realism section's arms.
+realism study's arms (research.studies.realism).
 
     python -m research.studies.realism_ablation \
         --runs runs/real_arm/seed_0 runs/real_arm_blind/seed_0
@@ -9,10 +9,10 @@ Each run (a folder written by ``tendon2r-train``, e.g. of the configs/ppo.yaml e
 ``real_arm``, ``real_arm_scheduled``, ``real_arm_oracle``, ``real_arm_history``,
 ``real_arm_blind``, ``real_arm_frame_stack`` and ``real_arm_gains``) gives its training record
 (best evaluation, its effort, steps and wall time) and its best model's (``--model last``: its
-last model's) RMS error on the arms of ``make benchmark``'s realism section
-(tendon2r_gym.benchmark.realism_arms), against PD on the same episodes, as that section scores
+last model's) RMS error on the arms of the realism study
+(research.studies.realism.realism_arms), against PD on the same episodes, as that section scores
 the shipped bundle: a run trained on drawn PD gains on the gains tendon2r-tune-pd finds on each
-arm (tendon2r_gym.benchmark.on_its_pd).
+arm (research.studies.realism.on_its_pd).
 """
 
 from __future__ import annotations
@@ -24,16 +24,16 @@ from typing import Annotated, Any, Literal
 import numpy as np
 
 from research.studies import joints, one_or_more, save_json
-from tendon2r_gym.arms import CONTROLLER, GAIN_UNITS, MechanismRanges
-from tendon2r_gym.benchmark import TUNE_EPISODES, on_its_pd, realism_arms
-from tendon2r_gym.cli import arg, parse
-from tendon2r_gym.env_config import EnvConfig
-from tendon2r_gym.evaluation import evaluate
-from tendon2r_gym.gains import gains_of, true_phase_per_hz
-from tendon2r_gym.learned import trained_on_drawn_gains
-from tendon2r_gym.metrics import beats, worst_ratio
-from tendon2r_gym.runs import BEST_METRICS, CONFIG, SUMMARY, RunFolder, command_line
-from tendon2r_gym.tuning import tune_pd
+from research.studies.realism import TUNE_EPISODES, on_its_pd, realism_arms
+from tendon2r_gym.app.cli import arg, parse
+from tendon2r_gym.envs.env_config import EnvConfig
+from tendon2r_gym.evaluation.evaluator import evaluate
+from tendon2r_gym.evaluation.metrics import beats, worst_ratio
+from tendon2r_gym.evaluation.tuning import tune_pd
+from tendon2r_gym.policies.learned import trained_on_drawn_gains
+from tendon2r_gym.policies.runs import BEST_METRICS, CONFIG, SUMMARY, RunFolder, command_line
+from tendon2r_gym.task.arms import CONTROLLER, GAIN_UNITS, MechanismRanges
+from tendon2r_gym.task.gains import gains_of, true_phase_per_hz
 from tendon2r_gym.validation import invalid
 
 
@@ -65,7 +65,7 @@ class Args:
     """The realism ablation's flags."""
 
     runs: Annotated[list[str], arg("run folders (seed_<n>)")]
-    episodes: Annotated[int, arg("per arm, as make benchmark")] = 3
+    episodes: Annotated[int, arg("per arm, as the realism study")] = 3
     model: Annotated[
         Literal["best", "last"],
         arg("each run's best model (by its training evaluations) or its last"),
@@ -116,7 +116,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
 def _tuned_pd(tuned: dict[str, Any]) -> dict[str, float]:
     """Returns the tuned PD's bandwidth (Hz) on the arm and the phase the arm's true loop
-    delay takes at it (what MechanismRanges' tuned_phase draws: tendon2r_gym.gains)."""
+    delay takes at it (what MechanismRanges' tuned_phase draws: tendon2r_gym.task.gains)."""
     arm = EnvConfig.make(**tuned)
     f = arm.pd_gains.bandwidth_hz
     per_hz = true_phase_per_hz(arm.mechanism, arm.observation_delay, arm.ctrl_dt)
@@ -143,7 +143,7 @@ def _sees(record: dict[str, Any]) -> str:
 
 def _network_and_pd(record: dict[str, Any]) -> str:
     """Returns the run's hidden layers and its PD's gains (a bandwidth, scheduled on each
-    arm's loop delay: tendon2r_gym.gains, or drawn per episode in training and tuned per arm
+    arm's loop delay: tendon2r_gym.task.gains, or drawn per episode in training and tuned per arm
     when deployed)."""
     net = record["net_arch"]
     layers = " x ".join(map(str, net)) if isinstance(net, list) else "SB3's default"
@@ -176,7 +176,7 @@ def write(result: dict[str, Any], out: Path) -> None:
         "",
         f"Produced by `{result['command']}`. Training: each run's best evaluation (its "
         "`best_metrics.json`, on the entry's evaluation seeds: random arms from its ranges). "
-        f"Realism arms: the {n} arms of `make benchmark`'s realism section, "
+        f"Realism arms: the {n} arms of the realism study (research.studies.realism), "
         f"{result['episodes']} episodes each, the run's {result.get('model', 'best')} model "
         "against PD on the same "
         "episodes; ratio: the worse joint's RMS as a multiple of PD's. Tensions per tendon.",
@@ -203,7 +203,7 @@ def write(result: dict[str, Any], out: Path) -> None:
         lines[-1] += (
             " tuned PD: the bandwidth tendon2r-tune-pd finds on the arm, and the phase the "
             "arm's true loop delay takes at it (2 pi f tau / sqrt(density_scale), "
-            "tendon2r_gym.gains.true_phase_per_hz)."
+            "tendon2r_gym.task.gains.true_phase_per_hz)."
         )
         lines.append("")
     head = "| arm | PD | " + ("tuned PD | " if tuned else "")

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from research.studies import joints, one_or_more, save_json
-from tendon2r_gym.cli import arg, parse
+from tendon2r_gym.app.cli import arg, parse
 
 ENTRY = "default_scratch"
 
@@ -89,7 +89,7 @@ def variant(name: str, steps: int | None) -> Any:
 
 def _run(name: str, steps: int | None, root: str) -> dict[str, Any]:
     """Trains a variant in ``root/<name>`` (continuing or reusing a run found there)."""
-    from tendon2r_gym.runs import SUMMARY
+    from tendon2r_gym.policies.runs import SUMMARY
     from tendon2r_gym.training import Experiment
 
     exp = Experiment(variant(name, steps), Path(root) / name, [0], f"sensitivity {name}")
@@ -122,7 +122,7 @@ class Args:
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    from tendon2r_gym.runs import command_line
+    from tendon2r_gym.policies.runs import command_line
 
     args = parse(Args, argv, __doc__)
     one_or_more("--variants", args.variants, f"one or more of {list(VARIANTS)}")
@@ -149,7 +149,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 def pd_tension_rate() -> list[float]:
     """Returns PD's RMS tension rate (N/s, per tendon) on the episodes the variants' best
     models were chosen and measured on: the entry's env and evaluation seeds."""
-    from tendon2r_gym.evaluation import evaluate
+    from tendon2r_gym.evaluation.evaluator import evaluate
     from tendon2r_gym.training import Hyperparams
 
     hp = Hyperparams.from_entry(ENTRY)
@@ -158,7 +158,12 @@ def pd_tension_rate() -> list[float]:
 
 def write(result: dict[str, Any], out: Path) -> None:
     """Writes sensitivity.json and sensitivity.md."""
-    from tendon2r_gym.metrics import RATE_LIMIT_X_PD, TENSION_LIMIT_X_PD, beats, rms_ratio
+    from tendon2r_gym.evaluation.metrics import (
+        RATE_LIMIT_X_PD,
+        TENSION_LIMIT_X_PD,
+        beats,
+        rms_ratio,
+    )
 
     save_json(out, "sensitivity", result)
     fmt = joints

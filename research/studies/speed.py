@@ -25,11 +25,11 @@ import numpy as np  # noqa: E402
 
 import tendon2r_gym  # noqa: E402, F401
 from research.studies import one_or_more  # noqa: E402
-from tendon2r_gym.cli import arg, parse  # noqa: E402
-from tendon2r_gym.runs import command_line  # noqa: E402
-from tendon2r_gym.vector_env import ARMS_PER_THREAD  # noqa: E402
+from tendon2r_gym.app.cli import arg, parse  # noqa: E402
+from tendon2r_gym.envs.vector_env import ARMS_PER_THREAD  # noqa: E402
+from tendon2r_gym.policies.runs import command_line  # noqa: E402
 
-#: The single env with every effect of tendon2r_gym.realism on, and the same arm without
+#: The single env with every effect of tendon2r_gym.simulation.realism on, and the same arm without
 #: them (real_arm is the pull_only arm with real cables, motors and sensors).
 REAL = "Tendon2R-v0 real_arm"
 REAL_IDEAL = "Tendon2R-v0 pull_only"
@@ -322,7 +322,7 @@ def ppo_throughput(setup: dict[str, Any], timesteps: int, eval_freq: int) -> dic
 
 def _train_child(spec: dict[str, Any]) -> None:
     """Runs in the child process of ppo_throughput: trains and prints the summary as JSON."""
-    from tendon2r_gym.runs import RunFolder
+    from tendon2r_gym.policies.runs import RunFolder
     from tendon2r_gym.training import Hyperparams, train_run
 
     hp = Hyperparams.from_entry("default")
@@ -563,7 +563,7 @@ def main(argv: list[str] | None = None) -> dict:
         f"{args.repeats} runs of {args.vector_seconds} s)",
         "",
         '`native` is gym.make_vec(..., vectorization_mode="vector_entry_point") '
-        "(tendon2r_gym.vector_env: mujoco.batch, one process); `sync` / `async` are "
+        "(tendon2r_gym.envs.vector_env: mujoco.batch, one process); `sync` / `async` are "
         "Gymnasium's, `sb3_dummy` / `sb3_subproc` SB3's.  Process-based backends run only "
         f"up to N = {args.max_processes} (one process per env on 2 cores).  `native` uses its "
         f"default MuJoCo threads (one per {ARMS_PER_THREAD} arms, up to the CPUs), "

@@ -1,11 +1,13 @@
-"""Where each integrator starts to diverge: the measurement behind tendon2r_gym.stability.LIMITS.
+"""Where each integrator starts to diverge: the measurement behind
+tendon2r_gym.simulation.stability.LIMITS.
 
     python -m research.studies.stability_limits   # per integrator and field, the threshold
 
 For each integrator and each of joint_damping, tendon_damping and tendon_stiffness, bisects (in
 log scale) the smallest value at which a 2 s unactuated episode of the default mechanism at
 sim_dt = 1 ms diverges (a non-finite or > 1e4 rad/s velocity or actuator state, or MuJoCo's
-bad-acceleration warning), and prints it with its rate x sim_dt (tendon2r_gym.stability.rates).
+bad-acceleration warning), and prints it with its rate x sim_dt
+(tendon2r_gym.simulation.stability.rates).
 Two more cases use the real_arm preset's series-elastic cables: ``cable_damping``
 (tendon_damping across a spool and the arm) and ``motor_tau`` (the largest lag that diverges,
 with the motors held at a constant command).  LIMITS are set 20% below these rates.
@@ -22,10 +24,10 @@ from typing import Annotated
 import mujoco
 import numpy as np
 
-from tendon2r_gym.cli import arg, parse
-from tendon2r_gym.mechanism import Mechanism
-from tendon2r_gym.model import build_model
-from tendon2r_gym.stability import LIMITS, rates
+from tendon2r_gym.app.cli import arg, parse
+from tendon2r_gym.simulation.mechanism import Mechanism
+from tendon2r_gym.simulation.model import build_model
+from tendon2r_gym.simulation.stability import LIMITS, rates
 
 FIELDS = ("joint_damping", "tendon_damping", "tendon_stiffness", "cable_damping", "motor_tau")
 #: The series-elastic cables of the cases that need them: the real_arm preset's spools and a

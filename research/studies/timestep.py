@@ -20,9 +20,9 @@ import mujoco
 import numpy as np
 
 import tendon2r_gym  # noqa: F401
-from tendon2r_gym.cli import arg, parse
-from tendon2r_gym.observation import Q
-from tendon2r_gym.policies import PDPolicy
+from tendon2r_gym.app.cli import arg, parse
+from tendon2r_gym.policies.baselines import PDPolicy
+from tendon2r_gym.task.observation import Q
 
 PRESETS = ("default", "report_002")
 INTEGRATORS = ("RK4", "implicitfast", "Euler")

@@ -2,7 +2,8 @@
 
 On the arm sweep's arms that a bundle covers (research/results/arm_sweep.json, as the generalist
 study takes them), the bundle runs the study's evaluation episodes. Per arm: the share of each
-episode's first SETTLE_S (tendon2r_gym.metrics), the steps that close the reset's offset, in the
+episode's first SETTLE_S (tendon2r_gym.evaluation.metrics), the steps that close the reset's
+offset, in the
 squared tracking error (what the RMS adds up), in the bundle's own tracking reward (its run's
 ``tracking_form`` and ``tracking_sigma_deg``) and in the registered one (the sweep's specialists
 trained on it). A reward that weighs those steps far less than the RMS does trains a policy that
@@ -21,15 +22,15 @@ import numpy as np
 
 from research.studies import joints, save_json
 from research.studies.generalist import action_mode_of, model_of, sweep_arms
-from tendon2r_gym.cli import arg, parse
-from tendon2r_gym.env_config import EnvConfig
-from tendon2r_gym.evaluation import evaluate
-from tendon2r_gym.learned import in_model_settings
-from tendon2r_gym.metrics import SETTLE_S, settled, smoothness_x_pd
+from tendon2r_gym.app.cli import arg, parse
+from tendon2r_gym.envs.env_config import EnvConfig
+from tendon2r_gym.envs.task import RAD_PER_DEG, Task
+from tendon2r_gym.evaluation.evaluator import evaluate
+from tendon2r_gym.evaluation.metrics import SETTLE_S, settled, smoothness_x_pd
+from tendon2r_gym.evaluation.rollout import Trace
 from tendon2r_gym.ops import BATCH
-from tendon2r_gym.rollout import Trace
-from tendon2r_gym.runs import command_line, training_record
-from tendon2r_gym.task import RAD_PER_DEG, Task
+from tendon2r_gym.policies.learned import in_model_settings
+from tendon2r_gym.policies.runs import command_line, training_record
 
 #: What a reward's tracking term is read from: the fields of an env config that shape it.
 REWARD_FIELDS = ("tracking_form", "tracking_sigma_deg")

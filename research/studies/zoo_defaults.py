@@ -27,9 +27,9 @@ from typing import Annotated, Any, Literal
 import yaml
 
 from research.studies import joints, save_json
-from tendon2r_gym.cli import arg, parse
-from tendon2r_gym.metrics import SETTLE_S
-from tendon2r_gym.runs import command_line
+from tendon2r_gym.app.cli import arg, parse
+from tendon2r_gym.evaluation.metrics import SETTLE_S
+from tendon2r_gym.policies.runs import command_line
 from tendon2r_gym.validation import integer, invalid
 
 ENV_IDS = ("Tendon2R-v0", "Tendon2R-v1")
@@ -111,10 +111,10 @@ def evaluate_zoo_model(
     import torch
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    from tendon2r_gym.files import load_model, load_vecnormalize
-    from tendon2r_gym.learned import NO_RESIDUAL, PPOPolicy
-    from tendon2r_gym.metrics import tracking_metrics
-    from tendon2r_gym.rollout import rollouts
+    from tendon2r_gym.evaluation.metrics import tracking_metrics
+    from tendon2r_gym.evaluation.rollout import rollouts
+    from tendon2r_gym.policies.files import load_model, load_vecnormalize
+    from tendon2r_gym.policies.learned import NO_RESIDUAL, PPOPolicy
 
     kwargs = env_kwargs(env_id)
     probe = gym.make(env_id)
@@ -149,7 +149,7 @@ def env_defaults(env_id: str) -> dict[str, Any]:
 
 def pd_metrics(env_id: str, seeds: list[int]) -> dict[str, Any]:
     """Returns PD's tracking metrics on the id's episodes of ``seeds``."""
-    from tendon2r_gym.evaluation import evaluate
+    from tendon2r_gym.evaluation.evaluator import evaluate
 
     metrics, _ = evaluate("pd", env_kwargs(env_id), seeds)
     return metrics
@@ -157,7 +157,7 @@ def pd_metrics(env_id: str, seeds: list[int]) -> dict[str, Any]:
 
 EnvId = Literal[ENV_IDS]  # type: ignore[valid-type]
 
-#: Metrics kept per run (tendon2r_gym.metrics.tracking_metrics).
+#: Metrics kept per run (tendon2r_gym.evaluation.metrics.tracking_metrics).
 KEPT = ("rms_deg", "settled_rms_deg", "max_deg", "diverged_episodes", "episodes", "steps")
 
 

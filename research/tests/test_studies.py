@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from research.studies import learnability, speed
-from tendon2r_gym.bundle import bundle_names
-from tendon2r_gym.mechanism import Mechanism
+from tendon2r_gym.policies.bundle import bundle_names
+from tendon2r_gym.simulation.mechanism import Mechanism
 
 RESULTS = Path(__file__).resolve().parent.parent / "results"
 
@@ -75,8 +75,8 @@ def test_default_time_step_is_the_study_recommendation():
 
 def test_random_course_arms_are_valid_and_seeded(tmp_path):
     from research.studies import arm_sweep
-    from tendon2r_gym.arms import COURSE, draw_arms
-    from tendon2r_gym.env_config import EnvConfig
+    from tendon2r_gym.envs.env_config import EnvConfig
+    from tendon2r_gym.task.arms import COURSE, draw_arms
 
     arms = draw_arms(3, 4)
     assert arms == draw_arms(3, 4) and arms != draw_arms(4, 4)
@@ -85,7 +85,7 @@ def test_random_course_arms_are_valid_and_seeded(tmp_path):
         for k in ("R1", "R2", "a", "b", "c"):
             lo, hi = getattr(COURSE, k)
             assert lo <= getattr(cfg.mechanism, k) <= hi
-        assert cfg.mechanism.max_tendon_force >= 2 * cfg.force_need * 0.99
+        assert cfg.mechanism.max_tendon_force >= 2 * cfg.needs.force_need * 0.99
     files = arm_sweep.arm_files(tmp_path, 2, 3, ("tension", "joint_torque"))
     names = {"default", "report_002", "pull_only", "course_0", "course_1"}
     assert {k[0] for k in files} >= names and {k[1] for k in files} == {"tension", "joint_torque"}
@@ -134,7 +134,7 @@ def test_arm_sweep_only_retrains_one_row_and_keeps_the_others(tmp_path):
     """--only scratch trains plain PPO alone; residual PPO's cells and command stay those of
     the earlier sweep, which must hold the same arm (checked before any training)."""
     from research.studies import arm_sweep
-    from tendon2r_gym.env_config import EnvConfig
+    from tendon2r_gym.envs.env_config import EnvConfig
 
     runs, out = tmp_path / "runs", tmp_path / "out"
     path = arm_sweep.arm_files(runs / "arms", 0, 2027)["default", "tension"]
@@ -237,8 +237,8 @@ def test_sensitivity_reports_the_tension_rate_against_pd(tmp_path):
 def test_generalist_study_end_to_end(tmp_path):
     """Unseen arms, PD and CT rows, the summary and the markdown (no bundle: baselines only)."""
     from research.studies import generalist
-    from tendon2r_gym.env_config import EnvConfig
-    from tendon2r_gym.metrics import worst_ratio
+    from tendon2r_gym.envs.env_config import EnvConfig
+    from tendon2r_gym.evaluation.metrics import worst_ratio
 
     out = generalist.main(
         ["--n-arms", "2", "--episodes", "1", "--bundles", "--sweep", str(tmp_path / "none"),
@@ -248,7 +248,7 @@ def test_generalist_study_end_to_end(tmp_path):
     text = (tmp_path / "generalist.md").read_text()
     for name, arm in out["arms"].items():
         assert arm["rows"]["ct"]["rms_deg"][0] < arm["rows"]["pd"]["rms_deg"][0]
-        authority = EnvConfig.make(**arm["env_kwargs"]).control_authority
+        authority = EnvConfig.make(**arm["env_kwargs"]).needs.control_authority
         shown = " / ".join(f"{x:.3g}" for x in authority)
         assert f"| {name} | " in text and f" | {shown} | " in text
     assert worst_ratio([1.0, 3.0], [2.0, 1.0]) == 3.0
@@ -280,17 +280,17 @@ def test_generalist_fine_tuning_curve(tmp_path):
 
 def test_realism_ablation_scores_runs_on_the_realism_arms(tmp_path, monkeypatch):
     """The realism ablation reads a run folder (here the bundled real_arm run, trained on
-    drawn PD gains) and scores its best model on the realism section's arms (the first two)
+    drawn PD gains) and scores its best model on the realism study's arms (the first two)
     against PD, on each arm's tuned PD: its counts follow its own per-arm figures, and a
     folder that is not a run is refused by name."""
     import pytest
 
     from research.studies import realism_ablation
-    from tendon2r_gym.benchmark import realism_arms
-    from tendon2r_gym.bundle import bundled_model
-    from tendon2r_gym.env_config import EnvConfig
-    from tendon2r_gym.gains import tuned_bandwidth
-    from tendon2r_gym.metrics import beats, worst_ratio
+    from research.studies.realism import realism_arms
+    from tendon2r_gym.envs.env_config import EnvConfig
+    from tendon2r_gym.evaluation.metrics import beats, worst_ratio
+    from tendon2r_gym.policies.bundle import bundled_model
+    from tendon2r_gym.task.gains import tuned_bandwidth
 
     monkeypatch.setattr(realism_ablation, "realism_arms", lambda: realism_arms()[:2])
     run = bundled_model("real_arm").parent
@@ -339,8 +339,8 @@ def test_generalist_ablation_names_each_bundles_reward_as_its_entry_sets_it():
     (the registered one if the entry sets none), its sigma if the entry changes it, and each
     weight the entry changes."""
     from research.studies import generalist
-    from tendon2r_gym.bundle import bundled_model
-    from tendon2r_gym.env_config import EnvConfig
+    from tendon2r_gym.envs.env_config import EnvConfig
+    from tendon2r_gym.policies.bundle import bundled_model
     from tendon2r_gym.training import Hyperparams
 
     registered = EnvConfig.make()
@@ -360,7 +360,7 @@ def test_generalist_ablation_reads_who_saw_the_arm_from_each_run():
     """The ablation table's "arm features seen by" comes from each bundle's recorded run (its
     observation layout and hide lists), not from its name."""
     from research.studies.generalist import arm_seen_by
-    from tendon2r_gym.bundle import bundled_model
+    from tendon2r_gym.policies.bundle import bundled_model
 
     assert arm_seen_by(bundled_model("default")) == "nobody (blind)"
     assert arm_seen_by(bundled_model("generalist")) == "actor and critic"
@@ -371,7 +371,7 @@ def test_generalist_ablation_reads_action_mode_and_network_from_each_run():
     evaluation episodes and optional observation entries come from each bundle's run record:
     what its configs/ppo.yaml entry trained it with."""
     from research.studies import generalist
-    from tendon2r_gym.observation import OPTIONAL
+    from tendon2r_gym.task.observation import OPTIONAL
     from tendon2r_gym.training import Hyperparams
 
     shown = [n for n in (*generalist.BUNDLES, *generalist.ABLATIONS) if n in bundle_names()]
@@ -467,7 +467,7 @@ def test_generalist_summary_holds_every_arm_to_the_smoothness_limits():
     arms where a bundle keeps the smoothness limits (a residual's rate limit for a residual,
     plain PPO's for plain PPO, as its run recorded it) and those where it is also <= PD."""
     from research.studies import generalist
-    from tendon2r_gym.metrics import RATE_LIMIT_X_PD, TENSION_LIMIT_X_PD
+    from tendon2r_gym.evaluation.metrics import RATE_LIMIT_X_PD, TENSION_LIMIT_X_PD
 
     assert generalist.is_residual("generalist")
     assert not generalist.is_residual("generalist_scratch")
@@ -503,7 +503,7 @@ def test_generalist_study_column_runs_a_bundle_or_one_of_its_seeds():
     default columns add each shipped generalist's other seeds; a bad column is a ValueError
     naming --bundles, a seed the bundle lacks one naming the seed."""
     from research.studies import generalist
-    from tendon2r_gym.bundle import bundle_meta, bundled_model
+    from tendon2r_gym.policies.bundle import bundle_meta, bundled_model
 
     meta = bundle_meta("generalist")
     assert generalist.model_of("generalist") == bundled_model("generalist")
@@ -524,9 +524,9 @@ def test_transient_share_counts_the_first_settle_s_of_each_episode():
     from types import SimpleNamespace
 
     from research.studies.transient import transient_share
-    from tendon2r_gym.env_config import EnvConfig
-    from tendon2r_gym.metrics import SETTLE_S
-    from tendon2r_gym.task import Task
+    from tendon2r_gym.envs.env_config import EnvConfig
+    from tendon2r_gym.envs.task import Task
+    from tendon2r_gym.evaluation.metrics import SETTLE_S
 
     time = np.arange(200) * 0.001
     head = time <= SETTLE_S

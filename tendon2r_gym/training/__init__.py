@@ -1,5 +1,6 @@
 """PPO training: typed hyperparameters (hyperparams), SB3 callbacks (callbacks) and the run
-owner (manager).  The SB3 adapter of the native vector env is tendon2r_gym.vector_env_sb3."""
+owner (manager).  The SB3 adapter of the native vector env is
+tendon2r_gym.training.vector_env_sb3."""
 
 from typing import Any
 

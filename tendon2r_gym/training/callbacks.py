@@ -15,18 +15,18 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 
-from tendon2r_gym.env import make as make_env
-from tendon2r_gym.learned import PPOPolicy, Residual
-from tendon2r_gym.metrics import (
+from tendon2r_gym.envs.env import make as make_env
+from tendon2r_gym.evaluation.metrics import (
     beats,
     selection_rank,
     smoothness_x_pd,
     tracking_metrics,
     within_limits,
 )
-from tendon2r_gym.policies import PDPolicy
-from tendon2r_gym.rollout import rollouts
-from tendon2r_gym.runs import (
+from tendon2r_gym.evaluation.rollout import rollouts
+from tendon2r_gym.policies.baselines import PDPolicy
+from tendon2r_gym.policies.learned import PPOPolicy, Residual
+from tendon2r_gym.policies.runs import (
     BEST_METRICS,
     CHECKPOINT_PREFIX,
     PD_EVAL,
@@ -82,7 +82,8 @@ class TimedCheckpointCallback(CheckpointCallback):
 class TrackingEvalCallback(BaseCallback):
     """At every multiple of ``eval_freq`` of the run's env steps (a resumed run's too) and at
     the end, rolls the deterministic policy out on fixed seeds and keeps the best model by
-    :func:`~tendon2r_gym.metrics.selection_rank`: the lowest mean tracking RMS (over joints)
+    :func:`~tendon2r_gym.evaluation.metrics.selection_rank`: the lowest mean tracking RMS (over
+    joints)
     among the evaluations <= PD on both joints within the smoothness limits, else the lowest
     overall.  Each evaluation is appended to evaluations.json with the
     cumulative wall time, whether it beats PD on both joints, and its RMS tension and tension

@@ -14,10 +14,10 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from tendon2r_gym import observation
-from tendon2r_gym.env_config import EnvConfig
-from tendon2r_gym.learned import Residual
+from tendon2r_gym.envs.env_config import EnvConfig
+from tendon2r_gym.policies.learned import Residual
 from tendon2r_gym.presets import PPO_CONFIG, load_yaml
+from tendon2r_gym.task import observation
 from tendon2r_gym.validation import check_keys, integer, invalid, mapping, number
 
 VEC_ENVS = ("native", "subproc", "dummy")
@@ -120,11 +120,11 @@ class Hyperparams:
     checkpoint_freq: int  # env steps between checkpoints
     residual_scale: float = 0.0  # > 0: residual on PD (command = PD + scale * action)
     # With residual_scale > 0: the time constant (s) of a first-order low-pass on the residual
-    # alone, PD's command unfiltered (tendon2r_gym.learned.ResidualFilter).  0: none.
+    # alone, PD's command unfiltered (tendon2r_gym.policies.learned.ResidualFilter).  0: none.
     residual_filter_tau: float = 0.0
     # With residual_scale > 0: what residual_scale is a fraction of, per joint: "range", the
     # joint's command range, or "need", its torque need on the episode's arm and reference
-    # (joint-torque mode; tendon2r_gym.learned).
+    # (joint-torque mode; tendon2r_gym.policies.learned).
     residual_relative_to: str = "range"
     vec_env: str = "subproc"  # native, subproc or dummy
     torch_threads: int = 1
@@ -135,7 +135,7 @@ class Hyperparams:
     zero_obs: tuple[str, ...] = ()  # observation entries to blank out (ablations)
     # Observation entries (EnvConfig.observation_entries: e.g. arm, or one drawn field such as
     # arm.density_scale) that only the critic sees (privileged: hide_from_actor) or only the
-    # actor (hide_from_critic): tendon2r_gym.training.split_view.
+    # actor (hide_from_critic): tendon2r_gym.policies.split_view.
     hide_from_actor: tuple[str, ...] = ()
     hide_from_critic: tuple[str, ...] = ()
     # Start from a trained model's weights and VecNormalize statistics (fine-tuning): a bundle
@@ -150,7 +150,8 @@ class Hyperparams:
     # SB3's VecFrameStack after VecNormalize; zeros before an episode's first): a short history
     # from which to tell the arm's response, e.g. under per-episode randomization.
     frame_stack: int = 1
-    # The stacked frames are frame_stride control steps apart (tendon2r_gym.history): the same
+    # The stacked frames are frame_stride control steps apart (tendon2r_gym.policies.history): the
+    # same
     # frame_stack inputs span (frame_stack - 1) * frame_stride + 1 steps.  1: VecFrameStack.
     frame_stride: int = 1
     # CAPS's smoothness terms on the policy's mean action ({temporal, spatial, sigma, samples};
@@ -257,7 +258,7 @@ class Hyperparams:
     @property
     def residual(self) -> Residual:
         """Returns how the policy's action joins PD's command (residual_scale,
-        residual_filter_tau and residual_relative_to: tendon2r_gym.learned.Residual)."""
+        residual_filter_tau and residual_relative_to: tendon2r_gym.policies.learned.Residual)."""
         return Residual(self.residual_scale, self.residual_filter_tau, self.residual_relative_to)
 
     @property
@@ -285,7 +286,7 @@ class Hyperparams:
         the actor or the critic) and its policy_kwargs, for an env of ``env_config``."""
         if not (self.hide_from_actor or self.hide_from_critic):
             return "MlpPolicy", self.policy_kwargs
-        from tendon2r_gym.training.split_view import SplitViewPolicy
+        from tendon2r_gym.policies.split_view import SplitViewPolicy
 
         keep = {  # one mask per stacked frame
             f"{who}_keep": env_config.observation_mask(hidden).tolist() * self.frame_stack

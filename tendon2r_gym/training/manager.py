@@ -1,7 +1,7 @@
 """The run owner (rl_zoo3's ExperimentManager): one training command, its seeds and folders.
 
 :class:`Experiment` trains one run per seed in ``base/seed_<n>/`` (names from
-tendon2r_gym.runs) and survives interruption:
+tendon2r_gym.policies.runs) and survives interruption:
 - Ctrl-C (or SIGTERM) stops training at the next env step (StopOnSignal), saves
   ``last_model`` and the summary, then raises KeyboardInterrupt, so a multi-seed command stops
   as a whole (exit code 130) after writing the summary of the seeds that finished;
@@ -38,11 +38,11 @@ from typing import Any
 
 import numpy as np
 
-from tendon2r_gym.env import make as make_env
-from tendon2r_gym.env_config import EnvConfig
-from tendon2r_gym.history import stacked
-from tendon2r_gym.learned import make_training_env
-from tendon2r_gym.runs import (
+from tendon2r_gym.envs.env import make as make_env
+from tendon2r_gym.envs.env_config import EnvConfig
+from tendon2r_gym.policies.history import stacked
+from tendon2r_gym.policies.learned import make_training_env
+from tendon2r_gym.policies.runs import (
     BEST_METRICS,
     CONFIG,
     EVALUATIONS,
@@ -195,7 +195,7 @@ def make_vec_env(hp: Hyperparams, seed: int) -> Any:
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
     if hp.vec_env == "native":
-        from tendon2r_gym.vector_env_sb3 import make_native
+        from tendon2r_gym.training.vector_env_sb3 import make_native
 
         return make_native(hp.n_envs, hp.env_kwargs, hp.residual, hp.zero_obs, seed)
     subproc = hp.vec_env == "subproc" and hp.n_envs > 1
@@ -235,8 +235,8 @@ def initial_model(hp: Hyperparams) -> tuple[Path, Path]:
     """Returns (model zip, VecNormalize pkl) of ``hp.init_from`` (a bundle's primary seed, or
     a model file) after checking that it covers the run's env and residual scale."""
 
-    from tendon2r_gym.bundle import model_path
-    from tendon2r_gym.learned import Residual, trained_model
+    from tendon2r_gym.policies.bundle import model_path
+    from tendon2r_gym.policies.learned import Residual, trained_model
 
     source = hp.init_from
     env = make_env(**hp.env_kwargs)
@@ -267,8 +267,8 @@ def fine_tune(hp: Hyperparams) -> Hyperparams:
     see what the model saw and its actions mean what they meant; ``hp`` itself without
     init_from.  A plain entry does not fine-tune a residual model, nor the reverse
     (initial_model refuses it)."""
-    from tendon2r_gym.bundle import model_path
-    from tendon2r_gym.learned import Residual, fine_tune_env_kwargs
+    from tendon2r_gym.policies.bundle import model_path
+    from tendon2r_gym.policies.learned import Residual, fine_tune_env_kwargs
 
     source = None if hp.init_from is None else model_path(hp.init_from)
     if source is None or not model_files(stem_of(source))[0].is_file():

@@ -1,0 +1,107 @@
+"""The realism study (research.studies.realism): its arms, its pages and how it runs each
+residual."""
+
+import json
+
+import numpy as np
+
+from research.studies import realism
+from research.studies.realism import on_its_pd, perturbed_arms, realism_lines
+from tendon2r_gym.app.report import PRINTED
+from tendon2r_gym.envs.env_config import EnvConfig
+from tendon2r_gym.evaluation.evaluator import evaluate
+from tendon2r_gym.simulation.mechanism import REALISM_LIMITS
+from tendon2r_gym.simulation.realism import PERTURBATIONS
+from tendon2r_gym.task.arms import MechanismRanges
+
+
+def test_realism_lines_report_each_residual_against_pd():
+
+    force = lambda f: {"rms_tension_N": [f] * 3, "rms_tension_rate_N_per_s": [10 * f] * 3}  # noqa: E731
+    row = lambda pd, ppo, rnd: {  # noqa: E731
+        "pd": {"rms_deg": pd, **force(1.0)}, "ct": {"rms_deg": [0.01, 0.01]},
+        "pd_tuned": {"rms_deg": [0.5, 0.5], "bandwidth_hz": 12.3},
+        "ppo": {"rms_deg": ppo, **force(2.0)}, "randomized": {"rms_deg": rnd, **force(0.5)},
+    }  # fmt: skip
+    rows = [
+        {"arm": "a", **row([1.0, 1.0], [2.0, 0.5], [0.5, 0.25])},
+        {"arm": "b", **row([1.0, 2.0], [0.5, 0.5], [0.5, 2.5])},
+    ]
+    text = "\n".join(realism_lines(rows))
+    assert (
+        "| a | 1.0000 / 1.0000 | 0.5000 / 0.5000 (12.3 Hz) | 0.0100 / 0.0100 | "
+        "2.0000 / 0.5000 (2.00x) |" in text
+    )
+    assert "residual (ideal-trained): <= PD on both joints on 1 of 2 arms" in text
+    assert (
+        "residual (randomized): <= PD on both joints on 1 of 2 arms; median worst-joint "
+        "ratio 0.88" in text
+    )
+    assert "residual (randomized): <= PD tuned per arm on both joints on 1 of 2 arms" in text
+    assert "residual (ideal-trained): RMS tension 2.00x PD's, RMS tension rate 2.00x" in text
+
+
+def test_the_study_runs_a_residual_on_drawn_gains_on_the_arms_tuned_pd(tmp_path):
+    """In the realism study (and its ablation) a residual trained on drawn PD gains runs on
+    the arm with the gains tendon2r-tune-pd found there; any other policy on the arm as is."""
+
+    ranges = {"drawn": ["real_arm", {"pd_bandwidth_hz": [10.0, 40.0]}], "fixed": "real_arm"}
+    models = {}
+    for name, value in ranges.items():
+        (tmp_path / name).mkdir()
+        config = EnvConfig.make("real_arm", mechanism_ranges=value).to_dict()
+        record = {"seed": 0, "env_kwargs": {}, "env_config": config}
+        (tmp_path / name / "run.json").write_text(json.dumps(record))
+        models[name] = tmp_path / name / "best_model.zip"
+    arm, tuned = {"preset": "real_arm"}, {"preset": "real_arm", "pd_gains": {"bandwidth_hz": 20}}
+    assert on_its_pd(arm, tuned, models["drawn"]) is tuned
+    assert on_its_pd(arm, tuned, models["fixed"]) is arm
+    assert on_its_pd(arm, tuned, None) is arm
+
+
+def test_real_arm_preset_and_perturbed_arms():
+    """real_arm turns every effect on over the pull_only arm; the perturbed arms are valid,
+    seeded and inside PERTURBATIONS; PD keeps real_arm stable."""
+
+    real, ideal = EnvConfig.make("real_arm"), EnvConfig.make("pull_only")
+    assert all(getattr(real.mechanism, k) > 0 for k in REALISM_LIMITS) and real.sensed
+    assert real.mechanism.ideal() == ideal.mechanism  # same arm, same auto force limit
+    arms = perturbed_arms("real_arm", 4, 7)
+    assert arms == perturbed_arms("real_arm", 4, 7) != perturbed_arms("real_arm", 4, 8)
+    ranges = MechanismRanges.from_value(PERTURBATIONS)
+    for kwargs in arms:
+        assert not ranges.violations(EnvConfig.make(**kwargs))
+    metrics, _ = evaluate("pd", {"preset": "real_arm"}, [0])
+    assert max(metrics["rms_deg"]) < 1.0  # stable (the ideal arm: 0.09 deg)
+
+
+def test_the_study_runs_every_policy_on_its_arms(tmp_path, monkeypatch):
+    """On its first two arms (the real arm and one perturbed: each arm tunes PD, the bulk of
+    the study's time), every policy runs and gets its row and reproducibility."""
+    arms = realism.realism_arms()[:2]
+    monkeypatch.setattr(realism, "realism_arms", lambda: arms)
+    result = realism.main(["--episodes", "1", "--out", str(tmp_path)])
+    md = (tmp_path / "realism.md").read_text()
+    assert json.loads((tmp_path / "realism.json").read_text()) == result
+    assert [r["arm"] for r in result["rows"]] == [name for name, _ in arms]
+    for row in result["rows"]:
+        policies = ("pd", "pd_tuned", "ct", "ppo", "randomized")
+        assert all(len(row[k]["rms_deg"]) == 2 for k in policies), row
+        assert all(len(row[k]["reproducible_to"]) == 2 for k in policies), row
+        assert f"| {row['arm']} |" in md
+
+
+def test_a_figure_that_reruns_change_shows_its_tolerance():
+    cell = lambda rms, tol: {"rms_deg": rms, "reproducible_to": tol, **force}  # noqa: E731
+    force = {"rms_tension_N": [1.0] * 3, "rms_tension_rate_N_per_s": [1.0] * 3}
+    arm = {
+        "arm": "a", "pd": cell([1.0, 1.0], [0.0, 0.0]), "ct": cell([0.5, 0.5], [1e-9, 0.0]),
+        "pd_tuned": {**cell([0.5, 0.5], [0.0, 0.0]), "bandwidth_hz": 12.3},
+        "ppo": cell([2.5, 7.2], [1.3, PRINTED]), "randomized": cell([0.2, 0.1], [PRINTED / 2, 0]),
+    }  # fmt: skip
+    text = "\n".join(realism_lines([arm]))
+    assert (
+        "| a | 1.0000 / 1.0000 | 0.5000 / 0.5000 (12.3 Hz) | 0.5000 / 0.5000 | "
+        "2.5000 / 7.2000 *to 1.3 / 5e-05* (7.20x) | 0.2000 / 0.1000 (0.20x) |" in text
+    )
+    assert np.isfinite(PRINTED)

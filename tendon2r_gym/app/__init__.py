@@ -1,0 +1,1 @@
+"""The console commands (tendon2r-*), the benchmark and its plots."""

@@ -1,0 +1,329 @@
+"""The benchmark: PD, computed torque and PPO (from scratch and residual on PD), same seeds.
+
+- :func:`benchmark_bundled` (``tendon2r-benchmark``, ``make benchmark``): the bundled presets
+  with their bundled models, plus held-out references for the random-reference model.  (The
+  shipped models on real cables, motors and sensors: ``python -m research.studies.realism``.)
+- :func:`benchmark_own_arm` (``tendon2r-benchmark --env-config my_arm.yaml``): trains both PPO
+  variants on the user's experiment file, then compares all four on it.
+
+Every learned row is evaluated on the benchmark seeds (0, 1, ...), never on the seeds that
+chose its checkpoint (configs/ppo.yaml eval_seeds), and evaluated again with its commands
+perturbed in their last float32 bits (its ``reproducible_to``).  The Markdown is
+tendon2r_gym.app.report's, from the JSON record alone.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tendon2r_gym.app import report
+from tendon2r_gym.app.plots import plot_trace
+from tendon2r_gym.app.report import fmt, tol
+from tendon2r_gym.envs.env import make as make_env
+from tendon2r_gym.evaluation.evaluator import (
+    BASELINE,
+    evaluate,
+    jittered_rms,
+    names,
+    reproducible_to,
+)
+from tendon2r_gym.policies.bundle import bundle_meta, bundle_names, bundled_model
+from tendon2r_gym.policies.learned import (
+    in_model_settings,
+    settings_on,
+)
+from tendon2r_gym.policies.runs import model_files, training_record, training_summary
+from tendon2r_gym.presets import DATA_DIR
+from tendon2r_gym.validation import invalid
+
+#: Learned variants: label -> (bundle suffix, hyperparameter entry used to train on your arm).
+LEARNED = {
+    "ppo scratch": ("_scratch", "default_scratch"),
+    "ppo residual": ("", "default"),
+}
+PRESETS = ("default", "report_002", "pull_only")
+#: Held-out references for the generalization check (inside the training ranges of
+#: configs/ppo.yaml random_reference, never drawn exactly).
+HELD_OUT = [
+    {"amp_deg": [12.0, 18.0], "freq_hz": [1.3, 2.2], "bias_deg": [5.0, -8.0],
+     "phase_deg": [30.0, 200.0]},
+    {"amp_deg": [22.0, 7.0], "freq_hz": [2.8, 0.9], "bias_deg": [-6.0, 2.0],
+     "phase_deg": [90.0, 0.0]},
+    {"amp_deg": [8.0, 14.0], "freq_hz": [0.7, 2.6], "bias_deg": [0.0, -12.0],
+     "phase_deg": [270.0, 45.0]},
+]  # fmt: skip
+
+
+def compare(
+    name: str,
+    env_kwargs: dict[str, Any],
+    learned: dict[str, list[Path]],
+    seeds: list[int],
+    plots: Path | None,
+    progress: Any = None,
+) -> list[dict[str, Any]]:
+    """Returns the rows of one env: PD, CT, and per learned label its primary model and the
+    mean +- std (ddof 0) over all its training seeds."""
+    rows = []
+    for policy in names(BASELINE):
+        rows.append(_row(name, policy, policy, env_kwargs, seeds, None, plots))
+        _tick(progress)
+    for label, models in learned.items():
+        if not models:
+            rows.append({"env": name, "policy": label, "missing": "no trained model"})
+            continue
+        # A model runs in the settings it was trained in (its action mode, timing...: the
+        # same arm, reference and episodes as PD's), and its rows name those that differ.
+        tag = settings_on(models[0], env_kwargs)
+        kwargs = {**env_kwargs, **tag}
+        per_seed = []
+        for i, model in enumerate(models):
+            row = _row(name, label, "ppo", kwargs, seeds, model, plots if i == 0 else None)
+            per_seed.append({**row, **tag})
+            _tick(progress)
+        rows.append(per_seed[0])
+        if len(per_seed) > 1:
+            rows.append({**_spread(name, label, per_seed), **tag})
+    for row in rows:
+        _print(row)
+    return rows
+
+
+#: The generalist bundles (configs/ppo.yaml entries of the same names): trained across random
+#: arms, run zero-shot on a user's arm when it lies inside their training ranges.
+GENERALISTS = ("generalist", "generalist_scratch", "generalist_pull_only")
+
+
+#: Fine-tuning a generalist on a user's arm: row label -> configs/ppo.yaml entry (its
+#: ``init_from`` names the bundle it starts from).
+FINETUNED = {"generalist fine-tuned": "generalist_finetune"}
+
+
+def not_covered(bundle: str, env_kwargs: dict[str, Any]) -> str | None:
+    """Returns why the bundle's primary model cannot run on this arm (outside its training
+    ranges, another observation...), or None if it can."""
+    from tendon2r_gym.policies.learned import trained_model
+
+    model = bundled_model(bundle)
+    kwargs = in_model_settings(model, env_kwargs)
+    try:
+        trained_model(model, make_env(**kwargs), bundle)
+    except ValueError as e:
+        return str(e)
+    return None
+
+
+def generalist_rows(name: str, env_kwargs: dict[str, Any], seeds: list[int]) -> list[dict]:
+    """Returns a row per shipped generalist bundle on this arm: zero-shot (no training on it),
+    or ``missing`` with the reason when the arm is outside its training ranges."""
+    rows = []
+    for bundle in (b for b in GENERALISTS if b in bundle_names()):
+        label, model = f"{bundle} zero-shot", bundled_model(bundle)
+        reason = not_covered(bundle, env_kwargs)
+        if reason is not None:
+            rows.append({"env": name, "policy": label, "missing": reason})
+            continue
+        tag = settings_on(model, env_kwargs)  # as compare: the settings it trained in
+        row = _row(name, label, "ppo", {**env_kwargs, **tag}, seeds, model, None)
+        rows.append({**row, **tag})
+        _print(rows[-1])
+    return rows
+
+
+def _row(
+    name: str,
+    label: str,
+    policy: str,
+    env_kwargs: dict[str, Any],
+    seeds: list[int],
+    model: Path | None,
+    plots: Path | None,
+) -> dict[str, Any]:
+    start = time.perf_counter()
+    metrics, traces = evaluate(policy, env_kwargs, seeds, model)
+    jittered = jittered_rms(policy, env_kwargs, seeds, model)
+    row = {
+        **metrics,
+        "reproducible_to": reproducible_to(metrics["rms_deg"], jittered),
+        "rms_deg_jittered": jittered,
+        "env": name,
+        "policy": label,
+        "eval_s": round(time.perf_counter() - start, 1),
+    }
+    if model is not None:
+        s = training_summary(model)
+        row.update(
+            model=shown_path(model),
+            train_seed=s["seed"],
+            train_steps=s["timesteps"],
+            train_wall_s=s["wall_time_s"],
+            first_beat_pd=s.get("first_beat_pd"),
+        )
+    if plots is not None:
+        plot_trace(traces[0], plots / name / label.replace(" ", "_"), f"{label} on {name}")
+    return row
+
+
+def shown_path(path: Path) -> str:
+    """Returns a model path as recorded in benchmark.json: relative to the package for a
+    bundled model (``tendon2r_gym/data/models/...``), else relative to the working folder when
+    it is inside it, else absolute; never the machine's absolute path of the package."""
+    path = Path(path).resolve()
+    for root, prefix in ((DATA_DIR.parent, "tendon2r_gym"), (Path.cwd(), ".")):
+        if path.is_relative_to(root):
+            return str(Path(prefix) / path.relative_to(root))
+    return str(path)
+
+
+def _spread(name: str, label: str, per_seed: list[dict[str, Any]]) -> dict[str, Any]:
+    rms = [r["rms_deg"] for r in per_seed]
+    beat = [r["first_beat_pd"] for r in per_seed]
+    mean = np.mean(rms, axis=0).tolist()
+    jittered = np.mean([r["rms_deg_jittered"] for r in per_seed], axis=0).tolist()
+    return {
+        "env": name,
+        "policy": f"{label} ({len(per_seed)} seeds)",
+        "training_seeds": [r["train_seed"] for r in per_seed],
+        "rms_deg_per_seed": rms,
+        "rms_deg": mean,
+        "reproducible_to": reproducible_to(mean, jittered),
+        "rms_deg_std": np.std(rms, axis=0).tolist(),
+        "max_deg": np.mean([r["max_deg"] for r in per_seed], axis=0).tolist(),
+        "train_steps": int(np.mean([r["train_steps"] for r in per_seed])),
+        "train_wall_s": round(float(np.mean([r["train_wall_s"] for r in per_seed])), 1),
+        "train_wall_s_max": max(r["train_wall_s"] for r in per_seed),
+        "first_beat_pd": beat,
+    }
+
+
+def _print(row: dict[str, Any]) -> None:
+    if "missing" in row:
+        print(f"{row['env']:11s} {row['policy']:24s} {row['missing']}", flush=True)
+        return
+    std = f" +- {fmt(row['rms_deg_std'])}" if "rms_deg_std" in row else ""
+    print(
+        f"{row['env']:11s} {row['policy']:24s} RMS {fmt(row['rms_deg'])}{std} deg  "
+        f"max {fmt(row['max_deg'], 3)} deg  reproducible to {tol(row.get('reproducible_to'))}",
+        flush=True,
+    )
+
+
+def _tick(progress: Any) -> None:
+    if progress is not None:
+        progress.update(1)
+
+
+def _bundle_models(name: str) -> list[Path]:
+    meta = bundle_meta(name)
+    return [] if meta is None else [bundled_model(name, s) for s in meta["seeds"]]
+
+
+def benchmark_bundled(episodes: int, out: Path, command: str) -> dict[str, Any]:
+    """The bundled presets with their bundled models -> out/benchmark.md, .json, plots/."""
+    out.mkdir(parents=True, exist_ok=True)
+    seeds = list(range(episodes))
+    rows = []
+    for preset in PRESETS:
+        learned = {label: _bundle_models(preset + suffix) for label, (suffix, _) in LEARNED.items()}
+        rows += compare(preset, {"preset": preset}, learned, seeds, out / "plots")
+    result = {"command": command, "rows": rows, "held_out": held_out()}
+    return _write(out, result, report.bundled_page(result))
+
+
+def _write(out: Path, result: dict[str, Any], lines: list[str]) -> dict[str, Any]:
+    """Writes out/benchmark.json and out/benchmark.md; returns the result."""
+    (out / "benchmark.json").write_text(json.dumps(result, indent=1))
+    (out / "benchmark.md").write_text("\n".join(lines) + "\n")
+    print("wrote", out / "benchmark.md")
+    return result
+
+
+def held_out() -> list[dict[str, Any]]:
+    """PD and the random-reference PPO on HELD_OUT, with the env the model trained on."""
+    meta = bundle_meta("random_reference")
+    if meta is None:
+        return [{"policy": "ppo", "missing": "no bundled random_reference model"}]
+    model = bundled_model("random_reference")
+    env_kwargs = training_record(model)["env_kwargs"]
+    rows = []
+    for policy in ("pd", "ppo"):  # PD is the baseline that needs no knowledge of the reference
+        learned = model if policy == "ppo" else None
+        errs, jittered = [], []
+        for i, ref in enumerate(HELD_OUT):
+            options = {"reference": ref}
+            errs.append(evaluate(policy, env_kwargs, [i], learned, options)[0]["rms_deg"])
+            jittered.append(jittered_rms(policy, env_kwargs, [i], learned, options))
+        mean = np.mean(errs, axis=0).tolist()
+        rows.append(
+            {"policy": policy, "rms_deg_per_reference": errs, "rms_deg_mean": mean,
+             "reproducible_to": reproducible_to(mean, np.mean(jittered, axis=0).tolist())}
+        )  # fmt: skip
+        print(f"held-out {policy:4s} mean RMS {fmt(rows[-1]['rms_deg_mean'])} deg", flush=True)
+    return rows
+
+
+def benchmark_own_arm(
+    env_config: str,
+    train_steps: int | None,
+    seeds: list[int],
+    episodes: int,
+    out: Path,
+    run_dir: Path,
+    command: str,
+    labels: Sequence[str] | None = None,
+) -> dict[str, Any]:
+    """Trains both PPO variants on ``env_config`` (one run per seed), then compares PD, CT and
+    them on the same evaluation seeds -> out/benchmark.md, .json, plots/.  ``labels``: train
+    only these learned rows (of LEARNED and FINETUNED; None: every one)."""
+    from tqdm.auto import tqdm
+
+    from tendon2r_gym.envs.env_config import EnvConfig
+    from tendon2r_gym.training import Experiment, Hyperparams
+
+    env_kwargs = {"preset": env_config}
+    config = EnvConfig.make(env_config)  # every error before any training
+    entries = {label: entry for label, (_, entry) in LEARNED.items()} | FINETUNED
+    if labels is not None:
+        if unknown := set(labels) - set(entries):
+            raise invalid("labels", sorted(unknown), f"some of {list(entries)}")
+        entries = {k: v for k, v in entries.items() if k in labels}
+    cfgs = {k: Hyperparams.from_entry(e, env_config=env_config) for k, e in entries.items()}
+    uncovered = {}
+    for label in [k for k in FINETUNED if k in cfgs]:  # only where the generalist covers the arm
+        source = cfgs[label].init_from
+        if source not in bundle_names():
+            uncovered[label] = f"bundle {source} is not installed"
+        elif (reason := not_covered(source, env_kwargs)) is not None:
+            uncovered[label] = reason
+        if label in uncovered:
+            del cfgs[label]
+    if train_steps is not None:
+        cfgs = {k: hp.replace(total_timesteps=train_steps) for k, hp in cfgs.items()}
+    out.mkdir(parents=True, exist_ok=True)
+    learned: dict[str, list[Path]] = {}
+    with tqdm(total=len(cfgs) * len(seeds) * 2 + 2, desc="benchmark", unit="task") as bar:
+        for label, hp in cfgs.items():
+            folder = run_dir / label.replace(" ", "_")
+            exp = Experiment.start_or_continue(hp, folder, seeds, command)
+            bar.set_postfix_str(f"training {label}")
+            exp.train(resume=True)
+            learned[label] = [model_files(exp.run_folder(s).best)[0] for s in seeds]
+            bar.update(len(seeds))
+        bar.set_postfix_str("evaluating")
+        name = Path(env_config).stem
+        rows = compare(name, env_kwargs, learned, list(range(episodes)), out / "plots", bar)
+        rows += generalist_rows(name, env_kwargs, list(range(episodes)))
+        rows += [{"env": name, "policy": k, "missing": v} for k, v in uncovered.items()]
+    result = {
+        "command": command,
+        "env_config": config.to_dict(),
+        "force_need_N": config.needs.force_need,
+        "rows": rows,
+    }
+    return _write(out, result, report.own_arm_page(result, env_config))

@@ -1,0 +1,482 @@
+"""Console commands (``[project.scripts]``): each is a typed Args dataclass, parsed one way.
+
+    tendon2r-train      train PPO (one run, or one per seed), resume, bundle
+    tendon2r-evaluate   RMS / max tracking error of PD, CT or PPO, plots and video
+    tendon2r-benchmark  PD vs CT vs PPO table; on your own arm with --env-config
+    tendon2r-tune-pd    PD's bandwidth for your arm (a lagging one needs lower gains)
+    tendon2r-view       a picture (or MuJoCo's viewer) of a mechanism
+    tendon2r-export     the MJCF XML of the model the env steps
+    tendon2r-bundle     copy finished runs into the bundled models
+
+Ctrl-C during a command exits with code 130 after saving what it was doing.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import typing
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Any, Literal, TypeVar
+
+from tendon2r_gym.evaluation.evaluator import names as policy_names
+from tendon2r_gym.evaluation.tuning import SCANS
+from tendon2r_gym.training.hyperparams import VEC_ENVS
+
+if typing.TYPE_CHECKING:
+    from tendon2r_gym.envs.env_config import EnvConfig
+    from tendon2r_gym.training import Experiment
+
+A = TypeVar("A")
+VecEnvName = Literal[VEC_ENVS]  # type: ignore[valid-type]
+ScanName = Literal[SCANS]  # type: ignore[valid-type]
+
+
+def arg(help: str) -> Any:  # noqa: A002
+    """A field's --help text (tyro's marker, in ``Annotated[type, arg("...")]``)."""
+    import tyro
+
+    return tyro.conf.arg(help=help)
+
+
+def parse(cls: type[A], argv: list[str] | None, doc: str | None = None) -> A:
+    """Parses argv into the dataclass ``cls`` with tyro: one --flag per field, typed by its
+    annotation (a bool is --flag / --no-flag, a list takes several values, a Literal its
+    choices, ``X | None`` is optional)."""
+    import tyro
+
+    return tyro.cli(cls, args=argv, description=doc or cls.__doc__)
+
+
+def run(main: Callable[[list[str] | None], Any]) -> Callable[[], None]:
+    """Wraps a command's main: Ctrl-C exits 130, a ValueError is a one-line error (exit 2)."""
+
+    def entry() -> None:
+        os.environ.setdefault("MUJOCO_GL", "egl")
+        try:
+            main(None)
+        except KeyboardInterrupt:
+            print("interrupted", file=sys.stderr)
+            sys.exit(130)
+        except ValueError as e:
+            print(f"error: {e}", file=sys.stderr)
+            sys.exit(2)
+
+    return entry
+
+
+# -- tendon2r-train ------------------------------------------------------------------------------
+@dataclass
+class TrainArgs:
+    """Train SB3 PPO on Tendon2R-v0 with an entry of configs/ppo.yaml.
+
+    tendon2r-train --hyperparams default --seeds 0 1 2 --bundle default
+    tendon2r-train --env-config my_arm.yaml --hyperparams default_scratch
+    tendon2r-train --run-dir runs/default --resume      # after Ctrl-C or a crash
+    tendon2r-train --env-config my_arm.yaml --init-from generalist --total-timesteps 300000
+
+    --resume continues the run recorded in --run-dir: its config.yaml (budget and overrides
+    included) with only this command's override flags on top; --hyperparams, --config and
+    --env-config choose the hyperparameters of a new run only.
+
+    --bundle NAME copies the finished runs into the bundled models as tendon2r-bundle does; the
+    name is checked before training starts, and a bundle of that name is replaced only with
+    --replace-bundle.
+    """
+
+    hyperparams: Annotated[str, arg("entry of the hyperparameter file (a new run)")] = "default"
+    config: Annotated[str | None, arg("hyperparameter file (default: configs/ppo.yaml)")] = None
+    env_config: Annotated[
+        str | None, arg("preset name or experiment file: the env to train on")
+    ] = None
+    total_timesteps: Annotated[int | None, arg("overrides the entry (or the resumed run)")] = None
+    n_envs: Annotated[int | None, arg("overrides the entry (or the resumed run)")] = None
+    vec_env: Annotated[VecEnvName | None, arg("overrides the entry (or the resumed run)")] = None
+    seeds: Annotated[
+        list[int] | None, arg("one run folder per seed (default 0, or the resumed ones)")
+    ] = None
+    run_dir: Annotated[str | None, arg("default runs/<hyperparams>; seeds go in seed_<n>/")] = None
+    resume: Annotated[bool, arg("continue the recorded run from its newest readable state")] = False
+    bundle: Annotated[
+        str | None, arg("copy the best models into the bundled models under NAME")
+    ] = None
+    replace_bundle: Annotated[bool, arg("with --bundle: replace the bundle of that name")] = False
+    init_from: Annotated[
+        str | None, arg("start from a bundle's (or model zip's) weights: fine-tune")
+    ] = None
+    progress_bar: Annotated[bool, arg("also on whenever stderr is a terminal")] = False
+
+
+def experiment(args: TrainArgs, command: str = "") -> Experiment:
+    """Returns the experiment of a train command: a new one from the entry, or the recorded
+    one under --run-dir with --resume."""
+    from tendon2r_gym.presets import PPO_CONFIG
+    from tendon2r_gym.training import Experiment, Hyperparams
+
+    base = Path(args.run_dir or f"runs/{args.hyperparams}")
+    overrides = {
+        k: getattr(args, k)
+        for k in ("total_timesteps", "n_envs", "vec_env", "init_from")
+        if getattr(args, k) is not None
+    }
+    progress = args.progress_bar or sys.stderr.isatty()
+    if args.resume:  # a folder without a run is refused, naming it
+        return Experiment.resume(base, args.seeds, command, progress, **overrides)
+    hp = Hyperparams.from_entry(args.hyperparams, args.config or PPO_CONFIG, args.env_config)
+    if overrides:
+        hp = hp.replace(**overrides)
+    return Experiment(hp, base, args.seeds or [0], command, progress)
+
+
+def train_main(argv: list[str] | None = None) -> dict[str, Any]:
+    from tendon2r_gym.policies.bundle import bundle_runs, check_destination
+    from tendon2r_gym.policies.runs import command_line
+
+    args = parse(TrainArgs, argv)
+    if args.bundle is not None:  # refused before training, not after it
+        check_destination(args.bundle, args.replace_bundle, field="--bundle",
+                          flag="--replace-bundle")  # fmt: skip
+    command = command_line(argv, "tendon2r-train")
+    exp = experiment(args, command)
+    agg = exp.train(resume=args.resume)
+    print(json.dumps({k: v for k, v in agg.items() if k != "runs"}), flush=True)
+    if args.bundle is not None:
+        runs = [exp.run_folder(s).path for s in exp.seeds]
+        dest = bundle_runs(runs, args.bundle, command, replace=args.replace_bundle)
+        print("bundled into", dest, flush=True)
+    return agg
+
+
+# -- tendon2r-evaluate ---------------------------------------------------------------------------
+@dataclass
+class EvaluateArgs:
+    """Evaluate a policy on Tendon2R-v0: RMS / max tracking error, forces and saturation.
+
+    tendon2r-evaluate --policy pd --env-config default --episodes 3 --json out.json
+    tendon2r-evaluate --policy ppo                        # the bundled model of the preset
+    tendon2r-evaluate --policy ct --env-config my_arm.yaml --plots figs --video run.mp4
+    """
+
+    policy: Annotated[str, arg(f"policy to run: one of {policy_names()} (the registry's)")] = "pd"
+    model: Annotated[
+        str | None, arg("PPO model zip (default: the bundle named like the preset)")
+    ] = None
+    bundle: Annotated[str | None, arg("bundled PPO to use instead of --model")] = None
+    env_config: Annotated[str, arg("preset name or experiment file")] = "default"
+    episodes: Annotated[int, arg("episodes, seeds seed .. seed + episodes - 1")] = 3
+    seed: Annotated[int, arg("first episode seed")] = 0
+    episode_duration: Annotated[float | None, arg("overrides the env config (s)")] = None
+    json: Annotated[str | None, arg("write all metrics here")] = None
+    plots: Annotated[str | None, arg("folder for the PNGs of the first episode")] = None
+    video: Annotated[str | None, arg("mp4 or gif of the first episode")] = None
+
+
+def evaluate_main(argv: list[str] | None = None) -> dict[str, Any]:
+
+    import tendon2r_gym  # noqa: F401  (registers Tendon2R-v0)
+    from tendon2r_gym.evaluation.evaluator import evaluate, make_policy, resolve_model
+    from tendon2r_gym.evaluation.rollout import rollout
+    from tendon2r_gym.validation import choice, integer
+
+    args = parse(EvaluateArgs, argv)
+    choice("--policy", args.policy, policy_names())  # the registry's names, now
+    integer("--episodes", args.episodes, 1, 10**6)
+    env_kwargs: dict[str, Any] = {"preset": args.env_config}
+    if args.episode_duration is not None:
+        env_kwargs["episode_duration"] = args.episode_duration
+    model = resolve_model(args.policy, args.model, args.bundle, env_kwargs)
+    if model is not None:  # a model runs in the settings it trained in (e.g. its action mode)
+        from tendon2r_gym.policies.learned import in_model_settings
+
+        env_kwargs = in_model_settings(model, env_kwargs)
+    seeds = list(range(args.seed, args.seed + args.episodes))
+    metrics, traces = evaluate(args.policy, env_kwargs, seeds, model)
+    metrics["env_kwargs"], metrics["model"] = env_kwargs, None if model is None else str(model)
+    keys = ("policy", "rms_deg", "max_deg", "rms_tension_N", "saturated_fraction", "steps")
+    print(json.dumps({k: metrics[k] for k in keys}))
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(metrics, indent=1))
+    title = f"{args.policy.upper()} on {Path(args.env_config).stem}"
+    if args.plots or args.video:  # the plots extra
+        from tendon2r_gym.app.plots import plot_trace, save_video
+    if args.plots:
+        for path in plot_trace(traces[0], args.plots, title):
+            print("wrote", path)
+    if args.video:
+        from tendon2r_gym.envs.env import make as make_env_as_given
+
+        env = make_env_as_given(render_mode="rgb_array", width=480, height=360, **env_kwargs)
+        trace = rollout(make_policy(args.policy, env, model), env, seeds[0], render=True)
+        every = max(1, round(1 / 30 / env.unwrapped.ctrl_dt))  # ~30 fps of real time
+        print("wrote", save_video(trace.frames[::every], args.video, fps=30))
+        env.close()
+    return metrics
+
+
+# -- tendon2r-benchmark --------------------------------------------------------------------------
+@dataclass
+class BenchmarkArgs:
+    """PD vs computed torque vs PPO (from scratch and residual) on the same seeds.
+
+    tendon2r-benchmark                                   # bundled presets -> results/
+    tendon2r-benchmark --env-config my_arm.yaml --train-steps 300000 --seeds 0 1 2 --out DIR
+    """
+
+    env_config: Annotated[str | None, arg("your arm: train PPO on this file, then compare")] = None
+    train_steps: Annotated[int | None, arg("PPO steps per run (default: the entries' own)")] = None
+    seeds: Annotated[list[int], arg("PPO training seeds (with --env-config)")] = field(
+        default_factory=lambda: [0]
+    )
+    episodes: Annotated[int, arg("evaluation episodes per policy (seeds 0 ..)")] = 3
+    out: Annotated[str, arg("folder for benchmark.md, benchmark.json and plots/")] = "results"
+    run_dir: Annotated[str | None, arg("training runs (default runs/<env-config name>)")] = None
+
+
+def benchmark_main(argv: list[str] | None = None) -> dict[str, Any]:
+    from tendon2r_gym.app.benchmark import benchmark_bundled, benchmark_own_arm
+    from tendon2r_gym.policies.runs import command_line
+    from tendon2r_gym.validation import integer
+
+    args = parse(BenchmarkArgs, argv)
+    integer("--episodes", args.episodes, 1, 10**6)
+    if args.train_steps is not None:
+        integer("--train-steps", args.train_steps, 1, 10**10)
+    command = command_line(argv, "tendon2r-benchmark")
+    if args.env_config is None:
+        return benchmark_bundled(args.episodes, Path(args.out), command)
+    return benchmark_own_arm(
+        args.env_config,
+        args.train_steps,
+        args.seeds,
+        args.episodes,
+        Path(args.out),
+        Path(args.run_dir or f"runs/{Path(args.env_config).stem}"),
+        command,
+    )
+
+
+# -- tendon2r-tune-pd ----------------------------------------------------------------------------
+@dataclass
+class TunePDArgs:
+    """Scan PD's closed-loop bandwidth on held-out episodes of your arm and keep the best one
+    with a gain margin (tendon2r_gym.evaluation.tuning); write your experiment file with its
+    pd_gains.
+
+    tendon2r-tune-pd --env-config my_arm.yaml --out my_arm_tuned.yaml
+    tendon2r-evaluate --policy pd --env-config my_arm_tuned.yaml
+    tendon2r-tune-pd --hyperparams real_arm --episodes 16 --scan max_delay_phase
+    """
+
+    env_config: Annotated[str, arg("preset name or experiment file")] = "default"
+    hyperparams: Annotated[str | None, arg("tune on this ppo.yaml entry's env instead")] = None
+    episodes: Annotated[
+        int, arg("tuning episodes (seeds 1000 ..; more for an env that draws arms)")
+    ] = 3
+    out: Annotated[str | None, arg("write the experiment file with the tuned pd_gains here")] = None
+    scan: Annotated[
+        ScanName,
+        arg("the gain to scan (max_delay_phase: gains scheduled on each arm's loop delay)"),
+    ] = "bandwidth_hz"
+
+
+def tune_pd_main(argv: list[str] | None = None) -> dict[str, Any]:
+    import yaml
+
+    from tendon2r_gym.evaluation.tuning import tune_pd
+    from tendon2r_gym.policies.runs import command_line
+    from tendon2r_gym.presets import PPO_CONFIG, load_yaml, preset_path
+    from tendon2r_gym.training import Hyperparams
+    from tendon2r_gym.validation import integer
+
+    args = parse(TunePDArgs, argv)
+    integer("--episodes", args.episodes, 1, 10**4)
+    env_kwargs: dict[str, Any] = {"preset": args.env_config}
+    if args.hyperparams is not None:
+        env_kwargs = Hyperparams.from_entry(args.hyperparams, PPO_CONFIG).env_kwargs
+    scan = tune_pd(env_kwargs, args.episodes, args.scan)
+    print("\n".join(scan.lines()))
+    result = {"pd_gains": scan.gains.to_dict(), "scan": scan.field, "values": list(scan.values),
+              "worst_deg": [list(w) for w in scan.worst_deg]}  # fmt: skip
+    if args.out:
+        data = {**load_yaml(preset_path(args.env_config)), "pd_gains": scan.gains.to_dict()}
+        header = f"# {command_line(argv, 'tendon2r-tune-pd')}: pd_gains tuned\n"
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(header + yaml.safe_dump(data, sort_keys=False))
+        print("wrote", args.out)
+    return result
+
+
+# -- tendon2r-view / tendon2r-export / tendon2r-bundle -------------------------------------------
+#: The largest side (px) of an image ``tendon2r-view`` renders (the env's render limit).
+MAX_IMAGE_SIDE = 16384
+
+
+@dataclass
+class ViewArgs:
+    """A static view of a mechanism (the reports' task 3): MuJoCo's passive viewer, or a PNG.
+
+    tendon2r-view --env-config default
+    tendon2r-view --save out.png       # headless PNG from the side camera
+    """
+
+    env_config: Annotated[str, arg("preset name or experiment file")] = "default"
+    save: Annotated[str | None, arg("write a PNG instead of opening the viewer")] = None
+    q_deg: Annotated[list[float], arg("pose: joint A and joint B (deg, in the joint range)")] = (
+        field(default_factory=lambda: [20.0, -35.0])
+    )
+    width: Annotated[int, arg(f"PNG width (px, 1 to {MAX_IMAGE_SIDE})")] = 800
+    height: Annotated[int, arg(f"PNG height (px, 1 to {MAX_IMAGE_SIDE})")] = 600
+
+
+def view_main(argv: list[str] | None = None) -> Path | None:
+    import mujoco
+    import numpy as np
+
+    from tendon2r_gym.envs.env_config import EnvConfig
+    from tendon2r_gym.simulation.model import CAMERA, build_model
+    from tendon2r_gym.validation import integer, pair
+
+    args = parse(ViewArgs, argv)
+    integer("--width", args.width, 1, MAX_IMAGE_SIDE)
+    integer("--height", args.height, 1, MAX_IMAGE_SIDE)
+    mech = EnvConfig.make(args.env_config).mechanism
+    q_deg = pair("--q-deg", args.q_deg, *mech.joint_range_deg)
+    model = build_model(mech)
+    model.vis.global_.offwidth, model.vis.global_.offheight = args.width, args.height
+    data = mujoco.MjData(model)
+    data.qpos[:2] = np.radians(q_deg)  # the arm's joints (elastic cables' spools follow)
+    mujoco.mj_forward(model, data)  # positions only: the mechanism is shown, not simulated
+    if args.save:
+        import imageio.v2 as imageio
+
+        with mujoco.Renderer(model, args.height, args.width) as renderer:
+            renderer.update_scene(data, camera=CAMERA)
+            image = renderer.render()
+        Path(args.save).parent.mkdir(parents=True, exist_ok=True)
+        imageio.imwrite(args.save, image)
+        print("wrote", args.save)
+        return Path(args.save)
+    import mujoco.viewer
+
+    with mujoco.viewer.launch_passive(model, data) as viewer:
+        while viewer.is_running():
+            viewer.sync()
+    return None
+
+
+@dataclass
+class ExportArgs:
+    """Write the MJCF XML of the model Tendon2R-v0 steps for an env config: MuJoCo's
+    MjModel.from_xml_path compiles it to the env's own MjModel, every number exactly.
+
+    tendon2r-export --env-config real_arm --out build/real_arm.xml
+
+    The XML holds the geometry, the masses and inertias (density_scale), the joints' damping
+    (extra_joint_damping), the cables (tendon_elasticity with their rest and slack lengths,
+    tendon_damping, tendon_friction), the motors' spools (motor_mass), gains and lag
+    (motor_tau), the time step and the integrator.  Each actuator's ctrl is its motor's
+    normalized command in [-1, 1]; the env applies an action for ctrl_dt / sim_dt steps.
+
+    What the env does in its Python step is not in the XML (its top comment lists this
+    config's values): motor_delay (each command held back whole control steps),
+    observation_noise and observation_delay (what the policy observes), action_filter_tau and
+    action_mode joint_torque (what an action becomes), the reset to rest (cables at their rest
+    tension, motor lags at the rest command), and with mechanism_ranges the new arm of every
+    episode (the XML is the config's nominal arm).
+    """
+
+    env_config: Annotated[str, arg("preset name or experiment file")] = "default"
+    out: Annotated[str | None, arg("output file (default build/<name>.xml)")] = None
+
+
+def export_note(cfg: EnvConfig, name: str) -> str:
+    """Returns the exported XML's top comment: its env config, how the env steps the model,
+    and what of ``cfg`` the env does in Python (ExportArgs)."""
+    mech = cfg.mechanism
+    lines = [
+        f"Tendon2R-v0's model of {name} (tendon2r-export), exactly as the env steps it.",
+        "ctrl: each motor's normalized command in [-1, 1]; an action holds it for ctrl_dt "
+        f"{cfg.ctrl_dt:g} s = {cfg.n_substeps} x timestep.",
+    ]
+    python = []
+    if mech.motor_delay > 0:
+        python.append(f"motor_delay {mech.motor_delay:g} s = {cfg.delay_steps} x ctrl_dt")
+    if cfg.sensed:
+        noise, delay = list(cfg.observation_noise), cfg.observation_delay
+        python.append(f"observation_noise {noise}, observation_delay {delay:g} s")
+    if cfg.action_filter_tau > 0:
+        python.append(f"action_filter_tau {cfg.action_filter_tau:g} s")
+    if cfg.action_mode != "tension":
+        python.append(f"action_mode {cfg.action_mode}")
+    if mech.elastic or mech.motor_tau > 0:
+        python.append("the reset to rest (tendon2r_gym.simulation.realism.Drive.settle)")
+    if cfg.mechanism_ranges is not None:
+        python.append("mechanism_ranges: a new arm every episode; this is the nominal one")
+    if python:
+        lines += ["The env does in Python, not in this file:", *(f"  {p}" for p in python)]
+    return "\n".join(lines)
+
+
+def export_main(argv: list[str] | None = None) -> Path:
+    from tendon2r_gym.envs.env_config import EnvConfig
+    from tendon2r_gym.simulation.model import to_xml
+
+    args = parse(ExportArgs, argv)
+    cfg = EnvConfig.make(args.env_config)
+    name = Path(args.env_config).stem
+    out = Path(args.out or f"build/{name}.xml")
+    xml = to_xml(cfg.mechanism, export_note(cfg, name))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(xml)
+    print("wrote", out)
+    return out
+
+
+@dataclass
+class BundleArgs:
+    """Copy finished training runs into the bundled models (the first run is the primary one).
+
+    tendon2r-bundle --name default --runs runs/default/seed_0 runs/default/seed_1
+    tendon2r-bundle --name default --replace --runs runs/default/seed_0
+
+    --name is required: a plain name (letters, digits, '_', '.', '-'), one folder under the
+    models root.  A bundle of that name is replaced only with --replace, and only once the new
+    one is complete (written beside it, then renamed into place): a failure leaves it intact.
+    """
+
+    name: Annotated[str | None, arg("bundle name, e.g. default (required)")] = None
+    runs: Annotated[list[str], arg("run folders written by tendon2r-train")] = field(
+        default_factory=lambda: []
+    )
+    replace: Annotated[bool, arg("replace the bundle of that name")] = False
+    root: Annotated[str | None, arg("models folder (default: the package's bundled models)")] = None
+
+
+def bundle_main(argv: list[str] | None = None) -> Path:
+    from tendon2r_gym.policies.bundle import bundle_runs, check_destination
+    from tendon2r_gym.policies.runs import command_line
+    from tendon2r_gym.presets import MODELS_DIR
+    from tendon2r_gym.validation import invalid
+
+    args = parse(BundleArgs, argv)
+    root = Path(args.root) if args.root is not None else MODELS_DIR
+    check_destination(args.name, args.replace, root, field="--name", flag="--replace")
+    if not args.runs:
+        raise invalid("--runs", args.runs, "one or more run folders")
+    command = command_line(argv, "tendon2r-bundle")
+    dest = bundle_runs([Path(r) for r in args.runs], args.name, command, root, args.replace)
+    print("bundled", len(args.runs), "run(s) into", dest)
+    return dest
+
+
+train = run(train_main)
+evaluate = run(evaluate_main)
+benchmark = run(benchmark_main)
+tune_pd = run(tune_pd_main)
+view = run(view_main)
+export = run(export_main)
+bundle = run(bundle_main)

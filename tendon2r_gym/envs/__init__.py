@@ -1,0 +1,2 @@
+"""The Gymnasium envs: the experiment-file record (EnvConfig), the task's formulas shared by
+both envs (Task), the single env and the native vector env (mujoco.batch)."""

@@ -1,0 +1,503 @@
+"""Tendon2R-v0: track sinusoidal joint references with two tendon motors."""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import Any
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+from gymnasium import spaces
+from gymnasium.envs.mujoco.mujoco_env import DEFAULT_SIZE, MujocoEnv
+from gymnasium.utils import EzPickle
+
+from tendon2r_gym.envs.env_config import EnvConfig
+from tendon2r_gym.envs.task import Task, arm_params, reference_params
+from tendon2r_gym.llvm import load_triton
+from tendon2r_gym.ops import SCALAR
+from tendon2r_gym.simulation.actuation import MomentArms, TorqueToTension, cond_of_rows
+from tendon2r_gym.simulation.model import CAMERA, build_model, tendon_name
+from tendon2r_gym.simulation.realism import CommandDelay, Drive, Sensors
+from tendon2r_gym.task import observation as obs_layout
+from tendon2r_gym.task.reference import Reference
+from tendon2r_gym.task.rewards import rewards_table
+from tendon2r_gym.validation import integer, invalid, real_array
+
+#: MuJoCo's warnings that mean the integration failed (DIVERGENCE_WARNING_IDS: their indices
+#: into MjData.warning, which both envs count).
+DIVERGENCE_WARNINGS = (
+    mujoco.mjtWarning.mjWARN_BADQACC,
+    mujoco.mjtWarning.mjWARN_BADQPOS,
+    mujoco.mjtWarning.mjWARN_BADQVEL,
+)
+DIVERGENCE_WARNING_IDS = [int(w) for w in DIVERGENCE_WARNINGS]
+
+
+def _allowed_actions(n: int) -> str:
+    return f"({n},) finite real numbers (one per tendon) in [-1, 1]; values outside are clipped"
+
+
+def make_env(preset: str | os.PathLike = "default", **kwargs: Any) -> gym.Env:
+    """The registered entry point: Tendon2REnv under a TimeLimit of episode_duration / ctrl_dt
+    steps, so ``gym.make(..., episode_duration=X, ctrl_dt=Y)`` gives X / Y steps (the TimeLimit
+    is the one source of truth for truncation, and ``env.spec.max_episode_steps`` reports it)."""
+    env = Tendon2REnv(preset, **kwargs)
+    return gym.wrappers.TimeLimit(env, env.config.max_episode_steps)
+
+
+#: The env card's sections, in Gymnasium's order: the ``##`` headings of Tendon2REnv's docstring.
+CARD_SECTIONS = (
+    "Description",
+    "Action Space",
+    "Observation Space",
+    "Rewards",
+    "Starting State",
+    "Episode End",
+    "Arguments",
+    "Version History",
+)
+#: The id the library's own tools make envs with: Tendon2R-v0 adds no defaults over a preset,
+#: so the env is exactly what the given kwargs (a model's recorded settings) say.
+BASE_ID = "Tendon2R-v0"
+
+
+def make(**kwargs: Any) -> gym.Env:
+    """``gym.make`` of BASE_ID, through its spec: the same env, wrappers and TimeLimit, without
+    Gymnasium's notice that a newer version exists (it is meant for users' own ids)."""
+    return gym.make(gym.spec(BASE_ID), **kwargs)
+
+
+class Tendon2REnv(MujocoEnv, EzPickle):
+    """Tendon-driven 2R planar arm: each joint tracks q_des(t) = amp sin(w t + phase) + bias.
+
+    ## Description
+    A fixed base link ``a`` (wall to joint A), link ``c`` (joint A to joint B) and link ``b``
+    (joint B to the effector) move in the x-z plane without gravity.  Spatial tendons (two by
+    default, or any routing of 2 or more) run from the wall over pulleys on both joints
+    (diameters ``R1``, ``R2``) to the effector, or to link c; one motor pulls (and, unless
+    ``pull_only``, pushes) on each.  The mechanism, the reference and any other argument below
+    come from a preset or an experiment file (``preset``), with keyword overrides.
+
+    ## Action Space
+    ``Box(-1, 1, (n_actions,), float32)``, by ``action_mode``:
+
+    - ``"tension"`` (default): one normalized command per tendon motor.  Push-pull: +-1 is
+      +-``max_tendon_force`` N along the tendon.  Pull-only (``mechanism.pull_only``): [-1, 1]
+      maps affinely to a tension in [0, ``max_tendon_force``] N (-1 slack, +1 full pull).
+    - ``"joint_torque"``: one normalized torque per joint, times the torque each joint alone
+      reaches before a tendon saturates (``TorqueToTension.max_torque``); the env turns
+      the torques into tendon tensions with the distribution PD uses
+      (tendon2r_gym.simulation.actuation.distribute at the current q: pull-only respected, pretension
+      kept), clipped at the force limit.
+
+    With ``action_filter_tau`` > 0 the env applies the command c = c_last + alpha (action -
+    c_last), alpha = 1 - exp(-ctrl_dt / action_filter_tau), a first-order low-pass that a
+    motor can follow; c_last is observed (``last_action``), so PD and CT send the action that
+    the filter turns into their own command.
+
+    Out-of-range actions are clipped to [-1, 1]; a wrong shape or a non-finite action raises
+    ValueError.  ``info["tendon_tension"]`` is each tendon's pulling force in N (positive when
+    it pulls) for every routing and mode.
+
+    ## Observation Space
+    ``Box(-inf, inf, (16 + 2 * preview_steps + n_actions,), float64)`` (2 more with
+    ``observe_error_rate``, 2 with ``observe_feedforward``, 1 with ``observe_force_limit``,
+    one per drawn field with ``observe_arm``), named slices in ``tendon2r_gym.task.observation``:
+
+    {obs_table}
+
+    With ``observation_noise`` or ``observation_delay`` (tendon2r_gym.simulation.realism.Sensors), the
+    observation is computed from measured joint angles and speeds (late by whole control steps,
+    with Gaussian noise); the reward and ``info`` stay on the true state.
+
+    ## Rewards
+    ``reward = sum(reward_scales[k] * term_k)`` over the terms below (tendon2r_gym.task.rewards.TERMS;
+    each is in ``info`` as ``reward_<k>``, already scaled):
+
+    {rewards}
+
+    ## Starting State
+    On the reference: q = q_des(0), dq = dq_des(0), plus uniform noise in
+    [-reset_noise_scale, reset_noise_scale] (rad and rad/s), clipped to the joint range.
+
+    ## Episode End
+    - Truncation: after ``episode_duration / ctrl_dt`` steps, by the ``TimeLimit`` wrapper that
+      ``gym.make`` applies (``env.spec.max_episode_steps``).
+    - Termination: if the physics diverges (a MuJoCo instability warning, a joint more than
+      0.5 rad past its limit, a joint faster than 1e4 rad/s, or a non-finite state).  That step
+      returns the last good observation (never larger than the observations before it) and the
+      reward of that state minus ``reward_scales["divergence"]``, so it is bounded: in [-1 -
+      divergence - ctrl - action_rate terms, 0] for the "multiscale" and "log" forms.
+      ``info["diverged"]`` is True.  Construction refuses parameters the integrator cannot
+      integrate (tendon2r_gym.simulation.stability).
+
+    ## Arguments
+
+    | argument | default | description |
+    |----------|---------|-------------|
+    | `preset` | `"default"` | a bundled preset name or an experiment-file path (.yaml) |
+    | `mechanism` | `None` | dict of Mechanism fields overriding the preset, or a Mechanism |
+    | `reference` | `None` | dict of Reference fields overriding the preset, or a Reference |
+    | `reference_ranges` | `None` | dict of ReferenceRanges: draw a new reference every reset |
+    | `mechanism_ranges` | `None` | {{field: [lo, hi]}} of Mechanism, sensor or PD gain fields, "course", "real_arm", or a list of these: a new arm every reset |
+    | `observe_arm` | `False` | end the observation with the drawn fields, normalized (``arm``) |
+    | `arm_feature_ranges` | `None` | ranges the ``arm`` slice is normalized over, if not mechanism_ranges (a generalist fine-tuned on one arm) |
+    | `fit_to_workspace` | `False` | scale the amplitudes down (with a warning) instead of raising |
+    | `ctrl_dt` | `0.001` | control period (s), an integer multiple of the mechanism's sim_dt |
+    | `episode_duration` | `2.0` | seconds per episode |
+    | `action_mode` | `"tension"` | "tension" (one command per tendon) or "joint_torque" |
+    | `action_filter_tau` | `0.0` | time constant (s) of a first-order filter on the command |
+    | `reward_scales` | `{{'tracking': 1, 'tracking_quadratic': 0, 'ctrl': 0.001, 'action_rate': 0.1, 'action_rate_need': 0, 'divergence': 100}}` | weights |
+    | `tracking_form` | `"multiscale"` | "multiscale", "log" (both bounded) or "quadratic" tracking reward |
+    | `tracking_sigma_deg` | `1.0` | error scale of the "multiscale" and "log" tracking rewards (deg) |
+    | `reset_noise_scale` | `0.001` | initial-state noise (rad, rad/s) |
+    | `preview_steps` | `3` | number of future reference samples observed |
+    | `preview_dt` | `0.01` | spacing of the future reference samples (s) |
+    | `observe_error_rate` | `False` | observe the tracking error's rate, log-scaled (``error_rate_log``) |
+    | `error_units` | `"rad"` | what error_log and error_rate_log log-scale: the error and its rate (``"rad"``), or the normalized joint torques that close the error and cancel its rate on the arm (``"action"``, ``rate_to_action``) |
+    | `observe_feedforward` | `False` | observe the reference's acceleration in normalized joint torques (``feedforward``) |
+    | `observe_force_limit` | `False` | observe ln of the arm's force limit, the actions' scale (``force_limit_log``) |
+    | `observation_noise` | `(0.0, 0.0)` | std of the measured angles (rad) and speeds (rad/s) |
+    | `observation_delay` | `0.0` | age of the measurements (s), a multiple of ctrl_dt |
+    | `pd_gains` | `None` | PD / CT gains on this arm (tendon2r_gym.task.gains; None: data/pd.yaml) |
+    | `render_mode` | `None` | "human", "rgb_array" or "depth_array" |
+    | `width` | `480` | render width (px) |
+    | `height` | `480` | render height (px) |
+    | `camera_name` | `"side"` | camera that frames the whole arm |
+
+    Real tendons and motors (``mechanism``: ``tendon_elasticity``, ``motor_mass``,
+    ``tendon_friction``, ``motor_tau``, ``motor_delay``; all off by default) and the nominal
+    model's errors (``density_scale``, ``extra_joint_damping``; exact by default) are
+    described in tendon2r_gym.simulation.realism; PD and CT keep the nominal model.
+
+    Random arms (``mechanism_ranges``, tendon2r_gym.task.arms.MechanismRanges): at every reset the
+    env draws the listed fields uniformly (the geometry, damping, density, the cables and
+    motors), keeps only valid arms (a Mechanism, stable, the reference fitted to its
+    workspace, its own ``auto`` force limit: EnvConfig.draw_arm) and rebuilds its model with
+    MjSpec; the reset info's ``mechanism`` is the episode's arm, which PD, CT and
+    ResidualPDWrapper follow.
+
+    ``mechanism.max_tendon_force`` defaults to ``"auto"``: FORCE_HEADROOM (2) times the peak
+    tendon force that inverse dynamics of the reference needs (for ``reference_ranges``, of its
+    worst corner), see ``force_need()``.  A fixed limit below that need warns.
+
+    ## Version History
+    Each id's contract is frozen (tendon2r_gym.policies.contract); CHANGELOG.md says what each changed.
+
+    - v1: the default for new work: ``reset_noise_scale`` 0.02 and ``observe_error_rate``,
+      what the shipped plain-PPO entries learn on.
+    - v0: the first id, frozen at its last contract (``reset_noise_scale`` 0.001, no error
+      rate in the observation).
+    """  # noqa: E501
+
+    metadata = {"render_modes": ["human", "rgb_array", "depth_array"]}
+
+    def __init__(
+        self,
+        preset: str | os.PathLike = "default",
+        render_mode: str | None = None,
+        width: int = DEFAULT_SIZE,
+        height: int = DEFAULT_SIZE,
+        camera_name: str | None = CAMERA,
+        **kwargs: Any,
+    ) -> None:
+        EzPickle.__init__(self, preset, render_mode, width, height, camera_name, **kwargs)
+        # Every argument is checked before the model is built.
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise invalid(
+                "render_mode", render_mode, f"None or one of {self.metadata['render_modes']}"
+            )
+        integer("width", width, 1, 16384)
+        integer("height", height, 1, 16384)
+        if camera_name not in (None, CAMERA):
+            raise invalid("camera_name", camera_name, f"None (free camera) or {CAMERA!r}")
+        if render_mode is not None:  # before a GL context can bring Mesa's LLVM in
+            load_triton()  # tendon2r_gym.llvm: triton loaded after it segfaults
+        self.config = cfg = EnvConfig.make(preset, **kwargs)
+        self.mechanism = cfg.mechanism  # the current episode's arm (self.arm: its config)
+        self.data: mujoco.MjData | None = None
+        self.nominal_reference = self.reference = cfg.reference
+        self.reference_ranges = cfg.reference_ranges
+        self.ctrl_dt = cfg.ctrl_dt
+        self.reward_scales = cfg.reward_scales
+        self.preview_steps, self.preview_dt = cfg.preview_steps, cfg.preview_dt
+
+        # render_fps depends on ctrl_dt, so it is set per instance before MujocoEnv checks it.
+        self.metadata = {**type(self).metadata, "render_fps": int(round(1.0 / cfg.ctrl_dt))}
+        # MujocoEnv insists on an existing model_path and loads it in _initialize_simulation.
+        # We build the model in memory with MjSpec (parameters stay exact, no file round trip)
+        # and override _initialize_simulation; this module's path only passes the check.
+        n_obs = cfg.observation_size
+        MujocoEnv.__init__(
+            self,
+            __file__,
+            cfg.n_substeps,
+            observation_space=spaces.Box(-np.inf, np.inf, (n_obs,), np.float64),
+            render_mode=render_mode,
+            width=width,
+            height=height,
+            camera_name=camera_name,
+        )
+        self._resolve_ids()
+
+    # -- set-up ----------------------------------------------------------------------------------
+    def _initialize_simulation(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
+        model = build_model(self.mechanism)  # the current arm's
+        model.vis.global_.offwidth = max(model.vis.global_.offwidth, self.width)
+        model.vis.global_.offheight = max(model.vis.global_.offheight, self.height)
+        return model, mujoco.MjData(model)
+
+    def _set_action_space(self) -> spaces.Box:
+        """One normalized command per tendon ("tension") or per joint ("joint_torque")."""
+        self.action_space = spaces.Box(-1.0, 1.0, (self.config.n_actions,), np.float32)
+        return self.action_space
+
+    def _resolve_ids(self) -> None:
+        """Caches views and constants used on every step (no name look-ups in the hot path)."""
+        self.task = Task(self.config)
+        cfg = self.config
+        self._delay: CommandDelay | None = None
+        if cfg.delay_capacity:
+            self._delay = CommandDelay(cfg.delay_capacity, 1, cfg.mechanism.n_tendons)
+        self._sensing: Sensors | None = None
+        if cfg.sensed:  # the observation is a measurement; reward and info are true
+            self._sensing = Sensors(cfg.observation_delay_capacity, 1, cfg.noisy)
+        self._last_truth: np.ndarray | None = None
+        self._n = self.config.n_actions
+        self._filtered = self.config.action_filter_alpha != 1.0
+        self._err = obs_layout.ERROR
+        self._fixed_reference: Reference | None = None
+        self._bind_arm(self.config)
+        self._set_reference(self.reference)
+        self._last_obs: np.ndarray | None = None
+
+    def _bind_arm(self, arm: EnvConfig) -> None:
+        """Makes ``arm`` (an EnvConfig of one arm: the env's, or a draw of mechanism_ranges)
+        the simulated arm: its model (built with MjSpec unless it is the current one), and the
+        views and helpers that depend on it."""
+        self.arm, self.mechanism = arm, arm.mechanism
+        if self.data is None or arm is not self.config:
+            self.model, self.data = self._initialize_simulation()
+            if self.render_mode is not None:
+                from gymnasium.envs.mujoco.mujoco_rendering import MujocoRenderer
+
+                self.mujoco_renderer.close()
+                self.mujoco_renderer = MujocoRenderer(
+                    self.model, self.data, None, self.width, self.height, 1000, None,
+                    self.camera_name,
+                )  # fmt: skip
+        d = self.data
+        # Views into MjData stay valid for its lifetime; fetching them once saves a binding call
+        # per access on every step.  The arm's joints are the first two (spools follow).
+        self._qpos, self._qvel, self._ctrl = d.qpos[:2], d.qvel[:2], d.ctrl
+        self.drive = Drive(self.model, self.mechanism)
+        if self._delay is not None:
+            self._delay.set_arm(0, arm.delay_steps, self.drive.ctrl)
+        if self._sensing is not None:
+            self._sensing.set_arm(0, arm.observation_delay_steps, arm.observation_noise)
+        self._last_action = self.task.rest_command(arm)
+        self._torque_map: TorqueToTension | None = None
+        max_torque = None
+        if self.config.action_mode == "joint_torque":
+            self._torque_map = TorqueToTension(self.mechanism)
+            max_torque = self._torque_map.max_torque
+        self._rate_inv = [
+            float(x) for x in self.task.rate_need_inverse(arm.needs.torque_rate_need, max_torque)
+        ]
+        # Named sensor reads: each tendon's motor force (N, positive lengthens), contiguous.
+        first = self.model.sensor(f"force_{tendon_name(0)}").adr[0]
+        n = self.mechanism.n_tendons
+        self._motor_force = d.sensordata[first : first + n]
+        #: Elastic cables: a view of their tensions, the force of each on its spool.
+        self._cable_force = (
+            self.drive.tension_view(d.qfrc_passive) if self.mechanism.elastic else None
+        )
+        self._warning_numbers = d.warning.number  # a live view: one count per mjtWarning
+        self._warning_count = 0
+        self._arms = MomentArms(self.model, d)
+        self._arm = arm_params(arm, self.config)
+
+    def _set_reference(self, ref: Reference) -> None:
+        """Sets the episode's reference, cached as Python floats for the task's scalar math."""
+        self.reference = ref
+        self._ref = reference_params(ref)
+
+    # -- named quantities ------------------------------------------------------------------------
+    def tendon_tensions(self) -> np.ndarray:
+        """Returns each tendon's tension (N, positive when it pulls) in the last step: minus the
+        motor force along the tendon that the model's force sensors read, or for elastic cables
+        the force of their stretch on their spools
+        (tendon2r_gym.simulation.realism.Drive.tension_view)."""
+        if self._cable_force is not None:
+            return self._cable_force.copy()
+        return -self._motor_force
+
+    def force_need(self) -> float:
+        """Returns the peak tendon force (N) that inverse dynamics of the reference needs (of
+        the worst corner of ``reference_ranges``, if set); ``max_tendon_force: auto`` is
+        FORCE_HEADROOM times this."""
+        return self.arm.needs.force_need
+
+    # -- gymnasium API -----------------------------------------------------------------------------
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        last = self._last_action
+        a = self._check_action(action)
+        if self._filtered:
+            a = self.task.command(a, last)
+        self._last_action = a
+        if self._torque_map is None:
+            u = a
+        else:  # joint_torque: PD's tension distribution at the current q
+            u = self._torque_map.joint_torque_command(self._qpos[None], np.array([a]))[0]
+        if self._delay is not None:  # the motors get the command of delay_steps ago
+            u = self._delay.one(u)
+        self._ctrl[:] = u
+        mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
+        state = self._state()
+        diverged = self._check_divergence(state)
+        if diverged:  # the state left finite by _check_divergence
+            state = self._state()
+        seen = state
+        if self._sensing is not None:  # what the controller gets this step
+            seen = self._measured = self._sensing.one(state, self.np_random)
+        # A diverged step reports the last good state: nothing enormous reaches a learner.
+        entries = None if diverged else self._obs_entries(seen)
+        obs = self._last_obs.copy() if entries is None else np.array(entries, dtype=np.float64)
+        truth, true_entries = obs, entries
+        if self._sensing is not None:  # reward and info on the true state
+            if entries is None:
+                truth = self._last_truth.copy()
+            else:
+                true_entries = self._true_entries(entries, state)
+                truth = np.array(true_entries, dtype=np.float64)
+            self._last_truth = truth
+        reward, terms = self._get_rew(
+            truth.tolist() if true_entries is None else true_entries, a, last, diverged
+        )
+        info = self._get_info(truth, terms, diverged)
+        self._last_obs = obs
+        if self.render_mode == "human":
+            self.render()
+        return obs, reward, diverged, False, info
+
+    def _check_action(self, action: Any) -> list[float]:
+        """Returns the action as n floats clipped to [-1, 1], or raises a ValueError naming it."""
+        n = self._n
+        if type(action) is not np.ndarray or action.shape != (n,) or action.dtype.kind != "f":
+            action = real_array("action", action, (n,), _allowed_actions(n))
+        a = action.tolist()
+        # A finite sum has finite terms; only a non-finite one needs each term checked.
+        if not math.isfinite(sum(a)) and not all(map(math.isfinite, a)):
+            raise invalid("action", action, _allowed_actions(n))
+        return [-1.0 if x < -1.0 else 1.0 if x > 1.0 else x for x in a]
+
+    def _warnings(self) -> int:
+        """Returns how many of DIVERGENCE_WARNINGS MuJoCo has raised since MjData was made."""
+        counts = self._warning_numbers.tolist()
+        return sum([counts[w] for w in DIVERGENCE_WARNING_IDS])
+
+    def _check_divergence(self, state: list[float]) -> bool:
+        """Returns whether the last step, which left the true ``state`` (:meth:`_state`),
+        diverged (a new MuJoCo instability warning, or a state outside the task's domain); if
+        so, leaves a finite state."""
+        n_warn = self._warnings()
+        q1, q2, w1, w2 = state
+        diverged = n_warn > self._warning_count or self.task.out_of_domain(SCALAR, q1, q2, w1, w2)
+        self._warning_count = n_warn
+        if diverged:  # MuJoCo already reset the state on a bad QACC; make sure it is finite.
+            qpos = self.data.qpos  # the arm's and the spools'
+            qpos[:] = np.nan_to_num(qpos, nan=0.0, posinf=0.0, neginf=0.0)
+            self.data.qvel[:] = 0.0
+        return diverged
+
+    def _state(self) -> list[float]:
+        """Returns the true (q_A, q_B, dq_A, dq_B)."""
+        return self._qpos.tolist() + self._qvel.tolist()
+
+    def _obs_entries(self, state: list[float]) -> list[float]:
+        """Returns the observation's entries (tendon2r_gym.envs.task.Task.observation on this arm)
+        of the joint state (q_A, q_B, dq_A, dq_B)."""
+        q1, q2, w1, w2 = state
+        return self.task.observation(
+            SCALAR, q1, q2, w1, w2, self.data.time, self._ref, self._arm, self._last_action
+        )
+
+    def _get_obs(self, measured: bool = True) -> np.ndarray:
+        """Returns the observation (:meth:`_obs_entries` as an array): of what the sensors
+        measure, or with ``measured=False`` of the true state."""
+        state = self._measured if measured and self._sensing is not None else self._state()
+        return np.array(self._obs_entries(state), dtype=np.float64)
+
+    def _true_entries(self, parts: list[float], state: list[float]) -> list[float]:
+        """Returns the observation's entries of the true ``state`` (:meth:`_state`): ``parts``
+        (the entries of the sensors' observation of this step) with the entries the joint
+        state sets rewritten (Task.state_entries, and Task.error_rate_entries if observed)."""
+        qd1, qd2 = parts[obs_layout.Q_DES]
+        joints, rest = self.task.state_entries(SCALAR, *state, qd1, qd2, self._arm)
+        head, tail = obs_layout.STATE
+        out = joints + parts[head.stop : tail.start] + rest + parts[tail.stop :]
+        if self.config.observe_error_rate:
+            where = obs_layout.error_rate_slice(self.preview_steps, self._n)
+            out[where] = self.task.error_rate_entries(
+                SCALAR, *state[2:], *parts[obs_layout.DQ_DES], self._arm
+            )
+        return out
+
+    def _get_rew(
+        self, entries: list[float], action: list[float], last: list[float], diverged: bool
+    ) -> tuple[float, dict[str, float]]:
+        """Returns (reward, scaled terms) from the observation's entries of the true state; the
+        reward is the sum of the terms."""
+        e1, e2 = entries[self._err]
+        terms = self.task.reward_terms(SCALAR, e1, e2, action, last, self._rate_inv, diverged)
+        return self.task.scale(terms)
+
+    def _get_info(self, obs: np.ndarray, terms: dict[str, float], diverged: bool) -> dict[str, Any]:
+        return self.task.step_info(
+            obs,
+            terms,
+            self.tendon_tensions(),
+            cond_of_rows(SCALAR, self._arms.rows()),
+            self.data.time,
+            diverged,
+        )
+
+    def reset_model(self) -> np.ndarray:
+        rng = self.np_random
+        arm, ref = self.task.episode(rng, self._fixed_reference)
+        if arm is not self.arm:  # a drawn arm: its own model
+            self._bind_arm(arm)
+        self._set_reference(ref)
+        q, qdot = self.task.initial_state(rng, self.reference)
+        if self.drive.has_state:  # spools and lags at rest
+            self.drive.settle(self.data, q, qdot)
+        else:
+            self.set_state(q, qdot)
+        self._last_action = self.task.rest_command(self.arm)
+        if self._delay is not None:
+            self._delay.reset(slice(None))
+        if self._sensing is not None:
+            self._sensing.reset(0, self._state(), self.np_random)
+            self._measured = self._sensing.read()[0].tolist()
+            self._last_truth = self._get_obs(measured=False)
+        self._warning_count = self._warnings()
+        self._last_obs = self._get_obs()
+        return self._last_obs
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        """Resets the episode.  ``options={"reference": {...}}`` fixes this episode's reference
+        (Reference fields over the nominal one; it must fit the workspace), e.g. for held-out
+        evaluation; ``reference_ranges`` then draws nothing."""
+        self._fixed_reference = self.task.reference_option(options)
+        return super().reset(seed=seed, options=options)
+
+    def _get_reset_info(self) -> dict[str, Any]:
+        return self.task.reset_info(self.reference, float(self.data.time), self.arm)
+
+
+Tendon2REnv.__doc__ = Tendon2REnv.__doc__.format(
+    obs_table=obs_layout.table().replace("\n", "\n    "),
+    rewards=rewards_table().replace("\n", "\n    "),
+)

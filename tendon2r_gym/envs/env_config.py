@@ -1,0 +1,498 @@
+"""EnvConfig: every argument of Tendon2R-v0 except rendering, resolved and validated once.
+
+``EnvConfig.make(preset, **overrides)`` reads the preset or experiment file, applies the
+overrides (:func:`tendon2r_gym.presets.merge_env_kwargs`), checks every value, fits the reference
+to the workspace if asked, and sizes ``max_tendon_force: auto``.  Every error is raised here,
+before any MuJoCo model is built.  ``to_dict()`` is what a training run records, and what a
+trained model is checked against when it is loaded.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import warnings
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from tendon2r_gym.presets import SECTIONS, load_preset, merge_env_kwargs
+from tendon2r_gym.simulation.mechanism import AUTO, Mechanism
+from tendon2r_gym.task import observation
+from tendon2r_gym.task.arms import (
+    CONTROLLER,
+    DELAYS,
+    MAX_TRIES,
+    SENSING,
+    TUNED_PHASE,
+    MechanismRanges,
+    gain_field,
+    reference_ranges,
+)
+from tendon2r_gym.task.gains import Gains, gains_of, tuned_bandwidth
+from tendon2r_gym.task.needs import Needs, force_needs
+from tendon2r_gym.task.reference import Reference, ReferenceRanges
+from tendon2r_gym.task.rewards import ERROR_UNITS, MAX_REWARD_WEIGHT, REWARD_SCALES, TRACKING_FORMS
+from tendon2r_gym.validation import (
+    boolean,
+    check_keys,
+    choice,
+    integer,
+    invalid,
+    mapping,
+    number,
+    pair,
+)
+
+#: ``max_tendon_force: auto`` is this many times the peak force that inverse dynamics of the
+#: reference needs: PD's feedback and the start-up transient need room above feed-forward.
+FORCE_HEADROOM = 2.0
+#: The least motion ``auto`` sizes the force limit for (per joint, about the reference's bias).
+AUTO_FLOOR = {"amp_deg": (10.0, 10.0), "freq_hz": (1.0, 1.0)}
+
+
+#: What the action commands: "tension", each tendon motor (normalized by max_tendon_force);
+#: "joint_torque", each joint's torque (normalized by TorqueToTension.max_torque), which the env
+#: turns into tendon tensions with PD's distribution
+#: (tendon2r_gym.simulation.actuation.TorqueToTension).
+ACTION_MODES = ("tension", "joint_torque")
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """The resolved arguments of Tendon2R-v0 (see the Tendon2REnv docstring for each one)."""
+
+    mechanism: Mechanism
+    reference: Reference
+    reference_ranges: ReferenceRanges | None = None
+    #: Draw a new arm at every reset (tendon2r_gym.task.arms.MechanismRanges; "course": the
+    #: course's geometry), and its reference: each pair valid, with its own ``auto`` force
+    #: limit, as one user's experiment file (draw_arm).
+    mechanism_ranges: MechanismRanges | None = None
+    #: Observe the drawn fields, normalized over mechanism_ranges (the ``arm`` slice).
+    observe_arm: bool = False
+    #: The ranges the ``arm`` slice covers and is normalized over, if not mechanism_ranges:
+    #: a policy trained on random arms with observe_arm sees one fixed arm as it saw the
+    #: arms it was trained on (fine-tuning a generalist on one arm).
+    arm_feature_ranges: MechanismRanges | None = None
+    fit_to_workspace: bool = False
+    ctrl_dt: float = 0.001
+    action_mode: str = "tension"
+    action_filter_tau: float = 0.0
+    episode_duration: float = 2.0
+    reward_scales: Mapping[str, float] = field(default_factory=lambda: dict(REWARD_SCALES))
+    tracking_form: str = "multiscale"
+    tracking_sigma_deg: float = 1.0
+    reset_noise_scale: float = 0.001
+    preview_steps: int = 3
+    preview_dt: float = 0.01
+    #: Observe the tracking error's rate, log-scaled (``error_rate_log``, after last_action).
+    observe_error_rate: bool = False
+    #: What error_log and error_rate_log log-scale (tendon2r_gym.envs.task.ERROR_UNITS): "rad", the
+    #: tracking error and its rate; "action", the normalized joint torques that close the
+    #: error and cancel its rate on the episode's arm (rate_to_action), so that a policy's
+    #: gains on them move the joints alike on every arm.
+    error_units: str = "rad"
+    #: Observe the reference's acceleration as the normalized joint torques that give it
+    #: (``feedforward``, after error_rate_log): rate_to_action (ctrl_dt ddq_des).
+    observe_feedforward: bool = False
+    #: Observe ln of the force limit max_tendon_force (``force_limit_log``, after
+    #: error_rate_log): a normalized action's scale, which ``auto`` sizes per arm.
+    observe_force_limit: bool = False
+    #: What the controller measures (tendon2r_gym.simulation.realism.Sensors): Gaussian noise (std,
+    #: rad
+    #: and rad/s) on each joint's angle and speed, and their age (s, whole control steps).
+    observation_noise: tuple[float, float] = (0.0, 0.0)
+    observation_delay: float = 0.0
+    #: Gains of PD and CT on this arm (tendon2r_gym.task.gains.Gains fields over data/pd.yaml; None:
+    #: data/pd.yaml), and of the PD inside a residual policy trained here.  A lagging arm may
+    #: need lower ones: ``tendon2r-tune-pd`` finds them.
+    pd_gains: Gains | None = None
+    #: What inverse dynamics of the reference (or of the worst corner of reference_ranges)
+    #: needs of this arm, and its control authority (tendon2r_gym.task.needs.Needs); computed,
+    #: not an argument.
+    needs: Needs = field(default=None, compare=False, repr=False)  # type: ignore[assignment]
+    #: The mechanism as given (max_tendon_force possibly "auto"): what arms are drawn over.
+    base_mechanism: Mechanism | None = field(default=None, compare=False, repr=False)
+
+    # -- construction --------------------------------------------------------------------------
+    @classmethod
+    def make(cls, preset: str | os.PathLike = "default", **overrides: Any) -> EnvConfig:
+        """Returns the config of a preset name or experiment-file path with ``overrides``."""
+        allowed = arguments()
+        check_keys("Tendon2R-v0", overrides, allowed)
+        kwargs = merge_env_kwargs(load_preset(preset, allowed), overrides)
+        return cls.from_kwargs(kwargs)
+
+    @classmethod
+    def from_kwargs(cls, kwargs: Mapping[str, Any]) -> EnvConfig:
+        """Validates and resolves merged keyword arguments (sections may be dicts)."""
+        kwargs = dict(kwargs)
+        check_keys("Tendon2R-v0", kwargs, arguments())
+        mech = kwargs.pop("mechanism", None)
+        if not isinstance(mech, Mechanism):
+            mech = Mechanism.from_dict(mapping("mechanism", mech))
+        ref = kwargs.pop("reference", None)
+        if not isinstance(ref, Reference):
+            ref = Reference.from_dict(mapping("reference", ref))
+        ranges = kwargs.pop("reference_ranges", None)
+        if ranges is not None and not isinstance(ranges, ReferenceRanges):
+            ranges = reference_ranges(ranges)
+        arms = kwargs.pop("mechanism_ranges", None)
+        if arms is not None:
+            arms = MechanismRanges.from_value(arms)
+        features = kwargs.pop("arm_feature_ranges", None)
+        if features is not None:
+            try:
+                features = MechanismRanges.from_value(features)
+            except ValueError as e:  # the same rules as mechanism_ranges: name the field
+                raise ValueError(f"arm_feature_ranges: {e}") from None
+        if kwargs.get("pd_gains") is not None:
+            kwargs["pd_gains"] = gains_of(kwargs["pd_gains"])
+        return cls(
+            mechanism=mech,
+            reference=ref,
+            reference_ranges=ranges,
+            mechanism_ranges=arms,
+            arm_feature_ranges=features,
+            **kwargs,
+        )
+
+    def __post_init__(self) -> None:
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
+        set_("fit_to_workspace", boolean("fit_to_workspace", self.fit_to_workspace))
+        sim_dt = self.mechanism.sim_dt
+        set_("ctrl_dt", number("ctrl_dt", self.ctrl_dt, sim_dt, 0.1))
+        n_sub = round(self.ctrl_dt / sim_dt)
+        # Relative 1e-6: a float32 ctrl_dt (np.float32(0.002)) is still a multiple.
+        if abs(n_sub * sim_dt - self.ctrl_dt) > 1e-6 * self.ctrl_dt:
+            raise invalid("ctrl_dt", self.ctrl_dt, f"an integer multiple of sim_dt = {sim_dt} s")
+        set_("ctrl_dt", n_sub * sim_dt)
+        choice("action_mode", self.action_mode, ACTION_MODES)
+        set_("action_filter_tau", number("action_filter_tau", self.action_filter_tau, 0.0, 1.0))
+        set_("episode_duration", number("episode_duration", self.episode_duration, self.ctrl_dt))
+        scales = mapping("reward_scales", self.reward_scales)
+        check_keys("reward_scales", scales, REWARD_SCALES)
+        set_(
+            "reward_scales",
+            {
+                k: number(f"reward_scales.{k}", scales.get(k, default), 0.0, MAX_REWARD_WEIGHT)
+                for k, default in REWARD_SCALES.items()
+            },
+        )
+        need_weight = self.reward_scales["action_rate_need"]
+        if need_weight > 0 and self.action_mode != "joint_torque":
+            raise invalid(
+                "reward_scales.action_rate_need",
+                need_weight,
+                f"0 in action_mode {self.action_mode!r} (a joint's torque rate is the scale; "
+                "use action_mode 'joint_torque')",
+            )
+        choice("tracking_form", self.tracking_form, TRACKING_FORMS)
+        set_(
+            "tracking_sigma_deg",
+            number("tracking_sigma_deg", self.tracking_sigma_deg, 0.0, 90.0, lo_open=True),
+        )
+        set_("reset_noise_scale", number("reset_noise_scale", self.reset_noise_scale, 0.0, 0.5))
+        set_("preview_steps", integer("preview_steps", self.preview_steps, 0, 100))
+        set_("preview_dt", number("preview_dt", self.preview_dt, 0.0, 1.0, lo_open=True))
+        noise = pair("observation_noise", self.observation_noise, 0.0, 1e3,
+                     "angle std (rad), speed std (rad/s)")  # fmt: skip
+        set_("observation_noise", noise)
+        delay = number("observation_delay", self.observation_delay, 0.0, 1.0)
+        set_("observation_delay", delay)
+        delays = {"observation_delay": delay, "mechanism.motor_delay": self.mechanism.motor_delay}
+        for name, value in delays.items():
+            if abs(round(value / self.ctrl_dt) * self.ctrl_dt - value) > 1e-6 * self.ctrl_dt:
+                raise invalid(name, value, f"a multiple of ctrl_dt = {self.ctrl_dt} s")
+        set_("observe_arm", boolean("observe_arm", self.observe_arm))
+        set_("observe_error_rate", boolean("observe_error_rate", self.observe_error_rate))
+        choice("error_units", self.error_units, ERROR_UNITS)
+        set_("observe_feedforward", boolean("observe_feedforward", self.observe_feedforward))
+        set_("observe_force_limit", boolean("observe_force_limit", self.observe_force_limit))
+        if self.observe_arm and self.feature_ranges is None:
+            raise invalid(
+                "observe_arm", True, "False without mechanism_ranges or arm_feature_ranges"
+            )
+        if self.arm_feature_ranges is not None and not self.observe_arm:
+            raise invalid(
+                "arm_feature_ranges", self.arm_feature_ranges.to_dict(), "None unless observe_arm"
+            )
+        if self.base_mechanism is None:
+            set_("base_mechanism", self.mechanism)
+        self._check_reference()
+        self._size_force_limit()
+        if self.mechanism_ranges is not None:  # raises now if no valid arm can be drawn
+            self.draw_arm(np.random.default_rng(0))
+
+    def _check_reference(self) -> None:
+        mech, ref = self.mechanism, self.reference
+        if self.fit_to_workspace:
+            object.__setattr__(self, "reference", ref.fit_to_workspace(mech))
+        elif problems := ref.workspace_violations(mech):
+            raise invalid(
+                "reference",
+                ref.to_dict(),
+                f"a reference inside the workspace, but it leaves it: {'; '.join(problems)} "
+                "(or pass fit_to_workspace=True to scale the amplitudes down)",
+            )
+        nyquist = 0.5 / self.ctrl_dt
+        freqs = [max(self.reference.omega) / (2 * math.pi)]
+        if self.reference_ranges is not None:
+            freqs.append(max(hi for _, hi in self.reference_ranges.freq_hz))
+            if problems := self.reference_ranges.corner_violations(mech):
+                raise invalid(
+                    "reference_ranges.bias_deg",
+                    self.reference_ranges.bias_deg,
+                    "biases that fit the workspace, but a draw could leave it: "
+                    + "; ".join(problems),
+                )
+        if max(freqs) * self.ctrl_dt > 0.1:
+            raise invalid(
+                "reference frequency (Hz)",
+                max(freqs),
+                f"<= {0.1 / self.ctrl_dt:g} Hz: at least 10 control steps per period, a fifth "
+                f"of the Nyquist limit 0.5 / ctrl_dt = {nyquist:g} Hz (use a smaller ctrl_dt)",
+            )
+
+    def _size_force_limit(self) -> None:
+        refs = [self.reference]
+        if self.reference_ranges is not None:
+            refs += self.reference_ranges.corners()
+        # A slow or constant reference needs almost no force, but feedback still does: "auto"
+        # never falls below the need of AUTO_FLOOR's motion about the same bias (last entry).
+        refs.append(Reference(bias_deg=self.reference.bias_deg, **AUTO_FLOOR))
+        need, floor_need = force_needs(self.mechanism, tuple(refs))
+        limit = self.mechanism.max_tendon_force
+        if limit == AUTO:
+            auto = FORCE_HEADROOM * max(need, floor_need)
+            object.__setattr__(
+                self, "mechanism", self.mechanism.replace(max_tendon_force=float(f"{auto:.3g}"))
+            )
+        elif limit < need:
+            warnings.warn(
+                f"max_tendon_force = {limit} N is below the {need:.3g} N that inverse dynamics "
+                f"of the reference needs: the motors will saturate and tracking will fail "
+                f"(use max_tendon_force: auto, which gives {FORCE_HEADROOM:g} x the need)",
+                stacklevel=3,
+            )
+        arm = Needs.of(self.mechanism, tuple(refs), self.ctrl_dt)
+        object.__setattr__(self, "needs", arm)
+        if not np.all(np.isfinite(arm.rate_to_action)):  # a joint no tendon spans
+            if self.error_units == "action":
+                raise invalid(
+                    "error_units", self.error_units, "'rad' on an arm with a joint no tendon spans"
+                )
+            if self.observe_feedforward:
+                raise invalid(
+                    "observe_feedforward", True, "False on an arm with a joint no tendon spans"
+                )
+
+    # -- random arms ---------------------------------------------------------------------------
+    def draw_arm(self, rng: np.random.Generator, reference: Reference | None = None) -> EnvConfig:
+        """Returns the config of a random arm of ``mechanism_ranges`` and its episode's
+        reference (``reference``, else a draw of reference_ranges on that arm, else the
+        nominal one): :meth:`for_arm`.  Draws again until the pair is valid (a Mechanism,
+        stable, the reference's bias in its workspace); raises after MAX_TRIES draws."""
+        ranges = self.mechanism_ranges
+        if ranges is None:
+            return self
+        for _ in range(MAX_TRIES):
+            drawn = ranges.sample(rng)
+            for k in DELAYS:  # whole control steps
+                if k in drawn:
+                    drawn[k] = round(drawn[k] / self.ctrl_dt) * self.ctrl_dt
+            noise = [
+                drawn.pop(k, v) for k, v in zip(SENSING[1:], self.observation_noise, strict=True)
+            ]
+            delay = drawn.pop("observation_delay", self.observation_delay)
+            gains = {gain_field(k): drawn.pop(k) for k in CONTROLLER if k in drawn}
+            phase = drawn.pop(TUNED_PHASE, None)
+            try:
+                mech = self.base_mechanism.replace(**drawn)
+                if phase is not None:  # the bandwidth a tuning would pick on this arm
+                    f = tuned_bandwidth(mech, delay, self.ctrl_dt, phase)
+                    lo, hi = dict(ranges.ranges)["pd_bandwidth_hz"]
+                    gains["bandwidth_hz"] = min(max(f, lo), hi)
+                ref = reference
+                if ref is None and self.reference_ranges is not None:
+                    ref = self.reference_ranges.sample(rng, mech)
+                drawn_env = {"observation_noise": tuple(noise), "observation_delay": delay}
+                if gains:
+                    drawn_env["pd_gains"] = dataclasses.replace(gains_of(self.pd_gains), **gains)
+                return self.for_arm(mech, ref, **drawn_env)
+            except ValueError:
+                continue
+        raise invalid(
+            "mechanism_ranges",
+            ranges.to_dict(),
+            f"ranges where a valid arm (with this reference) is found in {MAX_TRIES} draws",
+        )
+
+    def for_arm(
+        self, mechanism: Mechanism, reference: Reference | None = None, **drawn_env: Any
+    ) -> EnvConfig:
+        """Returns the config of one arm and one reference (default: the nominal one), as a
+        user's experiment file gives them: nothing drawn, the reference's amplitudes fitted
+        to the arm's workspace (quietly), and an ``auto`` force limit sized for this arm and
+        this reference; ``drawn_env``: its observation_noise, observation_delay and pd_gains,
+        if drawn.
+        An env with this config runs the randomized env's episode exactly."""
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return dataclasses.replace(
+                self,
+                mechanism=mechanism,
+                base_mechanism=None,
+                reference=self.reference if reference is None else reference,
+                reference_ranges=None,
+                mechanism_ranges=None,
+                observe_arm=False,
+                arm_feature_ranges=None,
+                fit_to_workspace=True,
+                **drawn_env,
+            )
+
+    # -- derived quantities ------------------------------------------------------------------
+    @property
+    def n_arm_features(self) -> int:
+        """Returns the length of the observation's ``arm`` slice (0 unless observe_arm)."""
+        return len(self.arm_fields)
+
+    @property
+    def observation_size(self) -> int:
+        """Returns the observation's length (tendon2r_gym.task.observation.size)."""
+        return observation.size(
+            self.preview_steps, self.n_actions, self.n_arm_features, self.optional_entries
+        )
+
+    def observation_layout(self) -> list[list]:
+        """Returns the observation's named layout (tendon2r_gym.task.observation.layout)."""
+        return observation.layout(
+            self.preview_steps, self.n_actions, self.n_arm_features, self.optional_entries
+        )
+
+    @property
+    def optional_entries(self) -> tuple[str, ...]:
+        """Returns the optional entries the observation holds (tendon2r_gym.task.observation
+        .OPTIONAL names whose flag, e.g. observe_error_rate, is set)."""
+        return tuple(e[0] for e, flag in observation.OPTIONAL.items() if getattr(self, flag))
+
+    @property
+    def feature_ranges(self) -> MechanismRanges | None:
+        """Returns the ranges the observation's ``arm`` slice is normalized over:
+        arm_feature_ranges, else mechanism_ranges (None without either)."""
+        return self.arm_feature_ranges or self.mechanism_ranges
+
+    @property
+    def arm_fields(self) -> tuple[str, ...]:
+        """Returns the fields of the observation's ``arm`` slice, in order (none unless
+        observe_arm)."""
+        return self.feature_ranges.names if self.observe_arm else ()
+
+    def observation_mask(self, hidden: Any) -> np.ndarray:
+        """Returns the 0/1 multiplier that blanks the observation entries named in ``hidden``
+        (layout names, or ``arm.<field>``: tendon2r_gym.task.observation.layout_mask)."""
+        return observation.layout_mask(self.observation_layout(), hidden, self.arm_fields)
+
+    def observation_entries(self) -> list[str]:
+        """Returns the names :meth:`observation_mask` accepts."""
+        return observation.entry_names(self.observation_layout(), self.arm_fields)
+
+    @property
+    def n_substeps(self) -> int:
+        """Returns the physics steps per control step."""
+        return round(self.ctrl_dt / self.mechanism.sim_dt)
+
+    @property
+    def n_actions(self) -> int:
+        """Returns the action's length: one per tendon ("tension") or per joint
+        ("joint_torque")."""
+        return self.mechanism.n_tendons if self.action_mode == "tension" else 2
+
+    @property
+    def delay_steps(self) -> int:
+        """Returns the control steps each motor command is held back (mechanism.motor_delay)."""
+        return round(self.mechanism.motor_delay / self.ctrl_dt)
+
+    @property
+    def observation_delay_steps(self) -> int:
+        """Returns the control steps each measurement is late (observation_delay)."""
+        return round(self.observation_delay / self.ctrl_dt)
+
+    def _drawn_high(self, name: str, value: float) -> float:
+        """Returns the largest value of field ``name`` an episode can have: ``value`` (the
+        config's), or the top of its range if mechanism_ranges draws it."""
+        ranges = self.mechanism_ranges
+        return value if ranges is None or name not in ranges.names else ranges.high(name)
+
+    @property
+    def delay_capacity(self) -> int:
+        """Returns the most control steps any episode holds a command back (0: no delay)."""
+        return round(self._drawn_high("motor_delay", self.mechanism.motor_delay) / self.ctrl_dt)
+
+    @property
+    def observation_delay_capacity(self) -> int:
+        """Returns the most control steps any episode's measurements are late."""
+        return round(self._drawn_high("observation_delay", self.observation_delay) / self.ctrl_dt)
+
+    @property
+    def noisy(self) -> bool:
+        """Returns whether any episode's measurements can carry noise."""
+        return any(
+            self._drawn_high(k, v) > 0
+            for k, v in zip(SENSING[1:], self.observation_noise, strict=True)
+        )
+
+    @property
+    def sensed(self) -> bool:
+        """Returns whether the observation is (or in some episode may be) a measurement, noisy
+        or late, not the state."""
+        return self.observation_delay_capacity > 0 or self.noisy
+
+    @property
+    def action_filter_alpha(self) -> float:
+        """Returns the weight of a new action in the applied command, 1 - exp(-ctrl_dt / tau)
+        (1: no filter)."""
+        return low_pass_alpha(self.action_filter_tau, self.ctrl_dt)
+
+    @property
+    def max_episode_steps(self) -> int:
+        """Returns the control steps per episode: episode_duration / ctrl_dt."""
+        return round(self.episode_duration / self.ctrl_dt)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Returns the config as plain YAML-friendly env kwargs (an experiment file)."""
+        out: dict[str, Any] = {}
+        for f in dataclasses.fields(self):
+            if f.name in COMPUTED:
+                continue
+            value = getattr(self, f.name)
+            out[f.name] = value.to_dict() if hasattr(value, "to_dict") else value
+        out["observation_noise"] = list(self.observation_noise)
+        if self.mechanism_ranges is not None:  # arms are drawn over the mechanism as given
+            out["mechanism"] = self.base_mechanism.to_dict()
+        return out
+
+
+#: EnvConfig fields that are computed, not arguments.
+COMPUTED = ("needs", "base_mechanism")
+
+
+def arguments() -> list[str]:
+    """Returns the keyword arguments an experiment file (or gym.make) may give."""
+    return [f.name for f in dataclasses.fields(EnvConfig) if f.name not in COMPUTED]
+
+
+assert set(SECTIONS) <= set(arguments())
+
+
+def low_pass_alpha(tau: float, dt: float) -> float:
+    """Returns the weight of a new input to a first-order low-pass of time constant ``tau``
+    sampled every ``dt``, y <- y + alpha (x - y): alpha = 1 - exp(-dt / tau), 1 for ``tau =
+    0`` (no filter).  The env's action filter and a residual's filter (learned.ResidualFilter)
+    both use it."""
+    return 1.0 if tau == 0.0 else -math.expm1(-dt / tau)

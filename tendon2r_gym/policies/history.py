@@ -1,0 +1,94 @@
+"""The observation history a learned policy sees: its last ``n`` normalized observations taken
+every ``stride`` control steps, oldest first, zeros before an episode's first.
+
+With stride 1 this is SB3's VecFrameStack (rl_zoo3's ``frame_stack``), which training keeps
+using then; a stride spreads the same ``n`` frames over ``(n - 1) * stride + 1`` steps, a
+window long enough to tell the arm's response (e.g. a hidden mass error) from a few inputs.
+:class:`FrameHistory` is the one buffer: the training wrapper (:class:`StridedFrameStack`)
+and the deployed policy (tendon2r_gym.policies.learned.PPOPolicy) both stack through it."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from stable_baselines3.common.vec_env import VecEnvWrapper, VecFrameStack
+
+
+class FrameHistory:
+    """The last ``(n - 1) * stride + 1`` frames of one observation or a batch of them."""
+
+    def __init__(self, n: int, stride: int = 1) -> None:
+        self.n, self.stride = n, stride
+        self.span = (n - 1) * stride + 1
+        self._frames: np.ndarray | None = None  # (*batch, span, d), newest last
+
+    def clear(self) -> None:
+        """Starts every history anew (the next frame is the first of its episode)."""
+        self._frames = None
+
+    def push(self, frame: np.ndarray, start: Any = None) -> np.ndarray:
+        """Adds ``frame`` (shape (*batch, d)) as the newest; where ``start`` (a bool per batch
+        row, as SB3's ``episode_start``) the history is emptied first.  Returns the stack."""
+        frame = np.asarray(frame)
+        if self._frames is None or self._frames.shape[:-2] != frame.shape[:-1]:
+            self._frames = np.zeros((*frame.shape[:-1], self.span, frame.shape[-1]), frame.dtype)
+        else:
+            if start is not None:
+                mask = np.broadcast_to(np.asarray(start, dtype=bool), frame.shape[:-1])
+                self._frames[mask] = 0.0
+            self._frames = np.roll(self._frames, -1, axis=-2)
+        self._frames[..., -1, :] = frame
+        return self.stack(self._frames)
+
+    def peek(self, row: int, frame: np.ndarray) -> np.ndarray:
+        """Returns batch row ``row``'s stack with ``frame`` pushed, leaving the history as it
+        is (the stacked terminal observation of an episode that just ended)."""
+        assert self._frames is not None
+        frames = np.roll(self._frames[row], -1, axis=0)
+        frames[-1] = frame
+        return self.stack(frames)
+
+    def stack(self, frames: np.ndarray) -> np.ndarray:
+        """Returns the ``n`` frames every ``stride``-th of ``frames``, flattened oldest first (a
+        new array: the history's buffer changes in place)."""
+        picked = frames[..., :: self.stride, :]
+        return picked.reshape(*picked.shape[:-2], -1).copy()
+
+
+class StridedFrameStack(VecEnvWrapper):
+    """SB3's VecFrameStack for vector observations, with frames ``stride`` steps apart;
+    ``infos[i]["terminal_observation"]`` is stacked too, as VecFrameStack does."""
+
+    def __init__(self, venv: Any, n_stack: int, stride: int) -> None:
+        space = venv.observation_space
+        box = gym.spaces.Box(
+            np.tile(space.low, n_stack), np.tile(space.high, n_stack), dtype=space.dtype
+        )
+        super().__init__(venv, observation_space=box)
+        self.history = FrameHistory(n_stack, stride)
+
+    def reset(self) -> np.ndarray:
+        self.history.clear()
+        return self.history.push(self.venv.reset())
+
+    def step_wait(self) -> Any:
+        obs, rewards, dones, infos = self.venv.step_wait()
+        for i, done in enumerate(dones):
+            if done and "terminal_observation" in infos[i]:
+                infos[i]["terminal_observation"] = self.history.peek(
+                    i, infos[i]["terminal_observation"]
+                )
+        return self.history.push(obs, dones), rewards, dones, infos
+
+
+def stacked(vecnorm: Any, frame_stack: int, frame_stride: int = 1) -> Any:
+    """Returns what the policy trains on: ``vecnorm``; with frame_stack > 1 SB3's VecFrameStack
+    of it (rl_zoo3's order: normalize, then stack), or :class:`StridedFrameStack` with a
+    stride."""
+    if frame_stack == 1:
+        return vecnorm
+    if frame_stride == 1:
+        return VecFrameStack(vecnorm, frame_stack)
+    return StridedFrameStack(vecnorm, frame_stack, frame_stride)
