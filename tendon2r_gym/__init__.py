@@ -41,7 +41,7 @@ __version__ = "0.3.0"
 #: earlier default, kept for code that names it.
 VERSIONS: dict[str, dict[str, object]] = {
     "v0": {},
-    "v1": {"reset_noise_scale": 0.02, "observe_error_rate": True},
+    "v1": {"reset_noise_scale": 0.02, "observe": ("error_rate",)},
 }
 LATEST = "Tendon2R-v1"
 

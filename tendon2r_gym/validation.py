@@ -9,7 +9,7 @@ from __future__ import annotations
 import difflib
 import math
 import numbers
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -62,6 +62,17 @@ def boolean(field: str, value: Any) -> bool:
     if not isinstance(value, (bool, np.bool_)):
         raise invalid(field, value, "true or false")
     return bool(value)
+
+
+def subset(field: str, value: Any, allowed: Sequence[str]) -> tuple[str, ...]:
+    """Returns ``value``, a list (or tuple or array) of distinct names from ``allowed``, as a
+    tuple in ``allowed``'s order, or raises."""
+    names = value.tolist() if isinstance(value, np.ndarray) else value
+    ok = isinstance(names, (list, tuple)) and all(isinstance(n, str) for n in names)
+    if not ok or len(set(names)) != len(names) or not set(names) <= set(allowed):
+        shown = names if isinstance(names, (list, tuple)) else value
+        raise invalid(field, shown, f"a list of distinct names from {list(allowed)}")
+    return tuple(n for n in allowed if n in names)
 
 
 def choice(field: str, value: Any, allowed: Iterable[Any]) -> Any:

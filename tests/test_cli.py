@@ -131,7 +131,7 @@ def test_benchmark_fine_tunes_the_generalist_on_an_arm_it_covers(tmp_path):
     assert "rms_deg" in row and row["train_steps"] > 0 and row["train_wall_s"] > 0
     config_file = tmp_path / "runs" / label.replace(" ", "_") / "seed_0" / "config.yaml"
     config = config_file.read_text()
-    assert "init_from: generalist" in config and "observe_arm: true" in config
+    assert "init_from: generalist" in config and "- arm" in config
     again = benchmark_main(args)
     assert config_file.read_text() == config
     rows = lambda result: {r["policy"]: r.get("rms_deg") for r in result["rows"]}  # noqa: E731

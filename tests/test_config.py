@@ -148,3 +148,31 @@ def test_pd_tracks_random_course_arms_with_the_default_limit(tmp_path):
         assert max(metrics["rms_deg"]) <= 1.0, (mech, ref, metrics["rms_deg"])
         assert max(metrics["saturated_fraction"]) == 0.0
         done += 1
+
+
+def test_the_flags_observe_replaced_are_read_from_older_files(tmp_path):
+    """An experiment file or run record of tendon2r_gym 0.2 names the optional observation
+    entries with four flags: they are read into ``observe`` (true adds, false removes, over the
+    file's own list), a non-bool flag is refused by name, and the contract's form of a config
+    writes them back."""
+    from tendon2r_gym.task import observation
+
+    from tendon2r_gym.presets import preset_path
+
+    old = tmp_path / "old_arm.yaml"
+    flags = "observe_error_rate: true\nobserve_force_limit: false\n"
+    old.write_text(preset_path("default").read_text() + flags)
+    assert EnvConfig.make(str(old)).observe == ("error_rate",)
+    assert EnvConfig.make(str(old), observe_error_rate=False).observe == ()
+    assert EnvConfig.make(str(old), observe=["feedforward"]).observe == ("feedforward",)
+    assert EnvConfig.make(observe_feedforward=True, observe=["error_rate"]).observe == (
+        "error_rate",
+        "feedforward",
+    )
+    with pytest.raises(ValueError, match="observe_arm = 'yes' is invalid; allowed: true or false"):
+        EnvConfig.make(observe_arm="yes")
+    record = EnvConfig.make(observe=["force_limit", "error_rate"]).to_dict()
+    assert record["observe"] == ["error_rate", "force_limit"]  # OBSERVABLE's order
+    flags = observation.as_flags(record)
+    assert "observe" not in flags and flags["observe_force_limit"] and not flags["observe_arm"]
+    assert EnvConfig.from_kwargs(flags) == EnvConfig.from_kwargs(record)

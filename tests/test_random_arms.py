@@ -52,13 +52,13 @@ def test_bad_ranges_raise_at_construction_naming_the_field(ranges, match):
         EnvConfig.make("default", mechanism_ranges=ranges)
 
 
-def test_observe_arm_needs_ranges():
-    with pytest.raises(ValueError, match="observe_arm = True"):
-        EnvConfig.make("default", observe_arm=True)
-    with pytest.raises(ValueError, match="arm_feature_ranges = .* None unless observe_arm"):
+def test_observing_the_arm_needs_ranges():
+    with pytest.raises(ValueError, match=r"observe = \['arm'\] .* without 'arm' unless"):
+        EnvConfig.make("default", observe=["arm"])
+    with pytest.raises(ValueError, match="arm_feature_ranges = .* None unless observe lists"):
         EnvConfig.make("default", arm_feature_ranges="course")
     with pytest.raises(ValueError, match="arm_feature_ranges: .*'R9' is invalid"):
-        EnvConfig.make("default", observe_arm=True, arm_feature_ranges={"R9": [0.0, 1.0]})
+        EnvConfig.make("default", observe=["arm"], arm_feature_ranges={"R9": [0.0, 1.0]})
 
 
 def test_one_arm_observed_over_given_ranges():
@@ -66,7 +66,7 @@ def test_one_arm_observed_over_given_ranges():
     as a generalist trained on them saw it, in both envs; the arm itself is not drawn."""
     from tendon2r_gym.envs.vector_env import Tendon2RVectorEnv
 
-    kwargs = {"preset": "default", "observe_arm": True, "arm_feature_ranges": "course"}
+    kwargs = {"preset": "default", "observe": ["arm"], "arm_feature_ranges": "course"}
     config = EnvConfig.make(**kwargs)
     expected = MechanismRanges.from_value("course").features(config)
     assert config.arm_fields == ("R1", "R2", "a", "b", "c") and config.mechanism_ranges is None
@@ -133,7 +133,7 @@ def test_a_random_episode_is_the_episode_of_its_arms_experiment_file(kwargs):
 
 
 def test_arm_features_are_the_drawn_fields_normalized():
-    env = gym.make("Tendon2R-v0", preset="generalist", observe_arm=True)
+    env = gym.make("Tendon2R-v0", preset="generalist", observe=["arm"])
     cfg = env.unwrapped.config
     where = observation.arm_slice(cfg.preview_steps, cfg.n_actions, len(GEOMETRY))
     assert env.observation_space.shape == (where.stop,)
@@ -231,7 +231,7 @@ def test_delays_and_noise_are_drawn_per_episode_in_whole_steps():
     """mechanism_ranges draws the motor's dead time and the sensors' delay and noise too: each
     episode's values lie in the ranges, delays in whole control steps, and the reset info and
     the arm features report them; each episode's delay shifts its own PD response."""
-    env = gym.make("Tendon2R-v0", preset="real_arm", mechanism_ranges="real_arm", observe_arm=True)
+    env = gym.make("Tendon2R-v0", preset="real_arm", mechanism_ranges="real_arm", observe=["arm"])
     cfg = env.unwrapped.config
     ranges, dt = cfg.mechanism_ranges, cfg.ctrl_dt
     assert cfg.delay_capacity == cfg.observation_delay_capacity == 2
@@ -286,7 +286,7 @@ def test_drawn_pd_gains_are_each_episodes_and_pd_follows_them():
     from tendon2r_gym.policies.learned import ResidualPDWrapper
 
     lo, hi = 10.0, 40.0
-    kwargs = {"preset": "real_arm", "observe_arm": True}
+    kwargs = {"preset": "real_arm", "observe": ["arm"]}
     env = gym.make(
         "Tendon2R-v0", mechanism_ranges=[DELAYS, {"pd_bandwidth_hz": [lo, hi]}], **kwargs
     )
@@ -314,7 +314,7 @@ def test_a_model_trained_on_drawn_gains_runs_on_the_users_tuned_gains():
     from tendon2r_gym.policies.learned import arm_features, deployed_gains
 
     ranges = ["real_arm", {"pd_bandwidth_hz": [10.0, 40.0]}]
-    trained = EnvConfig.make("real_arm", mechanism_ranges=ranges, observe_arm=True,
+    trained = EnvConfig.make("real_arm", mechanism_ranges=ranges, observe=["arm"],
                              pd_gains={"bandwidth_hz": 12.0, "damping_ratio": 0.9})  # fmt: skip
     recorded = {**trained.to_dict(), "observation": trained.observation_layout()}
     arm = gym.make("Tendon2R-v0", preset="real_arm", pd_gains={"bandwidth_hz": 25.0})
@@ -335,7 +335,7 @@ def test_a_drawn_delay_phase_schedules_each_episodes_pd_on_its_loop_delay():
     the drawn phase over the arm's loop delay, and the env builds and observes it."""
     from tendon2r_gym.task.gains import loop_delay
 
-    kwargs = {"preset": "real_arm", "observe_arm": True}
+    kwargs = {"preset": "real_arm", "observe": ["arm"]}
     ranges = ["real_arm", {"pd_max_delay_phase": [0.3, 0.6]}]
     env = gym.make("Tendon2R-v0", mechanism_ranges=ranges, **kwargs)
     pd = PDPolicy.from_env(env)
@@ -358,7 +358,7 @@ def test_a_tuned_phase_draws_each_arms_bandwidth_as_a_tuning_would_pick_it():
 
     lo, hi, phase = 10.0, 40.0, (0.5, 0.7)
     ranges = ["real_arm", {"pd_bandwidth_hz": [lo, hi], "pd_tuned_phase": list(phase)}]
-    cfg = EnvConfig.make("real_arm", mechanism_ranges=ranges, observe_arm=True)
+    cfg = EnvConfig.make("real_arm", mechanism_ranges=ranges, observe=["arm"])
     assert MechanismRanges.from_value(cfg.mechanism_ranges.to_dict()) == cfg.mechanism_ranges
     assert cfg.arm_fields == cfg.mechanism_ranges.names  # the bandwidth is seen, not the phase
     rng, clipped, inside = np.random.default_rng(0), 0, 0

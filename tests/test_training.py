@@ -555,7 +555,7 @@ def test_arm_features_for_one_network_only(tmp_path, hidden, who):
 
     config = _tiny(tmp_path)
     cfg = yaml.safe_load(config.read_text())
-    cfg["tiny"]["env_kwargs"] = {"preset": "generalist", "observe_arm": True,
+    cfg["tiny"]["env_kwargs"] = {"preset": "generalist", "observe": ["arm"],
                                  "episode_duration": 0.1}  # fmt: skip
     cfg["tiny"][hidden] = ["arm"]
     config.write_text(yaml.safe_dump(cfg))
@@ -589,7 +589,7 @@ def test_one_drawn_field_hidden_from_the_actor():
     from tendon2r_gym.envs.env_config import EnvConfig
     from tendon2r_gym.task.observation import arm_slice
 
-    env_kwargs = {"preset": "generalist", "observe_arm": True, "episode_duration": 0.1}
+    env_kwargs = {"preset": "generalist", "observe": ["arm"], "episode_duration": 0.1}
     hp = Hyperparams.from_entry("default").replace(
         env_kwargs=env_kwargs, hide_from_actor=["arm.R2"], n_envs=1
     )
@@ -616,7 +616,7 @@ def test_one_drawn_field_hidden_from_the_actor():
 
 @pytest.mark.parametrize("force_limit", [False, True])
 def test_a_model_that_observed_its_arm_runs_on_one_fixed_arm(tmp_path, force_limit):
-    """observe_arm on random arms, deployed on an env of one arm inside the ranges (no arm
+    """Observing the arm on random arms, deployed on an env of one arm inside the ranges (no arm
     slice of its own): PPOPolicy appends the arm's fields normalized over the training ranges,
     the very features the training env would compute for that arm, and acts on them.  A model
     that observed the force limit runs on the arm's env with the model's settings
@@ -627,8 +627,8 @@ def test_a_model_that_observed_its_arm_runs_on_one_fixed_arm(tmp_path, force_lim
 
     config = _tiny(tmp_path)
     cfg = yaml.safe_load(config.read_text())
-    cfg["tiny"]["env_kwargs"] = {"preset": "generalist", "observe_arm": True,
-                                 "observe_force_limit": force_limit,
+    observe = ["arm", "force_limit"] if force_limit else ["arm"]
+    cfg["tiny"]["env_kwargs"] = {"preset": "generalist", "observe": observe,
                                  "episode_duration": 0.1}  # fmt: skip
     config.write_text(yaml.safe_dump(cfg))
     _train(config, tmp_path / "run")
@@ -640,7 +640,7 @@ def test_a_model_that_observed_its_arm_runs_on_one_fixed_arm(tmp_path, force_lim
         with pytest.raises(ValueError, match="force_limit_log"):
             PPOPolicy.load(best, gym.make("Tendon2R-v0", **arm))
         arm = in_model_settings(best, arm)
-        assert arm["observe_force_limit"] is True
+        assert arm["observe"] == ["force_limit"]  # the model's, without its arm slice
     env = gym.make("Tendon2R-v0", **arm)
     policy = PPOPolicy.load(best, env)
     expected = MechanismRanges.from_value("course").features(env.unwrapped.config)
@@ -726,7 +726,7 @@ def test_fine_tuning_a_generalist_that_observed_its_arm(tmp_path):
     config = _tiny(tmp_path)
     cfg = yaml.safe_load(config.read_text())
     tiny = cfg["tiny"]
-    cfg["source"] = {**tiny, "env_kwargs": {"preset": "generalist", "observe_arm": True,
+    cfg["source"] = {**tiny, "env_kwargs": {"preset": "generalist", "observe": ["arm"],
                                             "action_mode": "joint_torque",
                                             "episode_duration": 0.1}}  # fmt: skip
     config.write_text(yaml.safe_dump(cfg))
@@ -737,7 +737,7 @@ def test_fine_tuning_a_generalist_that_observed_its_arm(tmp_path):
     run = RunFolder(tmp_path / "tuned" / "seed_0")
     kwargs = run.read_json("run.json")["env_kwargs"]
     course = MechanismRanges.from_value("course")
-    assert kwargs["action_mode"] == "joint_torque" and kwargs["observe_arm"] is True
+    assert kwargs["action_mode"] == "joint_torque" and kwargs["observe"] == ["arm"]
     assert MechanismRanges.from_value(kwargs["arm_feature_ranges"]) == course
     plain = {"preset": "default", "episode_duration": 0.1, "action_mode": "joint_torque"}
     model = run.best.with_suffix(".zip")

@@ -31,7 +31,7 @@ def test_rl_zoo3_trains_with_our_hyperparameter_file(tmp_path, env_id):
 
 
 def test_the_zoo_file_is_generated_from_ours():
-    """configs/rl_zoo3/ppo.yml is zoo_file() of configs/ppo.yaml: the same env kwargs, PPO
+    """configs/rl_zoo3/ppo.yml is zoo_file() of tendon2r_gym/data/ppo.yaml: the same env kwargs, PPO
     settings, normalization and budget (python scripts/export_zoo.py rewrites it)."""
     from tendon2r_gym.training import Hyperparams
     from tendon2r_gym.training.zoo import ENTRIES, zoo_file

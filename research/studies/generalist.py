@@ -76,7 +76,7 @@ from tendon2r_gym.validation import invalid
 #: network, learning rate, reward, arm features and evaluation episodes from its run record): the
 #: residual generalist with a decay tail on its learning rate (generalist_decay_tail), the residual
 #: generalist without the reference's feed-forward (generalist_action_units, the generalist before
-#: observe_feedforward), and that observing its errors in radians (generalist_rad, the generalist
+#: observe feedforward), and that observing its errors in radians (generalist_rad, the generalist
 #: before errors in action units); that with a decaying learning rate; with its residual relative to
 #: each joint's need; trained with CAPS's smoothness terms; with its action rate also charged in
 #: multiples of the task's; at its constant rate and relative to the range, with action-rate weight
@@ -299,7 +299,7 @@ def ablation(bundles: list[str]) -> dict[str, Any]:
 
 def arm_seen_by(model_path: Path) -> str:
     """Returns which networks of a bundled model saw the drawn arm's features, as its run
-    recorded them: its observation layout (observe_arm) and the masks its hide_from_actor and
+    recorded them: its observation layout (observe arm) and the masks its hide_from_actor and
     hide_from_critic lists give over the ``arm`` slice (observation.layout_mask, as training
     applies them: a network that sees any of the arm's fields saw the arm)."""
     recorded = training_record(model_path)["env_config"]
@@ -506,7 +506,7 @@ def write(result: dict[str, Any], out: Path) -> None:
         "seeing the arm's features, the tracking error and its rate in action units (the "
         "normalized joint torques that close the error and cancel its rate in one control "
         "step on the arm; error_units action), the reference's acceleration as the normalized "
-        "joint torques that give it on the arm (observe_feedforward) and its force limit, "
+        "joint torques that give it on the arm (observe feedforward) and its force limit, "
         "trained "
         "on the multiscale reward at sigma 0.1 deg with action-rate weight 3; "
         "generalist_scratch: plain PPO (normalized joint torques through a 2 ms action "
@@ -526,7 +526,7 @@ def write(result: dict[str, Any], out: Path) -> None:
         "generalist_decay_tail, the generalist with its learning rate held for 60% of the "
         "run and then decaying linearly to 0; "
         "generalist_action_units, the generalist without the reference's feed-forward (the "
-        "generalist before observe_feedforward); "
+        "generalist before it observed feedforward); "
         "generalist_rad, that observing its error and error rate in radians (the "
         "generalist before error_units action); "
         "generalist_lin_lr, generalist_rad with its learning rate decaying linearly to 0; "

@@ -138,7 +138,7 @@ def realism_lines(rows: list[dict[str, Any]]) -> list[str]:
         f"(randomized): the `{RANDOMIZED_BUNDLE}` bundle's, trained on `{REALISM_BASE}` with "
         "every one of these drawn anew every episode from the same ranges "
         "(`mechanism_ranges: real_arm`); its actor sees each arm's drawn cables, motors and "
-        "sensors, which a user knows of their arm (`observe_arm`), and only its critic the "
+        "sensors, which a user knows of their arm (`observe: [arm]`), and only its critic the "
         "model's errors (`hide_from_actor`); in training, on a PD whose bandwidth is drawn "
         "each episode as a tuning would pick it on the drawn arm, which it sees "
         "(`pd_tuned_phase`), and here on the gains `tendon2r-tune-pd` finds on each arm "

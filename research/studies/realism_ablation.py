@@ -32,6 +32,7 @@ from tendon2r_gym.evaluation.metrics import beats, worst_ratio
 from tendon2r_gym.evaluation.tuning import tune_pd
 from tendon2r_gym.policies.learned import trained_on_drawn_gains
 from tendon2r_gym.policies.runs import BEST_METRICS, CONFIG, SUMMARY, RunFolder, command_line
+from tendon2r_gym.task import observation
 from tendon2r_gym.task.arms import CONTROLLER, GAIN_UNITS, MechanismRanges
 from tendon2r_gym.task.gains import gains_of, true_phase_per_hz
 from tendon2r_gym.validation import invalid
@@ -124,8 +125,8 @@ def _tuned_pd(tuned: dict[str, Any]) -> dict[str, float]:
 
 
 def _sees(record: dict[str, Any]) -> str:
-    kwargs = record["env_kwargs"]
-    if not kwargs.get("observe_arm"):
+    kwargs = observation.from_flags(record["env_kwargs"])  # a record of 0.2 holds flags
+    if "arm" not in kwargs.get("observe", ()):
         seen = "no arm features"
     elif record["hide_from_actor"]:
         seen = f"the drawn arm; the actor not {', '.join(record['hide_from_actor'])}"

@@ -102,9 +102,9 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     it pulls) for every routing and mode.
 
     ## Observation Space
-    ``Box(-inf, inf, (16 + 2 * preview_steps + n_actions,), float64)`` (2 more with
-    ``observe_error_rate``, 2 with ``observe_feedforward``, 1 with ``observe_force_limit``,
-    one per drawn field with ``observe_arm``), named slices in ``tendon2r_gym.task.observation``:
+    ``Box(-inf, inf, (16 + 2 * preview_steps + n_actions,), float64)`` (``observe`` adds 2 with
+    ``"error_rate"``, 2 with ``"feedforward"``, 1 with ``"force_limit"``, one per drawn field
+    with ``"arm"``), named slices in ``tendon2r_gym.task.observation``:
 
     {obs_table}
 
@@ -142,7 +142,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     | `reference` | `None` | dict of Reference fields overriding the preset, or a Reference |
     | `reference_ranges` | `None` | dict of ReferenceRanges: draw a new reference every reset |
     | `mechanism_ranges` | `None` | {{field: [lo, hi]}} of Mechanism, sensor or PD gain fields, "course", "real_arm", or a list of these: a new arm every reset |
-    | `observe_arm` | `False` | end the observation with the drawn fields, normalized (``arm``) |
+    | `observe` | `()` | optional observation entries, from ``["error_rate", "feedforward", "force_limit", "arm"]``: the tracking error's rate, log-scaled (``error_rate_log``); the reference's acceleration in normalized joint torques (``feedforward``); ln of the arm's force limit, the actions' scale (``force_limit_log``); the drawn fields, normalized (``arm``, last) |
     | `arm_feature_ranges` | `None` | ranges the ``arm`` slice is normalized over, if not mechanism_ranges (a generalist fine-tuned on one arm) |
     | `fit_to_workspace` | `False` | scale the amplitudes down (with a warning) instead of raising |
     | `ctrl_dt` | `0.001` | control period (s), an integer multiple of the mechanism's sim_dt |
@@ -155,10 +155,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     | `reset_noise_scale` | `0.001` | initial-state noise (rad, rad/s) |
     | `preview_steps` | `3` | number of future reference samples observed |
     | `preview_dt` | `0.01` | spacing of the future reference samples (s) |
-    | `observe_error_rate` | `False` | observe the tracking error's rate, log-scaled (``error_rate_log``) |
     | `error_units` | `"rad"` | what error_log and error_rate_log log-scale: the error and its rate (``"rad"``), or the normalized joint torques that close the error and cancel its rate on the arm (``"action"``, ``rate_to_action``) |
-    | `observe_feedforward` | `False` | observe the reference's acceleration in normalized joint torques (``feedforward``) |
-    | `observe_force_limit` | `False` | observe ln of the arm's force limit, the actions' scale (``force_limit_log``) |
     | `observation_noise` | `(0.0, 0.0)` | std of the measured angles (rad) and speeds (rad/s) |
     | `observation_delay` | `0.0` | age of the measurements (s), a multiple of ctrl_dt |
     | `pd_gains` | `None` | PD / CT gains on this arm (tendon2r_gym.task.gains; None: data/pd.yaml) |
@@ -186,7 +183,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     ## Version History
     Each id's contract is frozen (tendon2r_gym.policies.contract); CHANGELOG.md says what each changed.
 
-    - v1: the default for new work: ``reset_noise_scale`` 0.02 and ``observe_error_rate``,
+    - v1: the default for new work: ``reset_noise_scale`` 0.02 and ``observe=["error_rate"]``,
       what the shipped plain-PPO entries learn on.
     - v0: the first id, frozen at its last contract (``reset_noise_scale`` 0.001, no error
       rate in the observation).
@@ -438,7 +435,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         joints, rest = self.task.state_entries(SCALAR, *state, qd1, qd2, self._arm)
         head, tail = obs_layout.STATE
         out = joints + parts[head.stop : tail.start] + rest + parts[tail.stop :]
-        if self.config.observe_error_rate:
+        if "error_rate" in self.config.observe:
             where = obs_layout.error_rate_slice(self.preview_steps, self._n)
             out[where] = self.task.error_rate_entries(
                 SCALAR, *state[2:], *parts[obs_layout.DQ_DES], self._arm

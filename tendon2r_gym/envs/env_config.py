@@ -45,6 +45,7 @@ from tendon2r_gym.validation import (
     mapping,
     number,
     pair,
+    subset,
 )
 
 #: ``max_tendon_force: auto`` is this many times the peak force that inverse dynamics of the
@@ -72,10 +73,15 @@ class EnvConfig:
     #: course's geometry), and its reference: each pair valid, with its own ``auto`` force
     #: limit, as one user's experiment file (draw_arm).
     mechanism_ranges: MechanismRanges | None = None
-    #: Observe the drawn fields, normalized over mechanism_ranges (the ``arm`` slice).
-    observe_arm: bool = False
+    #: The optional observation entries (tendon2r_gym.task.observation.OBSERVABLE, kept in
+    #: that order): ``error_rate``, the tracking error's rate, log-scaled (``error_rate_log``,
+    #: after last_action); ``feedforward``, the reference's acceleration as the normalized joint
+    #: torques that give it, rate_to_action (ctrl_dt ddq_des); ``force_limit``, ln of the force
+    #: limit max_tendon_force (``force_limit_log``): a normalized action's scale, which
+    #: ``auto`` sizes per arm; ``arm``, the drawn fields, normalized over mechanism_ranges.
+    observe: tuple[str, ...] = ()
     #: The ranges the ``arm`` slice covers and is normalized over, if not mechanism_ranges:
-    #: a policy trained on random arms with observe_arm sees one fixed arm as it saw the
+    #: a policy trained on random arms that observes ``arm`` sees one fixed arm as it saw the
     #: arms it was trained on (fine-tuning a generalist on one arm).
     arm_feature_ranges: MechanismRanges | None = None
     fit_to_workspace: bool = False
@@ -89,19 +95,11 @@ class EnvConfig:
     reset_noise_scale: float = 0.001
     preview_steps: int = 3
     preview_dt: float = 0.01
-    #: Observe the tracking error's rate, log-scaled (``error_rate_log``, after last_action).
-    observe_error_rate: bool = False
     #: What error_log and error_rate_log log-scale (tendon2r_gym.envs.task.ERROR_UNITS): "rad", the
     #: tracking error and its rate; "action", the normalized joint torques that close the
     #: error and cancel its rate on the episode's arm (rate_to_action), so that a policy's
     #: gains on them move the joints alike on every arm.
     error_units: str = "rad"
-    #: Observe the reference's acceleration as the normalized joint torques that give it
-    #: (``feedforward``, after error_rate_log): rate_to_action (ctrl_dt ddq_des).
-    observe_feedforward: bool = False
-    #: Observe ln of the force limit max_tendon_force (``force_limit_log``, after
-    #: error_rate_log): a normalized action's scale, which ``auto`` sizes per arm.
-    observe_force_limit: bool = False
     #: What the controller measures (tendon2r_gym.simulation.realism.Sensors): Gaussian noise (std,
     #: rad
     #: and rad/s) on each joint's angle and speed, and their age (s, whole control steps).
@@ -123,14 +121,16 @@ class EnvConfig:
     def make(cls, preset: str | os.PathLike = "default", **overrides: Any) -> EnvConfig:
         """Returns the config of a preset name or experiment-file path with ``overrides``."""
         allowed = arguments()
+        # An older experiment file or record may hold the flags that ``observe`` replaced.
+        base = observation.from_flags(load_preset(preset, [*allowed, *observation.FLAGS]))
+        overrides = observation.from_flags(overrides, base.get("observe", ()))
         check_keys("Tendon2R-v0", overrides, allowed)
-        kwargs = merge_env_kwargs(load_preset(preset, allowed), overrides)
-        return cls.from_kwargs(kwargs)
+        return cls.from_kwargs(merge_env_kwargs(base, overrides))
 
     @classmethod
     def from_kwargs(cls, kwargs: Mapping[str, Any]) -> EnvConfig:
         """Validates and resolves merged keyword arguments (sections may be dicts)."""
-        kwargs = dict(kwargs)
+        kwargs = observation.from_flags(kwargs)
         check_keys("Tendon2R-v0", kwargs, arguments())
         mech = kwargs.pop("mechanism", None)
         if not isinstance(mech, Mechanism):
@@ -208,18 +208,18 @@ class EnvConfig:
         for name, value in delays.items():
             if abs(round(value / self.ctrl_dt) * self.ctrl_dt - value) > 1e-6 * self.ctrl_dt:
                 raise invalid(name, value, f"a multiple of ctrl_dt = {self.ctrl_dt} s")
-        set_("observe_arm", boolean("observe_arm", self.observe_arm))
-        set_("observe_error_rate", boolean("observe_error_rate", self.observe_error_rate))
+        set_("observe", subset("observe", self.observe, observation.OBSERVABLE))
         choice("error_units", self.error_units, ERROR_UNITS)
-        set_("observe_feedforward", boolean("observe_feedforward", self.observe_feedforward))
-        set_("observe_force_limit", boolean("observe_force_limit", self.observe_force_limit))
-        if self.observe_arm and self.feature_ranges is None:
+        if "arm" in self.observe and self.feature_ranges is None:
             raise invalid(
-                "observe_arm", True, "False without mechanism_ranges or arm_feature_ranges"
-            )
-        if self.arm_feature_ranges is not None and not self.observe_arm:
+                "observe", list(self.observe),
+                "a list without 'arm' unless mechanism_ranges or arm_feature_ranges is set",
+            )  # fmt: skip
+        if self.arm_feature_ranges is not None and "arm" not in self.observe:
             raise invalid(
-                "arm_feature_ranges", self.arm_feature_ranges.to_dict(), "None unless observe_arm"
+                "arm_feature_ranges",
+                self.arm_feature_ranges.to_dict(),
+                "None unless observe lists 'arm'",
             )
         if self.base_mechanism is None:
             set_("base_mechanism", self.mechanism)
@@ -286,9 +286,11 @@ class EnvConfig:
                 raise invalid(
                     "error_units", self.error_units, "'rad' on an arm with a joint no tendon spans"
                 )
-            if self.observe_feedforward:
+            if "feedforward" in self.observe:
                 raise invalid(
-                    "observe_feedforward", True, "False on an arm with a joint no tendon spans"
+                    "observe",
+                    list(self.observe),
+                    "a list without 'feedforward' on an arm with a joint no tendon spans",
                 )
 
     # -- random arms ---------------------------------------------------------------------------
@@ -350,7 +352,7 @@ class EnvConfig:
                 reference=self.reference if reference is None else reference,
                 reference_ranges=None,
                 mechanism_ranges=None,
-                observe_arm=False,
+                observe=tuple(x for x in self.observe if x != "arm"),
                 arm_feature_ranges=None,
                 fit_to_workspace=True,
                 **drawn_env,
@@ -359,7 +361,8 @@ class EnvConfig:
     # -- derived quantities ------------------------------------------------------------------
     @property
     def n_arm_features(self) -> int:
-        """Returns the length of the observation's ``arm`` slice (0 unless observe_arm)."""
+        """Returns the length of the observation's ``arm`` slice (0 unless it observes
+        ``arm``)."""
         return len(self.arm_fields)
 
     @property
@@ -378,8 +381,8 @@ class EnvConfig:
     @property
     def optional_entries(self) -> tuple[str, ...]:
         """Returns the optional entries the observation holds (tendon2r_gym.task.observation
-        .OPTIONAL names whose flag, e.g. observe_error_rate, is set)."""
-        return tuple(e[0] for e, flag in observation.OPTIONAL.items() if getattr(self, flag))
+        .OPTIONAL names that ``observe`` lists)."""
+        return tuple(e[0] for e, name in observation.OPTIONAL.items() if name in self.observe)
 
     @property
     def feature_ranges(self) -> MechanismRanges | None:
@@ -390,8 +393,8 @@ class EnvConfig:
     @property
     def arm_fields(self) -> tuple[str, ...]:
         """Returns the fields of the observation's ``arm`` slice, in order (none unless
-        observe_arm)."""
-        return self.feature_ranges.names if self.observe_arm else ()
+        ``arm`` observed)."""
+        return self.feature_ranges.names if "arm" in self.observe else ()
 
     def observation_mask(self, hidden: Any) -> np.ndarray:
         """Returns the 0/1 multiplier that blanks the observation entries named in ``hidden``
@@ -473,6 +476,7 @@ class EnvConfig:
             value = getattr(self, f.name)
             out[f.name] = value.to_dict() if hasattr(value, "to_dict") else value
         out["observation_noise"] = list(self.observation_noise)
+        out["observe"] = list(self.observe)
         if self.mechanism_ranges is not None:  # arms are drawn over the mechanism as given
             out["mechanism"] = self.base_mechanism.to_dict()
         return out

@@ -83,8 +83,8 @@ def arm_params(arm: EnvConfig, observed: EnvConfig) -> tuple[float, ...]:
     ranges."""
     mech = arm.mechanism
     (r00, r01), (r10, r11) = arm.needs.rate_to_action
-    force = [math.log(mech.max_tendon_force)] if observed.observe_force_limit else []
-    features = observed.feature_ranges.features(arm) if observed.observe_arm else []
+    force = [math.log(mech.max_tendon_force)] if "force_limit" in observed.observe else []
+    features = observed.feature_ranges.features(arm) if "arm" in observed.observe else []
     return (mech.a, mech.b, mech.c, r00, r01, r10, r11, *force, *features)
 
 
@@ -234,9 +234,9 @@ class Task:
         for dt in self.offsets:
             joints += [amp1 * sin(arg1 + om1 * dt) + bias1, amp2 * sin(arg2 + om2 * dt) + bias2]
         joints += last_action
-        if self.config.observe_error_rate:
+        if "error_rate" in self.config.observe:
             joints += self.error_rate_entries(ops, w1, w2, dqd1, dqd2, arm)
-        if self.config.observe_feedforward:
+        if "feedforward" in self.config.observe:
             joints += self.feedforward_entries(ops, t, ref, arm)
         if len(arm) > N_ARM_PARAMS:  # force_limit_log and arm, if observed
             joints += arm[N_ARM_PARAMS:]
@@ -268,14 +268,14 @@ class Task:
     def error_rate_entries(
         self, ops: Ops, w1: Any, w2: Any, dqd1: Any, dqd2: Any, arm: Sequence[Any]
     ) -> list[Any]:
-        """Returns ``error_rate_log`` (observe_error_rate) from the joint speeds and the
+        """Returns ``error_rate_log`` (observe ``error_rate``) from the joint speeds and the
         reference's: :meth:`_log_entries` of de = dq_des - dq."""
         return self._log_entries(ops, dqd1 - w1, dqd2 - w2, L.ERROR_RATE_LOG_SCALE, arm)
 
     def feedforward_entries(
         self, ops: Ops, t: Any, ref: Sequence[Any], arm: Sequence[Any]
     ) -> list[Any]:
-        """Returns ``feedforward`` (observe_feedforward): rate_to_action (:func:`arm_params`)
+        """Returns ``feedforward`` (observe ``feedforward``): rate_to_action (:func:`arm_params`)
         times ctrl_dt ddq_des(t + ctrl_dt / 2), the normalized joint torques that give the
         reference's acceleration at the middle of the next control step."""
         amp1, amp2, om1, om2, ph1, ph2, _, _ = ref

@@ -1,7 +1,9 @@
 """The contract of each registered env id, pinned: what a learner sees and is scored on.
 
 An id's contract is its resolved config (the default arm, reference, timing, reset noise,
-observation options, reward form and weights: EnvConfig.to_dict), its observation layout, its
+observation options, reward form and weights: EnvConfig.to_dict, with ``observe`` written as
+the four flags it replaced, tendon2r_gym.task.observation.as_flags, so that an id whose
+behaviour did not change keeps its hash), its observation layout, its
 reward terms with their default weights, its action space, its episode length and a short
 seeded rollout's observations and rewards (six significant digits): the behaviour, not only
 the settings.  ``tendon2r_gym/data/contracts.yaml`` holds each id's hash; tests/test_contract.py
@@ -20,6 +22,7 @@ import numpy as np
 
 from tendon2r_gym.policies.registry import contract_hash
 from tendon2r_gym.presets import DATA_DIR, load_yaml
+from tendon2r_gym.task import observation
 from tendon2r_gym.task.rewards import TERMS
 
 CONTRACTS = DATA_DIR / "contracts.yaml"
@@ -47,7 +50,7 @@ def env_contract(env_id: str) -> dict[str, Any]:
         rewards.append(float(f"{reward:.6g}"))
     env.close()
     return {
-        "config": config.to_dict(),
+        "config": observation.as_flags(config.to_dict()),
         "observation": config.observation_layout(),
         "reward_terms": {name: weight for name, (weight, _) in TERMS.items()},
         "action_space": [_sig(env.action_space.low), _sig(env.action_space.high)],

@@ -64,10 +64,8 @@ MODEL_SETTINGS = (
     "ctrl_dt",
     "preview_steps",
     "preview_dt",
-    "observe_error_rate",
+    "observe",
     "error_units",
-    "observe_feedforward",
-    "observe_force_limit",
 )
 #: Env config fields a trained model depends on: what it observes, what its actions mean and
 #: what it must track.
@@ -279,9 +277,23 @@ def make_training_env(
 
 def recorded_settings(recorded: dict[str, Any]) -> dict[str, Any]:
     """Returns the MODEL_SETTINGS of a recorded env config (a setting recorded before it
-    existed: its EnvConfig default)."""
+    existed: its EnvConfig default; the flags ``observe`` replaced, read into it)."""
+    recorded = observation.from_flags(recorded)
     default = {f.name: f.default for f in dataclasses.fields(EnvConfig)}
-    return {k: recorded.get(k, default[k]) for k in MODEL_SETTINGS}
+    out = {k: recorded.get(k, default[k]) for k in MODEL_SETTINGS}
+    return {**out, "observe": without_arm(out["observe"])}
+
+
+def config_settings(config: EnvConfig) -> dict[str, Any]:
+    """Returns the MODEL_SETTINGS of an env config, as :func:`recorded_settings` gives them."""
+    out = {k: getattr(config, k) for k in MODEL_SETTINGS}
+    return {**out, "observe": without_arm(config.observe)}
+
+
+def without_arm(observe: Any) -> list[str]:
+    """Returns the entries of ``observe`` that a model's settings carry: all but ``arm`` (a
+    model that observed its arm sees one fixed arm through :func:`arm_features`)."""
+    return [name for name in observe if name != "arm"]
 
 
 def model_settings(model_path: str | Path) -> dict[str, Any]:
@@ -296,7 +308,11 @@ def settings_on(model_path: str | Path, env_kwargs: dict[str, Any]) -> dict[str,
     ``env_kwargs`` (an arm): with them added, the arm's env is one the model runs in, and a
     report names them beside its row."""
     config = EnvConfig.make(**env_kwargs)
-    return {k: v for k, v in model_settings(model_path).items() if getattr(config, k) != v}
+    ours = config_settings(config)
+    out = {k: v for k, v in model_settings(model_path).items() if _plain(ours[k]) != _plain(v)}
+    if "observe" in out and "arm" in config.observe:  # the env's own arm slice stays
+        out["observe"] = [*out["observe"], "arm"]
+    return out
 
 
 def in_model_settings(model_path: str | Path, env_kwargs: dict[str, Any]) -> dict[str, Any]:
@@ -319,10 +335,7 @@ def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
     over the same ranges."""
     config = env.unwrapped.config
     theirs = {"observation": recorded.get("observation"), **recorded_settings(recorded)}
-    ours = {
-        "observation": config.observation_layout(),
-        **{k: getattr(config, k) for k in MODEL_SETTINGS},
-    }
+    ours = {"observation": config.observation_layout(), **config_settings(config)}
     if observes_arm(recorded):
         theirs["arm_feature_ranges"] = feature_ranges(recorded)
         ours["arm_feature_ranges"] = config.feature_ranges
@@ -360,12 +373,13 @@ def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
 
 
 def arm_features(recorded: dict[str, Any], env: gym.Env) -> np.ndarray | None:
-    """Returns the ``arm`` slice a model trained with ``observe_arm`` expects, for an env of
+    """Returns the ``arm`` slice a model that observed ``arm`` expects, for an env of
     one fixed arm that does not observe it: the arm's fields normalized over the model's
     :func:`feature_ranges`, as its training env computed them.  None if the model did not
     observe its arm, or the env observes it or draws arms itself."""
     config = env.unwrapped.config
-    if not observes_arm(recorded) or config.observe_arm or config.mechanism_ranges is not None:
+    observed = "arm" in config.observe
+    if not observes_arm(recorded) or observed or config.mechanism_ranges is not None:
         return None
     return np.array(feature_ranges(recorded).features(config), dtype=np.float64)
 
@@ -389,12 +403,13 @@ def fine_tune_env_kwargs(model_path: str | Path, env_kwargs: dict[str, Any]) -> 
     """Returns the env kwargs on which a run fine-tunes the model (``init_from``) on the env
     of ``env_kwargs``: with the model's :func:`model_settings` (what its actions mean, its
     timing), and, if it observed its arm, the arm slice over the model's ranges
-    (``observe_arm``, ``arm_feature_ranges``), so that the run's every env, its record and
+    (observe ``arm``, ``arm_feature_ranges``), so that the run's every env, its record and
     its deployment see the arm as the model did."""
     out = in_model_settings(model_path, env_kwargs)
     recorded = (training_record(model_path) or {}).get("env_config", {})
     if observes_arm(recorded):
-        out.update(observe_arm=True, arm_feature_ranges=feature_ranges(recorded).to_dict())
+        observe = [*EnvConfig.make(**out).observe, "arm"]
+        out.update(observe=observe, arm_feature_ranges=feature_ranges(recorded).to_dict())
     return out
 
 
@@ -576,8 +591,8 @@ class PPOPolicy:
 
 
 def _with_arm(env: gym.Env, arm: np.ndarray) -> gym.Env:
-    """Returns ``env`` observed with the constant ``arm`` slice appended (what a model trained
-    with observe_arm saw)."""
+    """Returns ``env`` observed with the constant ``arm`` slice appended (what a model that
+    observed ``arm`` saw in training)."""
     space = env.observation_space
     box = gym.spaces.Box(
         np.concatenate([space.low, np.full(arm.size, -np.inf)]),

@@ -133,7 +133,7 @@ RANDOMIZABLE = (
 SENSING = ("observation_delay", "observation_noise_angle", "observation_noise_speed")
 #: The gains of the env's PD (and of the PD inside a residual), drawn per episode too: Gains'
 #: ``bandwidth_hz`` and ``max_delay_phase`` (tendon2r_gym.task.gains).  A residual that sees them
-#: (``observe_arm``) learns on any PD, and runs on the one ``tendon2r-tune-pd`` finds for an arm.
+#: (observe ``arm``) learns on any PD, and runs on the one ``tendon2r-tune-pd`` finds for an arm.
 CONTROLLER = ("pd_bandwidth_hz", "pd_max_delay_phase")
 #: The unit of each CONTROLLER field.
 GAIN_UNITS = {"pd_bandwidth_hz": "Hz", "pd_max_delay_phase": "rad"}

@@ -3,20 +3,63 @@
 The env writes the observation in this order, and policies, info and tests read it by name.
 The fixed entries come first, so their slices do not depend on ``preview_steps``; then the
 preview of the reference, then the last action (one value per action dimension), which makes
-the action-rate reward term a function of the observed state.  With ``observe_error_rate``,
-the log-scaled rate of the tracking error follows (``error_rate_log``); with
-``observe_feedforward``, the reference's acceleration in normalized joint torques
-(``feedforward``); with ``observe_force_limit``, the log of the arm's force limit
-(``force_limit_log``).  With
-``observe_arm`` (random arms, ``mechanism_ranges``), the arm's drawn fields close it, normalized
-over their ranges (``arm_feature_ranges`` if given: one fixed arm, seen as a generalist saw it).
+the action-rate reward term a function of the observed state.  Then the optional entries a
+user asks for with ``observe`` (EnvConfig), in OBSERVABLE's order: ``error_rate``, the
+log-scaled rate of the tracking error (``error_rate_log``); ``feedforward``, the reference's
+acceleration in normalized joint torques; ``force_limit``, the log of the arm's force limit
+(``force_limit_log``); ``arm`` (random arms, ``mechanism_ranges``), the arm's drawn fields,
+normalized over their ranges (``arm_feature_ranges`` if given: one fixed arm, seen as a
+generalist saw it).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
+from typing import Any
 
 import numpy as np
+
+from tendon2r_gym.validation import boolean
+
+#: What ``observe`` may list: the optional entries, in the observation's order.
+OBSERVABLE = ("error_rate", "feedforward", "force_limit", "arm")
+#: The flags that ``observe`` replaced (tendon2r_gym 0.3.0), as older experiment files and run
+#: records hold them; read through :func:`from_flags`.
+FLAGS = {f"observe_{name}": name for name in OBSERVABLE}
+
+
+def from_flags(kwargs: Mapping[str, Any], start: Iterable[str] = ()) -> dict[str, Any]:
+    """Returns env kwargs with the FLAGS of ``kwargs`` folded into ``observe`` (a flag that is
+    true adds its entry, false removes it, null leaves it), over ``kwargs``' own ``observe``,
+    else ``start`` (the observe list the kwargs override)."""
+    if not any(flag in kwargs for flag in FLAGS):
+        return dict(kwargs)
+    out = {k: v for k, v in kwargs.items() if k not in FLAGS}
+    observe = list(out.get("observe", start) or ())
+    for flag, name in FLAGS.items():
+        value = kwargs.get(flag)
+        if value is not None:
+            value = boolean(flag, value)
+        if value is True and name not in observe:
+            observe.append(name)
+        elif value is False and name in observe:
+            observe.remove(name)
+    out["observe"] = [name for name in OBSERVABLE if name in observe] + [
+        name
+        for name in observe
+        if name not in OBSERVABLE  # refused by EnvConfig, named
+    ]
+    return out
+
+
+def as_flags(record: Mapping[str, Any]) -> dict[str, Any]:
+    """Returns an env config record with ``observe`` as the FLAGS it replaced: the form the
+    env ids' and shipped models' pinned contracts were hashed in (tendon2r_gym.policies.contract),
+    so that a record of the same behaviour keeps its hash."""
+    out = {k: v for k, v in record.items() if k != "observe"}
+    observe = record.get("observe", ())
+    return {**out, **{flag: name in observe for flag, name in FLAGS.items()}}
+
 
 #: (name, size, unit) of each fixed entry, in order.  Two values each: joint A, then joint B
 #: (or x, then z for the effector).
@@ -37,7 +80,7 @@ FIXED: tuple[tuple[str, int, str], ...] = (
 #: are large; a raw error would then stay a tiny input long after the policy tracks to 0.1 deg.
 ERROR_LOG_SCALE = 1e-4
 
-#: The optional entry of ``observe_error_rate`` (name, size, unit): sign(de) log(1 + |de| /
+#: The optional entry of ``error_rate`` (name, size, unit): sign(de) log(1 + |de| /
 #: ERROR_RATE_LOG_SCALE) of the error's rate de = dq_des - dq, joint A then B.  The policy sees
 #: dq and dq_des, but each normalized over speeds of rad/s: their difference near 0, a PD's
 #: derivative term, is then a tiny input, as the raw error is.
@@ -52,7 +95,7 @@ ERROR_RATE_LOG_SCALE = 0.1
 #: below this fraction of a full action.
 ACTION_LOG_SCALE = 0.1
 
-#: The optional entry of ``observe_feedforward`` (name, size, unit): rate_to_action (ctrl_dt
+#: The optional entry of ``feedforward`` (name, size, unit): rate_to_action (ctrl_dt
 #: ddq_des(t + ctrl_dt / 2)), the normalized joint torques that give the joints the
 #: reference's acceleration over the next control step, at the middle of it, through the
 #: arm's inertia at the reference's bias (EnvConfig.needs.rate_to_action; no velocity terms).  A
@@ -60,18 +103,18 @@ ACTION_LOG_SCALE = 0.1
 #: needs not learn each arm's inertia to lead the reference.
 FEEDFORWARD = ("feedforward", 2, "1")
 
-#: The optional entry of ``observe_force_limit`` (name, size, unit): ln(F / 1 N) of the arm's
+#: The optional entry of ``force_limit`` (name, size, unit): ln(F / 1 N) of the arm's
 #: force limit F = max_tendon_force (``auto``: sized per arm and reference, the reset info's
 #: ``max_tendon_force_N``).  A normalized action is a fraction of F (tension) or of a torque
 #: proportional to F (joint torque): a policy that does not see F cannot keep its gain in
 #: newtons when F changes from arm to arm.
 FORCE_LIMIT = ("force_limit_log", 1, "ln N")
 #: The optional entries (name, size, unit), in their order after the last action, each with
-#: the EnvConfig flag that adds it.
+#: the ``observe`` name that adds it (the drawn arm's ``arm`` slice closes the observation).
 OPTIONAL: dict[tuple[str, int, str], str] = {
-    ERROR_RATE: "observe_error_rate",
-    FEEDFORWARD: "observe_feedforward",
-    FORCE_LIMIT: "observe_force_limit",
+    ERROR_RATE: "error_rate",
+    FEEDFORWARD: "feedforward",
+    FORCE_LIMIT: "force_limit",
 }
 
 
@@ -120,14 +163,15 @@ def optional_slice(name: str, preview_steps: int, n_actions: int, observed: Iter
 
 
 def error_rate_slice(preview_steps: int, n_actions: int) -> slice:
-    """Returns the slice of ``error_rate_log`` (observe_error_rate), after the last action."""
+    """Returns the slice of ``error_rate_log`` (observe ``error_rate``), after the last
+    action."""
     return optional_slice(ERROR_RATE[0], preview_steps, n_actions, ())
 
 
 def arm_slice(
     preview_steps: int, n_actions: int, n_arm: int, observed: Iterable[str] = ()
 ) -> slice:
-    """Returns the slice of the arm's features (observe_arm): each drawn Mechanism field,
+    """Returns the slice of the arm's features (observe ``arm``): each drawn Mechanism field,
     normalized over its range to [-1, 1], in the order of the ranges (EnvConfig.feature_ranges).
     ``observed``: the optional entries the observation holds (names of OPTIONAL)."""
     observed = set(observed)
@@ -177,23 +221,23 @@ def table(preview_steps_name: str = "P") -> str:
         "(the rest command after a reset), one per action dimension | 1 |"
     )
     rows.append(
-        "| (observe_error_rate only) the next 2 | the tracking error's rate dq_des - dq, "
+        "| (observe ``error_rate``) the next 2 | the tracking error's rate dq_des - dq, "
         f"log-scaled as error_log (``{ERROR_RATE[0]}``, linear below "
         f"{ERROR_RATE_LOG_SCALE:g} rad/s; with error_units 'action', as error_log of the "
         "normalized joint torques that cancel it in one control step, rate_to_action "
         f"(dq_des - dq), linear below {ACTION_LOG_SCALE:g}) | {ERROR_RATE[2]} |"
     )
     rows.append(
-        "| (observe_feedforward only) the next 2 | the normalized joint torques that give the "
+        "| (observe ``feedforward``) the next 2 | the normalized joint torques that give the "
         "reference's acceleration over the next control step, rate_to_action (ctrl_dt "
         f"ddq_des(t + ctrl_dt / 2)) (``{FEEDFORWARD[0]}``) | {FEEDFORWARD[2]} |"
     )
     rows.append(
-        f"| (observe_force_limit only) the next 1 | ln of the arm's force limit "
+        f"| (observe ``force_limit``) the next 1 | ln of the arm's force limit "
         f"max_tendon_force / 1 N (``{FORCE_LIMIT[0]}``) | {FORCE_LIMIT[2]} |"
     )
     rows.append(
-        "| (observe_arm only) the last entries | the arm's drawn fields, normalized over "
+        "| (observe ``arm``) the last entries | the arm's drawn fields, normalized over "
         "mechanism_ranges (or arm_feature_ranges) to [-1, 1] | 1 |"
     )
     return "\n".join(rows)

@@ -24,8 +24,8 @@ ENTRIES = {"Tendon2R-v1": "default_scratch", "Tendon2RResidual-v1": "default"}
 WRAPPER = "tendon2r_gym.policies.learned.ResidualPDWrapper"
 
 HEADER = """\
-# GENERATED from configs/ppo.yaml by `python scripts/export_zoo.py`; edit that file instead
-# (tests/test_zoo.py checks that this one is up to date).
+# GENERATED from tendon2r_gym/data/ppo.yaml by `python scripts/export_zoo.py`; edit that file
+# instead (tests/test_zoo.py checks that this one is up to date).
 #   python -m rl_zoo3.train --algo ppo --env Tendon2R-v1 --gym-packages tendon2r_gym \\
 #       --conf-file configs/rl_zoo3/ppo.yml
 #   python -m rl_zoo3.train --algo ppo --env Tendon2RResidual-v1 --gym-packages tendon2r_gym \\
