@@ -151,7 +151,7 @@ def layout_table(config: EnvConfig) -> list[str]:
     units = {name: unit for name, _, unit in (*observation.FIXED, *observation.OPTIONAL)}
     units |= {"preview": "rad", "last_action": "1", "arm": "1"}
     rows, start = [], 0
-    for name, n in config.observation_layout():
+    for name, n in config.observation.layout():
         rows.append((f"{start}-{start + n - 1}", code(name), n, units[name]))
         start += n
     return table(("index", "entry", "size", "unit"), rows)
@@ -242,7 +242,7 @@ def env_page(root: Path = ROOT) -> str:
     found["Observation Space"] += "\n\n" + "\n".join(
         [
             f"The default env's layout ({code(f'gym.make({newest_id()!r})')}: "
-            f"{default.observation_size} entries):",
+            f"{default.observation.size} entries):",
             "",
             *layout_table(default),
         ]
@@ -325,7 +325,7 @@ def benchmark_rows(model: str, reports: dict[str, dict[str, Any]]) -> list[list[
 def non_default_settings(model: Path) -> dict[str, Any]:
     """Returns the model's settings (learned.model_settings) that differ from EnvConfig's
     defaults: what the env it runs in must set, whatever the arm."""
-    from tendon2r_gym.policies.learned import model_settings
+    from tendon2r_gym.policies.model_env import model_settings
 
     defaults = {f.name: f.default for f in dataclasses.fields(EnvConfig)}
     return {k: v for k, v in model_settings(model).items() if v != defaults[k]}

@@ -49,14 +49,14 @@ LATEST = "Tendon2R-v1"
 # episode_duration / ctrl_dt steps, so episode length has one source of truth.
 # Tendon2RResidual-<v> is the same env under a second id, only so that rl_zoo3's hyperparameter
 # file (keyed by env id) can hold a residual entry; that entry's env_wrapper adds
-# tendon2r_gym.policies.learned.ResidualPDWrapper (configs/rl_zoo3/ppo.yml).
+# tendon2r_gym.policies.residual.ResidualPDWrapper (configs/rl_zoo3/ppo.yml).
 for _version, _defaults in VERSIONS.items():
     for _name in ("Tendon2R", "Tendon2RResidual"):
         _id = f"{_name}-{_version}"
         if _id not in gym.registry:
             gym.register(
                 id=_id,
-                entry_point="tendon2r_gym.envs.env:make_env",
+                entry_point="tendon2r_gym.envs.registration:make_env",
                 vector_entry_point="tendon2r_gym.envs.vector_env:Tendon2RVectorEnv",
                 kwargs=dict(_defaults),
             )

@@ -9,7 +9,7 @@ import pytest
 from tendon2r_gym.envs.env import Tendon2REnv
 from tendon2r_gym.evaluation.evaluator import evaluate
 from tendon2r_gym.policies.baselines import PDPolicy
-from tendon2r_gym.policies.learned import NO_RESIDUAL, Residual, ResidualPDWrapper
+from tendon2r_gym.policies.residual import NO_RESIDUAL, Residual, ResidualPDWrapper
 from tendon2r_gym.task import observation as L
 
 
@@ -167,11 +167,11 @@ def test_bad_action_filter_names_the_field():
 def test_a_model_runs_only_in_the_action_semantics_it_was_trained_in(field, trained, deployed):
     """A model's actions mean tensions or joint torques, filtered or not: another setting is a
     ValueError naming it, and a run recorded before the setting existed takes its default."""
-    from tendon2r_gym.policies.learned import check_model_env
+    from tendon2r_gym.policies.model_env import check_model_env
 
     def recorded(**kw):
         config = gym.make("Tendon2R-v0", **kw).unwrapped.config
-        return {**config.to_dict(), "observation": config.observation_layout()}
+        return {**config.to_dict(), "observation": config.observation.layout()}
 
     check_model_env(recorded(**{field: trained}), gym.make("Tendon2R-v0"), "model")
     old = {k: v for k, v in recorded().items() if k != field}

@@ -7,8 +7,9 @@ import sys
 
 import pytest
 
+from tendon2r_gym.app.args import parse
 from tendon2r_gym.app.benchmark import FINETUNED, GENERALISTS, LEARNED, compare
-from tendon2r_gym.app.cli import EvaluateArgs, benchmark_main, evaluate_main, parse
+from tendon2r_gym.app.cli import EvaluateArgs, benchmark_main, evaluate_main
 from tendon2r_gym.evaluation import evaluator as evaluation
 from tendon2r_gym.evaluation.evaluator import BASELINE, PolicyEntry, names
 from tendon2r_gym.policies.baselines import PDPolicy
@@ -164,7 +165,7 @@ def test_benchmark_runs_a_model_in_the_action_mode_it_trained_in(tmp_path, monke
     from research.studies import generalist as generalist_study
     from tendon2r_gym.app.report import shown_policy
     from tendon2r_gym.evaluation.evaluator import evaluate
-    from tendon2r_gym.policies.learned import settings_on
+    from tendon2r_gym.policies.model_env import settings_on
     from tendon2r_gym.training import Experiment, Hyperparams
 
     env = {"preset": "default", "episode_duration": 0.05}
@@ -201,7 +202,7 @@ def test_evaluate_runs_a_bundle_in_the_settings_it_trained_in(tmp_path):
     from pathlib import Path
 
     from tendon2r_gym.policies.bundle import bundled_model
-    from tendon2r_gym.policies.learned import model_settings
+    from tendon2r_gym.policies.model_env import model_settings
 
     arm = Path(__file__).resolve().parents[1] / "configs" / "examples" / "course_arm.yaml"
     out = tmp_path / "m.json"

@@ -155,9 +155,8 @@ def test_the_flags_observe_replaced_are_read_from_older_files(tmp_path):
     entries with four flags: they are read into ``observe`` (true adds, false removes, over the
     file's own list), a non-bool flag is refused by name, and the contract's form of a config
     writes them back."""
-    from tendon2r_gym.task import observation
-
     from tendon2r_gym.presets import preset_path
+    from tendon2r_gym.task import observation
 
     old = tmp_path / "old_arm.yaml"
     flags = "observe_error_rate: true\nobserve_force_limit: false\n"

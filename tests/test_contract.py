@@ -39,7 +39,7 @@ def test_the_changelog_describes_each_id(env_id):
 def test_the_contract_sees_a_changed_default_and_a_changed_behaviour(monkeypatch):
     base = env_contract("Tendon2R-v1")
     assert env_contract("Tendon2R-v1") == base, "deterministic"
-    gym.register(id="Tendon2RTest-v9", entry_point="tendon2r_gym.envs.env:make_env",
+    gym.register(id="Tendon2RTest-v9", entry_point="tendon2r_gym.envs.registration:make_env",
                  kwargs={**tendon2r_gym.VERSIONS["v1"], "reset_noise_scale": 0.03})  # fmt: skip
     try:
         changed = env_contract("Tendon2RTest-v9")

@@ -128,9 +128,9 @@ def test_error_rate_entry_is_the_log_scaled_rate_of_the_error():
     de = dq_des - dq; every other entry is as without it, and without it (the default) the
     observation is the registered one."""
     plain, env = Tendon2REnv(), Tendon2REnv(observe=["error_rate"])
-    assert [n for n, _ in plain.config.observation_layout()][-1] == "last_action"
+    assert [n for n, _ in plain.config.observation.layout()][-1] == "last_action"
     assert plain.observation_space.shape == (L.size(3, 2),)
-    assert env.config.observation_layout()[-1] == ["error_rate_log", 2]
+    assert env.config.observation.layout()[-1] == ["error_rate_log", 2]
     with_rate = L.size(3, 2, observed=[L.ERROR_RATE[0]])
     assert env.observation_space.shape == (with_rate,) == (L.size(3, 2) + 2,)
     plain.reset(seed=0)
@@ -156,12 +156,12 @@ def test_force_limit_entry_is_the_log_of_each_episodes_force_limit():
     kw = {"preset": "generalist"}
     plain = Tendon2REnv(**kw, observe=["error_rate", "arm"])
     env = Tendon2REnv(**kw, observe=["arm", "force_limit", "error_rate"])  # any order
-    names = [n for n, _ in env.config.observation_layout()]
+    names = [n for n, _ in env.config.observation.layout()]
     assert names[-3:] == ["error_rate_log", "force_limit_log", "arm"]
     cfg = env.config
-    where = L.optional_slice(L.FORCE_LIMIT[0], 3, 2, cfg.optional_entries)
+    where = L.optional_slice(L.FORCE_LIMIT[0], 3, 2, cfg.observation.optional)
     assert where == slice(L.error_rate_slice(3, 2).stop, L.error_rate_slice(3, 2).stop + 1)
-    arm = L.arm_slice(3, 2, cfg.n_arm_features, cfg.optional_entries)
+    arm = L.arm_slice(3, 2, len(cfg.observation.arm_fields), cfg.observation.optional)
     assert arm.start == where.stop and arm.stop == env.observation_space.shape[0]
     limits = set()
     for seed in (0, 1):
@@ -185,9 +185,9 @@ def test_feedforward_entry_is_the_references_acceleration_in_action_units():
     kw = {"preset": "generalist", "action_mode": "joint_torque"}
     plain = Tendon2REnv(**kw, observe=["error_rate", "force_limit", "arm"])
     env = Tendon2REnv(**kw, observe=["error_rate", "feedforward", "force_limit", "arm"])
-    names = [n for n, _ in env.config.observation_layout()]
+    names = [n for n, _ in env.config.observation.layout()]
     assert names[-4:] == ["error_rate_log", "feedforward", "force_limit_log", "arm"]
-    where = L.optional_slice(L.FEEDFORWARD[0], 3, 2, env.config.optional_entries)
+    where = L.optional_slice(L.FEEDFORWARD[0], 3, 2, env.config.observation.optional)
     assert where.start == L.error_rate_slice(3, 2).stop and where.stop - where.start == 2
     seen = []
     for seed in (0, 1):
@@ -628,7 +628,7 @@ def test_error_units_action_log_scale_the_actions_that_close_the_error_and_its_r
     of the episode's arm, every other entry as in rad; a bad value is refused, named."""
     kw = {"preset": "generalist", "observe": ["error_rate"], "action_mode": "joint_torque"}
     plain, env = Tendon2REnv(**kw), Tendon2REnv(**kw, error_units="action")
-    assert plain.config.observation_layout() == env.config.observation_layout()
+    assert plain.config.observation.layout() == env.config.observation.layout()
     plain.reset(seed=4)
     env.reset(seed=4)
     for a in ([0.3, -0.2], [-0.1, 0.5]):

@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 import tendon2r_gym  # noqa: F401  (registers Tendon2R-v0)
-from tendon2r_gym.app.cli import export_main, view_main
+from tendon2r_gym.app.tools import export_main, view_main
 from tendon2r_gym.presets import list_presets, load_yaml, merge_env_kwargs, preset_path
 from tendon2r_gym.simulation.realism import PERTURBATIONS, Drive
 

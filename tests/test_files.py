@@ -15,7 +15,7 @@ import gymnasium as gym
 import pytest
 
 import tendon2r_gym  # noqa: F401  (registers Tendon2R-v0)
-from tendon2r_gym.app import cli
+from tendon2r_gym.app import cli, tools
 from tendon2r_gym.policies import bundle
 from tendon2r_gym.policies.bundle import bundle_meta, bundle_names, bundle_runs, bundled_model
 from tendon2r_gym.policies.files import load_model, load_vecnormalize
@@ -69,7 +69,7 @@ def test_bundle_refuses_a_name_that_is_not_one_plain_folder(models, runs, tmp_pa
     assert set(before) == set(bundle_names(MODELS_DIR))
     argv = [a.replace("{tmp}", str(tmp_path)) for a in name]
     with pytest.raises(ValueError, match=r"^--name = .* is invalid; allowed: a plain bundle name"):
-        cli.bundle_main([*argv, "--root", str(models), "--runs", str(runs[0])])
+        tools.bundle_main([*argv, "--root", str(models), "--runs", str(runs[0])])
     assert {n: files_under(models / n) for n in bundle_names(models)} == before
     assert sorted(p.name for p in models.iterdir()) == sorted(before), "nothing added"
     assert not (models.parent / "escape").exists() and not (tmp_path / "abs").exists()
@@ -78,7 +78,7 @@ def test_bundle_refuses_a_name_that_is_not_one_plain_folder(models, runs, tmp_pa
 def test_bundle_without_name_is_a_one_line_error_with_exit_code_2(models, runs):
     script = Path(sys.executable).with_name("tendon2r-bundle")  # the console entry
     cmd = [str(script)] if script.is_file() else [
-        sys.executable, "-c", "from tendon2r_gym.app.cli import bundle; bundle()"]  # fmt: skip
+        sys.executable, "-c", "from tendon2r_gym.app.tools import bundle; bundle()"]  # fmt: skip
     env = {
         **os.environ,
         "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]),
@@ -102,11 +102,11 @@ def test_replacing_a_bundle_needs_the_flag(tmp_path, runs):
     with pytest.raises(ValueError, match=r"^name = 'tiny' is invalid.*replace=True.*tiny"):
         bundle_runs([runs[1]], "tiny", "second", root)
     with pytest.raises(ValueError, match=r"^--name = 'tiny' is invalid.*--replace to replace"):
-        cli.bundle_main(["--name", "tiny", "--root", str(root), "--runs", str(runs[1])])
+        tools.bundle_main(["--name", "tiny", "--root", str(root), "--runs", str(runs[1])])
     with pytest.raises(ValueError, match=r"^--runs = \[\] is invalid"):
-        cli.bundle_main(["--name", "new", "--root", str(root)])
+        tools.bundle_main(["--name", "new", "--root", str(root)])
     assert files_under(root) == first
-    cli.bundle_main(["--name", "tiny", "--replace", "--root", str(root), "--runs", str(runs[1])])
+    tools.bundle_main(["--name", "tiny", "--replace", "--root", str(root), "--runs", str(runs[1])])
     meta = bundle_meta("tiny", root)
     assert meta["seeds"] == [1] and meta["command"].startswith("tendon2r-bundle --name tiny")
     assert sorted(p.name for p in (root / "tiny").iterdir()) == ["bundle.json", "seed_1"]

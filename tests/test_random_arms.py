@@ -7,7 +7,7 @@ import pytest
 
 from tendon2r_gym.envs.env_config import EnvConfig
 from tendon2r_gym.policies.baselines import ComputedTorquePolicy, PDPolicy
-from tendon2r_gym.policies.learned import check_model_env
+from tendon2r_gym.policies.model_env import check_model_env
 from tendon2r_gym.simulation.mechanism import Mechanism
 from tendon2r_gym.task import observation
 from tendon2r_gym.task.arms import COURSE, GEOMETRY, MechanismRanges
@@ -69,7 +69,10 @@ def test_one_arm_observed_over_given_ranges():
     kwargs = {"preset": "default", "observe": ["arm"], "arm_feature_ranges": "course"}
     config = EnvConfig.make(**kwargs)
     expected = MechanismRanges.from_value("course").features(config)
-    assert config.arm_fields == ("R1", "R2", "a", "b", "c") and config.mechanism_ranges is None
+    assert (
+        config.observation.arm_fields == ("R1", "R2", "a", "b", "c")
+        and config.mechanism_ranges is None
+    )
     env = gym.make("Tendon2R-v0", **kwargs)
     venv = Tendon2RVectorEnv(2, **kwargs)
     arm = observation.arm_slice(3, 2, 5)
@@ -148,8 +151,8 @@ def test_arm_features_are_the_drawn_fields_normalized():
         assert np.all(np.abs(obs[where]) <= 1)
         obs, *_ = env.step(env.action_space.sample())
         np.testing.assert_allclose(obs[where], expected, rtol=0, atol=1e-12)  # constant
-    assert ["arm", len(GEOMETRY)] in cfg.observation_layout()
-    assert "arm" not in dict(EnvConfig.make("default").observation_layout())
+    assert ["arm", len(GEOMETRY)] in cfg.observation.layout()
+    assert "arm" not in dict(EnvConfig.make("default").observation.layout())
 
 
 def test_ct_follows_the_arm_and_the_reference():
@@ -167,7 +170,7 @@ def test_ct_follows_the_arm_and_the_reference():
 def test_generalist_loads_on_arms_inside_its_ranges_only():
     recorded = {
         **EnvConfig.make("generalist").to_dict(),
-        "observation": EnvConfig.make("generalist").observation_layout(),
+        "observation": EnvConfig.make("generalist").observation.layout(),
     }
     inside = gym.make("Tendon2R-v0", mechanism={"c": 0.09, "R1": 0.02})
     check_model_env(recorded, inside, "generalist")
@@ -197,7 +200,8 @@ def test_fixed_reference_option_on_random_arms():
 def test_a_residual_policy_follows_the_arm_in_rollouts():
     """PPOPolicy's inner PD follows each episode's arm (rollouts call reset(info)): with a
     zero residual it acts exactly as PD does on every drawn arm."""
-    from tendon2r_gym.policies.learned import PPOPolicy, Residual
+    from tendon2r_gym.policies.learned import PPOPolicy
+    from tendon2r_gym.policies.residual import Residual
 
     class Zero:
         def predict(self, obs, state=None, episode_start=None, deterministic=True):
@@ -283,7 +287,7 @@ def test_drawn_pd_gains_are_each_episodes_and_pd_follows_them():
     """pd_bandwidth_hz drawn: each reset draws a bandwidth inside the range, reports the
     episode's gains in the reset info and observes it (normalized) in the arm slice; PD and a
     residual's PD use it: kp = (2 pi bandwidth)^2 on the arm."""
-    from tendon2r_gym.policies.learned import ResidualPDWrapper
+    from tendon2r_gym.policies.residual import ResidualPDWrapper
 
     lo, hi = 10.0, 40.0
     kwargs = {"preset": "real_arm", "observe": ["arm"]}
@@ -311,12 +315,12 @@ def test_a_model_trained_on_drawn_gains_runs_on_the_users_tuned_gains():
     """Deployed on one arm, a residual trained on drawn PD gains runs the PD of the arm's own
     gains (what tendon2r-tune-pd wrote) and sees them; gains outside its training range, or
     none where a phase was drawn, are refused by name."""
-    from tendon2r_gym.policies.learned import arm_features, deployed_gains
+    from tendon2r_gym.policies.model_env import arm_features, deployed_gains
 
     ranges = ["real_arm", {"pd_bandwidth_hz": [10.0, 40.0]}]
     trained = EnvConfig.make("real_arm", mechanism_ranges=ranges, observe=["arm"],
                              pd_gains={"bandwidth_hz": 12.0, "damping_ratio": 0.9})  # fmt: skip
-    recorded = {**trained.to_dict(), "observation": trained.observation_layout()}
+    recorded = {**trained.to_dict(), "observation": trained.observation.layout()}
     arm = gym.make("Tendon2R-v0", preset="real_arm", pd_gains={"bandwidth_hz": 25.0})
     check_model_env(recorded, arm, "model")
     gains = deployed_gains(recorded, arm)
@@ -360,7 +364,9 @@ def test_a_tuned_phase_draws_each_arms_bandwidth_as_a_tuning_would_pick_it():
     ranges = ["real_arm", {"pd_bandwidth_hz": [lo, hi], "pd_tuned_phase": list(phase)}]
     cfg = EnvConfig.make("real_arm", mechanism_ranges=ranges, observe=["arm"])
     assert MechanismRanges.from_value(cfg.mechanism_ranges.to_dict()) == cfg.mechanism_ranges
-    assert cfg.arm_fields == cfg.mechanism_ranges.names  # the bandwidth is seen, not the phase
+    assert (
+        cfg.observation.arm_fields == cfg.mechanism_ranges.names
+    )  # the bandwidth is seen, not the phase
     rng, clipped, inside = np.random.default_rng(0), 0, 0
     for _ in range(200):
         arm = cfg.draw_arm(rng)

@@ -42,7 +42,7 @@ def test_each_line_is_true_of_its_bundle(name):
     entry = Hyperparams.from_entry(line.entry)
     assert entry.env_kwargs.get("preset", "default") == line.env
     contract = EnvConfig.make(**entry.env_kwargs)
-    built = {**contract.to_dict(), "observation": contract.observation_layout()}
+    built = {**contract.to_dict(), "observation": contract.observation.layout()}
     built = json.loads(json.dumps(built))  # tuples as lists, as run.json holds them
     for seed in line.seeds:
         run = RunFolder(stem_of(bundled_model(name, seed)).parent)

@@ -44,7 +44,8 @@ def renderer():
 
 def load():
     from tendon2r_gym.policies.bundle import bundled_model
-    from tendon2r_gym.policies.learned import PPOPolicy, model_settings
+    from tendon2r_gym.policies.learned import PPOPolicy
+    from tendon2r_gym.policies.model_env import model_settings
     model = bundled_model("default")
     env = gym.make("Tendon2R-v1", **model_settings(model))
     PPOPolicy.load(model, env).predict(env.reset(seed=0)[0])

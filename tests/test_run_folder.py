@@ -16,10 +16,11 @@ import yaml
 from stable_baselines3 import PPO
 from test_training import _tiny, _train
 
-from tendon2r_gym.app.cli import TrainArgs, experiment, parse, train_main
+from tendon2r_gym.app.args import parse
+from tendon2r_gym.app.cli import TrainArgs, experiment, train_main
 from tendon2r_gym.policies.runs import RunFolder, saved_steps, training_record
 from tendon2r_gym.training import Experiment, Hyperparams, manager
-from tendon2r_gym.training.manager import RunWriteError
+from tendon2r_gym.training.records import RunWriteError
 
 
 def _files(folder):

@@ -14,11 +14,13 @@ import yaml
 from stable_baselines3 import PPO
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
-from tendon2r_gym.app.cli import TrainArgs, experiment, parse, train_main
+from tendon2r_gym.app.args import parse
+from tendon2r_gym.app.cli import TrainArgs, experiment, train_main
 from tendon2r_gym.evaluation.evaluator import evaluate
 from tendon2r_gym.evaluation.metrics import beats, selection_rank, within_limits
 from tendon2r_gym.policies.bundle import bundle_meta, bundle_runs, bundled_model
-from tendon2r_gym.policies.learned import PPOPolicy, residual_command
+from tendon2r_gym.policies.learned import PPOPolicy
+from tendon2r_gym.policies.residual import residual_command
 from tendon2r_gym.policies.runs import RunFolder
 from tendon2r_gym.presets import PPO_CONFIG
 from tendon2r_gym.training import Hyperparams
@@ -594,13 +596,13 @@ def test_one_drawn_field_hidden_from_the_actor():
         env_kwargs=env_kwargs, hide_from_actor=["arm.R2"], n_envs=1
     )
     config = EnvConfig.make(**env_kwargs)
-    assert config.arm_fields == ("R1", "R2", "a", "b", "c")
+    assert config.observation.arm_fields == ("R1", "R2", "a", "b", "c")
     arm = arm_slice(3, 2, 5)
-    mask = config.observation_mask(hp.hide_from_actor)
+    mask = config.observation.mask(hp.hide_from_actor)
     assert mask[arm].tolist() == [1, 0, 1, 1, 1] and mask[: arm.start].all()
     policy_class, kwargs = hp.policy(config)
     model = PPO(policy_class, gym.make("Tendon2R-v0", **env_kwargs), policy_kwargs=kwargs)
-    obs = torch.as_tensor(np.random.default_rng(0).normal(size=(4, config.observation_size)),
+    obs = torch.as_tensor(np.random.default_rng(0).normal(size=(4, config.observation.size)),
                           dtype=torch.float32)  # fmt: skip
     actor = lambda o: model.policy.get_distribution(o).distribution.mean  # noqa: E731
     for index, read_by_actor in zip(range(arm.start, arm.stop), mask[arm], strict=True):
@@ -622,7 +624,7 @@ def test_a_model_that_observed_its_arm_runs_on_one_fixed_arm(tmp_path, force_lim
     that observed the force limit runs on the arm's env with the model's settings
     (in_model_settings, as the benchmark makes it), which observes that arm's own limit."""
     from tendon2r_gym.evaluation.evaluator import evaluate
-    from tendon2r_gym.policies.learned import in_model_settings
+    from tendon2r_gym.policies.model_env import in_model_settings
     from tendon2r_gym.task.arms import MechanismRanges
 
     config = _tiny(tmp_path)

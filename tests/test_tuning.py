@@ -17,7 +17,8 @@ from tendon2r_gym.evaluation.tuning import (
     tune_pd,
 )
 from tendon2r_gym.policies.baselines import ComputedTorquePolicy, PDPolicy
-from tendon2r_gym.policies.learned import PPOPolicy, Residual, ResidualPDWrapper
+from tendon2r_gym.policies.learned import PPOPolicy
+from tendon2r_gym.policies.residual import Residual, ResidualPDWrapper
 from tendon2r_gym.simulation.mechanism import Mechanism
 from tendon2r_gym.task.gains import Gains, default_gains, loop_delay
 

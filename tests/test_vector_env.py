@@ -192,7 +192,7 @@ def test_sb3_adapter_steps_like_dummy_vec_env(kwargs):
     episodes."""
     from stable_baselines3.common.env_util import make_vec_env
 
-    from tendon2r_gym.policies.learned import Residual, make_training_env
+    from tendon2r_gym.policies.residual import Residual, make_training_env
     from tendon2r_gym.training.vector_env_sb3 import SB3VecEnv
 
     native = SB3VecEnv(Tendon2RVectorEnv(3, autoreset_mode="SameStep", **kwargs), Residual(0.5))
@@ -221,7 +221,7 @@ def test_sb3_adapter_filters_the_residual_as_the_wrapper_does():
     ResidualPDWrapper's, each slot's restarting with its episode (8-step episodes here)."""
     from stable_baselines3.common.env_util import make_vec_env
 
-    from tendon2r_gym.policies.learned import Residual, make_training_env
+    from tendon2r_gym.policies.residual import Residual, make_training_env
     from tendon2r_gym.training.vector_env_sb3 import SB3VecEnv
 
     kwargs = {"episode_duration": 0.008}
@@ -269,7 +269,7 @@ def test_sb3_adapter_scales_the_residual_to_each_arms_need_as_the_wrapper_does()
     slot's arm, through every autoreset to a new arm."""
     from stable_baselines3.common.env_util import make_vec_env
 
-    from tendon2r_gym.policies.learned import Residual, make_training_env
+    from tendon2r_gym.policies.residual import Residual, make_training_env
     from tendon2r_gym.training.vector_env_sb3 import SB3VecEnv
 
     kwargs = {"preset": "generalist", "action_mode": "joint_torque", "episode_duration": 0.008}

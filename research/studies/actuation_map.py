@@ -23,7 +23,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from tendon2r_gym.app.cli import arg, parse  # noqa: E402
+from tendon2r_gym.app.args import arg, parse  # noqa: E402
 from tendon2r_gym.envs.env_config import EnvConfig  # noqa: E402
 from tendon2r_gym.simulation.actuation import ActuationAnalysis  # noqa: E402
 from tendon2r_gym.simulation.model import build_model  # noqa: E402

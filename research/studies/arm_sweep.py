@@ -26,8 +26,8 @@ from typing import Annotated, Any, Literal
 import yaml
 
 from research.studies import joints, one_or_more, save_json
+from tendon2r_gym.app.args import arg, parse
 from tendon2r_gym.app.benchmark import benchmark_own_arm
-from tendon2r_gym.app.cli import arg, parse
 from tendon2r_gym.envs.env_config import ACTION_MODES, EnvConfig
 from tendon2r_gym.evaluation.metrics import (
     RATE_LIMIT_X_PD,

@@ -35,8 +35,8 @@ import numpy as np
 import yaml
 
 from research.studies import joints, save_json
+from tendon2r_gym.app.args import arg, parse
 from tendon2r_gym.app.benchmark import GENERALISTS, LEARNED
-from tendon2r_gym.app.cli import arg, parse
 from tendon2r_gym.envs.env_config import EnvConfig
 from tendon2r_gym.evaluation.evaluator import evaluate
 from tendon2r_gym.evaluation.metrics import (
@@ -49,13 +49,13 @@ from tendon2r_gym.evaluation.metrics import (
     worst_ratio,
 )
 from tendon2r_gym.policies.bundle import bundle_meta, bundle_names, bundled_model
-from tendon2r_gym.policies.learned import (
-    Residual,
+from tendon2r_gym.policies.model_env import (
     feature_ranges,
     in_model_settings,
     model_settings,
     observes_arm,
 )
+from tendon2r_gym.policies.residual import Residual
 from tendon2r_gym.policies.runs import (
     RunFolder,
     command_line,

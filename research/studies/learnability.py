@@ -26,7 +26,7 @@ if TYPE_CHECKING:
 import numpy as np
 
 from research.studies import joints, one_or_more, save_json
-from tendon2r_gym.app.cli import arg, parse
+from tendon2r_gym.app.args import arg, parse
 
 #: Row name -> (what changes, env kwargs, hyperparameter changes).  Rows start from
 #: ``default_scratch`` unless their hyperparameter changes name another ``entry``.

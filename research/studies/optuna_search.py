@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
 
-from tendon2r_gym.app.cli import arg, parse
+from tendon2r_gym.app.args import arg, parse
 
 #: The zoo hyperparameter file, relative to the repository (run from its root, as README does).
 ZOO_CONF = "configs/rl_zoo3/ppo.yml"

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from research.studies import joints, one_or_more, save_json
-from tendon2r_gym.app.cli import arg, parse
+from tendon2r_gym.app.args import arg, parse
 
 ENTRY = "default_scratch"
 

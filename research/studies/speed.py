@@ -25,7 +25,7 @@ import numpy as np  # noqa: E402
 
 import tendon2r_gym  # noqa: E402, F401
 from research.studies import one_or_more  # noqa: E402
-from tendon2r_gym.app.cli import arg, parse  # noqa: E402
+from tendon2r_gym.app.args import arg, parse  # noqa: E402
 from tendon2r_gym.envs.vector_env import ARMS_PER_THREAD  # noqa: E402
 from tendon2r_gym.policies.runs import command_line  # noqa: E402
 

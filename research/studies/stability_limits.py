@@ -24,7 +24,7 @@ from typing import Annotated
 import mujoco
 import numpy as np
 
-from tendon2r_gym.app.cli import arg, parse
+from tendon2r_gym.app.args import arg, parse
 from tendon2r_gym.simulation.mechanism import Mechanism
 from tendon2r_gym.simulation.model import build_model
 from tendon2r_gym.simulation.stability import LIMITS, rates

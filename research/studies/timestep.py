@@ -20,7 +20,7 @@ import mujoco
 import numpy as np
 
 import tendon2r_gym  # noqa: F401
-from tendon2r_gym.app.cli import arg, parse
+from tendon2r_gym.app.args import arg, parse
 from tendon2r_gym.policies.baselines import PDPolicy
 from tendon2r_gym.task.observation import Q
 

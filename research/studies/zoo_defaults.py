@@ -27,7 +27,7 @@ from typing import Annotated, Any, Literal
 import yaml
 
 from research.studies import joints, save_json
-from tendon2r_gym.app.cli import arg, parse
+from tendon2r_gym.app.args import arg, parse
 from tendon2r_gym.evaluation.metrics import SETTLE_S
 from tendon2r_gym.policies.runs import command_line
 from tendon2r_gym.validation import integer, invalid
@@ -114,7 +114,8 @@ def evaluate_zoo_model(
     from tendon2r_gym.evaluation.metrics import tracking_metrics
     from tendon2r_gym.evaluation.rollout import rollouts
     from tendon2r_gym.policies.files import load_model, load_vecnormalize
-    from tendon2r_gym.policies.learned import NO_RESIDUAL, PPOPolicy
+    from tendon2r_gym.policies.learned import PPOPolicy
+    from tendon2r_gym.policies.residual import NO_RESIDUAL
 
     kwargs = env_kwargs(env_id)
     probe = gym.make(env_id)

@@ -25,7 +25,7 @@ import numpy as np
 from tendon2r_gym.app import report
 from tendon2r_gym.app.plots import plot_trace
 from tendon2r_gym.app.report import fmt, tol
-from tendon2r_gym.envs.env import make as make_env
+from tendon2r_gym.envs.registration import make as make_env
 from tendon2r_gym.evaluation.evaluator import (
     BASELINE,
     evaluate,
@@ -34,10 +34,7 @@ from tendon2r_gym.evaluation.evaluator import (
     reproducible_to,
 )
 from tendon2r_gym.policies.bundle import bundle_meta, bundle_names, bundled_model
-from tendon2r_gym.policies.learned import (
-    in_model_settings,
-    settings_on,
-)
+from tendon2r_gym.policies.model_env import in_model_settings, settings_on
 from tendon2r_gym.policies.runs import model_files, training_record, training_summary
 from tendon2r_gym.presets import DATA_DIR
 from tendon2r_gym.validation import invalid

@@ -6,7 +6,6 @@ import math
 import os
 from typing import Any
 
-import gymnasium as gym
 import mujoco
 import numpy as np
 from gymnasium import spaces
@@ -14,7 +13,7 @@ from gymnasium.envs.mujoco.mujoco_env import DEFAULT_SIZE, MujocoEnv
 from gymnasium.utils import EzPickle
 
 from tendon2r_gym.envs.env_config import EnvConfig
-from tendon2r_gym.envs.task import Task, arm_params, reference_params
+from tendon2r_gym.envs.task import DIVERGENCE_WARNING_IDS, Task, arm_params, reference_params
 from tendon2r_gym.llvm import load_triton
 from tendon2r_gym.ops import SCALAR
 from tendon2r_gym.simulation.actuation import MomentArms, TorqueToTension, cond_of_rows
@@ -25,26 +24,9 @@ from tendon2r_gym.task.reference import Reference
 from tendon2r_gym.task.rewards import rewards_table
 from tendon2r_gym.validation import integer, invalid, real_array
 
-#: MuJoCo's warnings that mean the integration failed (DIVERGENCE_WARNING_IDS: their indices
-#: into MjData.warning, which both envs count).
-DIVERGENCE_WARNINGS = (
-    mujoco.mjtWarning.mjWARN_BADQACC,
-    mujoco.mjtWarning.mjWARN_BADQPOS,
-    mujoco.mjtWarning.mjWARN_BADQVEL,
-)
-DIVERGENCE_WARNING_IDS = [int(w) for w in DIVERGENCE_WARNINGS]
-
 
 def _allowed_actions(n: int) -> str:
     return f"({n},) finite real numbers (one per tendon) in [-1, 1]; values outside are clipped"
-
-
-def make_env(preset: str | os.PathLike = "default", **kwargs: Any) -> gym.Env:
-    """The registered entry point: Tendon2REnv under a TimeLimit of episode_duration / ctrl_dt
-    steps, so ``gym.make(..., episode_duration=X, ctrl_dt=Y)`` gives X / Y steps (the TimeLimit
-    is the one source of truth for truncation, and ``env.spec.max_episode_steps`` reports it)."""
-    env = Tendon2REnv(preset, **kwargs)
-    return gym.wrappers.TimeLimit(env, env.config.max_episode_steps)
 
 
 #: The env card's sections, in Gymnasium's order: the ``##`` headings of Tendon2REnv's docstring.
@@ -58,15 +40,6 @@ CARD_SECTIONS = (
     "Arguments",
     "Version History",
 )
-#: The id the library's own tools make envs with: Tendon2R-v0 adds no defaults over a preset,
-#: so the env is exactly what the given kwargs (a model's recorded settings) say.
-BASE_ID = "Tendon2R-v0"
-
-
-def make(**kwargs: Any) -> gym.Env:
-    """``gym.make`` of BASE_ID, through its spec: the same env, wrappers and TimeLimit, without
-    Gymnasium's notice that a newer version exists (it is meant for users' own ids)."""
-    return gym.make(gym.spec(BASE_ID), **kwargs)
 
 
 class Tendon2REnv(MujocoEnv, EzPickle):
@@ -226,7 +199,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         # MujocoEnv insists on an existing model_path and loads it in _initialize_simulation.
         # We build the model in memory with MjSpec (parameters stay exact, no file round trip)
         # and override _initialize_simulation; this module's path only passes the check.
-        n_obs = cfg.observation_size
+        n_obs = cfg.observation.size
         MujocoEnv.__init__(
             self,
             __file__,

@@ -34,7 +34,7 @@ from tendon2r_gym.task.arms import (
 )
 from tendon2r_gym.task.gains import Gains, gains_of, tuned_bandwidth
 from tendon2r_gym.task.needs import Needs, force_needs
-from tendon2r_gym.task.reference import Reference, ReferenceRanges
+from tendon2r_gym.task.reference import Reference, ReferenceRanges, checked_reference
 from tendon2r_gym.task.rewards import ERROR_UNITS, MAX_REWARD_WEIGHT, REWARD_SCALES, TRACKING_FORMS
 from tendon2r_gym.validation import (
     boolean,
@@ -229,34 +229,14 @@ class EnvConfig:
             self.draw_arm(np.random.default_rng(0))
 
     def _check_reference(self) -> None:
-        mech, ref = self.mechanism, self.reference
-        if self.fit_to_workspace:
-            object.__setattr__(self, "reference", ref.fit_to_workspace(mech))
-        elif problems := ref.workspace_violations(mech):
-            raise invalid(
-                "reference",
-                ref.to_dict(),
-                f"a reference inside the workspace, but it leaves it: {'; '.join(problems)} "
-                "(or pass fit_to_workspace=True to scale the amplitudes down)",
-            )
-        nyquist = 0.5 / self.ctrl_dt
-        freqs = [max(self.reference.omega) / (2 * math.pi)]
-        if self.reference_ranges is not None:
-            freqs.append(max(hi for _, hi in self.reference_ranges.freq_hz))
-            if problems := self.reference_ranges.corner_violations(mech):
-                raise invalid(
-                    "reference_ranges.bias_deg",
-                    self.reference_ranges.bias_deg,
-                    "biases that fit the workspace, but a draw could leave it: "
-                    + "; ".join(problems),
-                )
-        if max(freqs) * self.ctrl_dt > 0.1:
-            raise invalid(
-                "reference frequency (Hz)",
-                max(freqs),
-                f"<= {0.1 / self.ctrl_dt:g} Hz: at least 10 control steps per period, a fifth "
-                f"of the Nyquist limit 0.5 / ctrl_dt = {nyquist:g} Hz (use a smaller ctrl_dt)",
-            )
+        ref = checked_reference(
+            self.reference,
+            self.reference_ranges,
+            self.mechanism,
+            self.ctrl_dt,
+            self.fit_to_workspace,
+        )
+        object.__setattr__(self, "reference", ref)
 
     def _size_force_limit(self) -> None:
         refs = [self.reference]
@@ -360,50 +340,18 @@ class EnvConfig:
 
     # -- derived quantities ------------------------------------------------------------------
     @property
-    def n_arm_features(self) -> int:
-        """Returns the length of the observation's ``arm`` slice (0 unless it observes
-        ``arm``)."""
-        return len(self.arm_fields)
-
-    @property
-    def observation_size(self) -> int:
-        """Returns the observation's length (tendon2r_gym.task.observation.size)."""
-        return observation.size(
-            self.preview_steps, self.n_actions, self.n_arm_features, self.optional_entries
-        )
-
-    def observation_layout(self) -> list[list]:
-        """Returns the observation's named layout (tendon2r_gym.task.observation.layout)."""
-        return observation.layout(
-            self.preview_steps, self.n_actions, self.n_arm_features, self.optional_entries
-        )
-
-    @property
-    def optional_entries(self) -> tuple[str, ...]:
-        """Returns the optional entries the observation holds (tendon2r_gym.task.observation
-        .OPTIONAL names that ``observe`` lists)."""
-        return tuple(e[0] for e, name in observation.OPTIONAL.items() if name in self.observe)
+    def observation(self) -> observation.Layout:
+        """Returns the observation's layout (tendon2r_gym.task.observation.Layout): the
+        optional entries ``observe`` lists, and the arm slice's fields if it lists ``arm``."""
+        optional = tuple(e[0] for e, name in observation.OPTIONAL.items() if name in self.observe)
+        arm = self.feature_ranges.names if "arm" in self.observe else ()
+        return observation.Layout(self.preview_steps, self.n_actions, optional, arm)
 
     @property
     def feature_ranges(self) -> MechanismRanges | None:
         """Returns the ranges the observation's ``arm`` slice is normalized over:
         arm_feature_ranges, else mechanism_ranges (None without either)."""
         return self.arm_feature_ranges or self.mechanism_ranges
-
-    @property
-    def arm_fields(self) -> tuple[str, ...]:
-        """Returns the fields of the observation's ``arm`` slice, in order (none unless
-        ``arm`` observed)."""
-        return self.feature_ranges.names if "arm" in self.observe else ()
-
-    def observation_mask(self, hidden: Any) -> np.ndarray:
-        """Returns the 0/1 multiplier that blanks the observation entries named in ``hidden``
-        (layout names, or ``arm.<field>``: tendon2r_gym.task.observation.layout_mask)."""
-        return observation.layout_mask(self.observation_layout(), hidden, self.arm_fields)
-
-    def observation_entries(self) -> list[str]:
-        """Returns the names :meth:`observation_mask` accepts."""
-        return observation.entry_names(self.observation_layout(), self.arm_fields)
 
     @property
     def n_substeps(self) -> int:

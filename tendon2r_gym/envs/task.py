@@ -17,6 +17,7 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
+import mujoco
 import numpy as np
 
 from tendon2r_gym.ops import Ops
@@ -38,6 +39,14 @@ DIVERGED_PAST_LIMIT = 0.5  # rad past a joint limit that counts as diverged
 #: limit reach about 500 rad/s.
 DIVERGED_SPEED = 1e4
 
+#: MuJoCo's warnings that mean the integration failed (DIVERGENCE_WARNING_IDS: their indices
+#: into MjData.warning, which both envs count).
+DIVERGENCE_WARNINGS = (
+    mujoco.mjtWarning.mjWARN_BADQACC,
+    mujoco.mjtWarning.mjWARN_BADQPOS,
+    mujoco.mjtWarning.mjWARN_BADQVEL,
+)
+DIVERGENCE_WARNING_IDS = [int(w) for w in DIVERGENCE_WARNINGS]
 #: Keys of ``info`` after every step, in both envs (the vector env adds Gymnasium's masks).
 STEP_INFO_KEYS = (
     *(f"reward_{k}" for k in TERMS),
@@ -131,7 +140,7 @@ class Task:
         self.effort_gain, self.effort_offset = mech.command_map if tension else (1.0, 0.0)
         # With no offset and a gain of +-1, f^2 is the command's own square: skip the map.
         self._effort_mapped = self.effort_offset != 0.0 or abs(self.effort_gain) != 1.0
-        self.obs_size = config.observation_size
+        self.obs_size = config.observation.size
         self._info_keys = {k: f"reward_{k}" for k in TERMS}  # formatted once, not every step
 
     # -- reset -----------------------------------------------------------------------------------

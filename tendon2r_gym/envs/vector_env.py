@@ -26,11 +26,10 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from mujoco import batch as mj_batch
 
-from tendon2r_gym.envs.env import DIVERGENCE_WARNING_IDS
 from tendon2r_gym.envs.env_config import EnvConfig
-from tendon2r_gym.envs.task import Task, arm_params, reference_params
+from tendon2r_gym.envs.task import DIVERGENCE_WARNING_IDS, Task, arm_params, reference_params
 from tendon2r_gym.ops import BATCH
-from tendon2r_gym.simulation.actuation import TorqueToTension, cond_of_rows
+from tendon2r_gym.simulation.actuation import TorqueToTension, cond_of_rows, sparse_rows
 from tendon2r_gym.simulation.model import build_model, tendon_name
 from tendon2r_gym.simulation.realism import CommandDelay, Drive, Sensors
 from tendon2r_gym.task import observation as obs_layout
@@ -76,7 +75,7 @@ class Tendon2RVectorEnv(VectorEnv):
         n_act = cfg.n_actions
         self.single_action_space = spaces.Box(-1.0, 1.0, (n_act,), np.float32)
         self.single_observation_space = spaces.Box(
-            -np.inf, np.inf, (cfg.observation_size,), np.float64
+            -np.inf, np.inf, (cfg.observation.size,), np.float64
         )
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
@@ -97,7 +96,7 @@ class Tendon2RVectorEnv(VectorEnv):
         if cfg.action_mode == "joint_torque":  # the single env's distribution, batched
             self._torque_map = TorqueToTension(cfg.mechanism)
         self._ten_J = b.bind("ten_J")
-        self._J_rows = _sparse_rows(self.model)
+        self._J_rows = sparse_rows(self.model)
         # Realism (tendon2r_gym.simulation.realism): spools and lags; an arm is put at
         # rest on a scratch MjData, as the single env does it, and copied into the batch.
         self.drive = Drive(self.model, cfg.mechanism)
@@ -470,16 +469,3 @@ def _without_empty(info: dict[str, Any]) -> dict[str, Any]:
     envs never create them."""
     empty = {k[1:] for k, v in info.items() if k.startswith("_") and not np.any(v)}
     return {k: v for k, v in info.items() if k not in empty and k.removeprefix("_") not in empty}
-
-
-def _sparse_rows(model: mujoco.MjModel) -> list[tuple[int | None, ...]]:
-    """Returns, per motor's tendon and arm joint, the index of its entry in MuJoCo's sparse
-    ten_J (None where the tendon does not span that joint: its moment arm is 0)."""
-    rows = []
-    for k in range(model.nu):  # one motor per tendon; passive friction tendons come after
-        entries: list[int | None] = [None] * model.nv
-        start = model.ten_J_rowadr[k]
-        for idx in range(start, start + model.ten_J_rownnz[k]):
-            entries[model.ten_J_colind[idx]] = int(idx)
-        rows.append(tuple(entries[:2]))  # the arm's joints (spools come after)
-    return rows

@@ -11,7 +11,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from tendon2r_gym.envs.env import make as make_env
+from tendon2r_gym.envs.registration import make as make_env
 from tendon2r_gym.evaluation.metrics import tracking_metrics
 from tendon2r_gym.evaluation.rollout import Policy, Trace, rollouts
 from tendon2r_gym.policies.baselines import ComputedTorquePolicy, PDPolicy

@@ -77,7 +77,8 @@ def rollouts(
 ) -> list[Trace]:
     """Runs one deterministic episode per seed, all at once on the native vector env (one arm
     per seed, the policy called on the batch of observations).  Each episode equals
-    ``rollout`` on ``tendon2r_gym.envs.env.make(**env_kwargs)`` with that seed, bit for bit."""
+    ``rollout`` on ``tendon2r_gym.envs.registration.make(**env_kwargs)`` with that seed, bit for
+    bit."""
     from tendon2r_gym.envs.vector_env import Tendon2RVectorEnv
 
     n = len(seeds)

@@ -51,7 +51,7 @@ def env_contract(env_id: str) -> dict[str, Any]:
     env.close()
     return {
         "config": observation.as_flags(config.to_dict()),
-        "observation": config.observation_layout(),
+        "observation": config.observation.layout(),
         "reward_terms": {name: weight for name, (weight, _) in TERMS.items()},
         "action_space": [_sig(env.action_space.low), _sig(env.action_space.high)],
         "max_episode_steps": env.spec.max_episode_steps,

@@ -314,3 +314,16 @@ def _sparse_index(rownnz: np.ndarray, rowadr: np.ndarray, colind: np.ndarray):
     pairs = zip(rowadr, rownnz, strict=True)
     cols = np.concatenate([colind[a : a + nnz] for a, nnz in pairs]).astype(int)
     return rows, cols
+
+
+def sparse_rows(model: mujoco.MjModel) -> list[tuple[int | None, ...]]:
+    """Returns, per motor's tendon and arm joint, the index of its entry in MuJoCo's sparse
+    ten_J (None where the tendon does not span that joint: its moment arm is 0)."""
+    rows = []
+    for k in range(model.nu):  # one motor per tendon; passive friction tendons come after
+        entries: list[int | None] = [None] * model.nv
+        start = model.ten_J_rowadr[k]
+        for idx in range(start, start + model.ten_J_rownnz[k]):
+            entries[model.ten_J_colind[idx]] = int(idx)
+        rows.append(tuple(entries[:2]))  # the arm's joints (spools come after)
+    return rows

@@ -15,6 +15,7 @@ generalist saw it).
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -261,7 +262,7 @@ def layout_mask(
     layout_: list[list], hidden: Iterable[str], arm_fields: Iterable[str] = ()
 ) -> np.ndarray:
     """Returns a multiplier over an observation of ``layout_`` ([[name, size], ...], from
-    EnvConfig.observation_layout) that blanks the entries named in ``hidden``
+    EnvConfig.observation.layout()) that blanks the entries named in ``hidden``
     (:func:`entry_names`; ``arm_fields`` names the arm slice's entries, in order)."""
     hidden, out = set(hidden), []
     for name, n in layout_:
@@ -272,3 +273,32 @@ def layout_mask(
     if len(out) != sum(n for _, n in layout_):
         raise ValueError(f"arm_fields {list(arm_fields)} do not match the layout {layout_}")
     return np.array(out)
+
+
+@dataclass(frozen=True)
+class Layout:
+    """One env's observation (EnvConfig.observation): its preview steps, its action count, the
+    OPTIONAL entries it holds (by name) and the fields of its arm slice (none: no slice)."""
+
+    preview_steps: int
+    n_actions: int
+    optional: tuple[str, ...] = ()
+    arm_fields: tuple[str, ...] = ()
+
+    @property
+    def size(self) -> int:
+        """Returns the observation's length."""
+        return size(self.preview_steps, self.n_actions, len(self.arm_fields), self.optional)
+
+    def layout(self) -> list[list]:
+        """Returns the named layout, [[name, size], ...] (:func:`layout`)."""
+        return layout(self.preview_steps, self.n_actions, len(self.arm_fields), self.optional)
+
+    def mask(self, hidden: Iterable[str]) -> np.ndarray:
+        """Returns the 0/1 multiplier that blanks the entries named in ``hidden`` (layout
+        names, or ``arm.<field>``: :func:`layout_mask`)."""
+        return layout_mask(self.layout(), hidden, self.arm_fields)
+
+    def entries(self) -> list[str]:
+        """Returns the names :meth:`mask` accepts."""
+        return entry_names(self.layout(), self.arm_fields)

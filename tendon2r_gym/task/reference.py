@@ -265,3 +265,43 @@ class ReferenceRanges:
             for f in dataclasses.fields(self)
         }
         return Reference(**draw).fit_to_workspace(mech, warn=False)
+
+
+def checked_reference(
+    ref: Reference,
+    ranges: ReferenceRanges | None,
+    mech: Mechanism,
+    ctrl_dt: float,
+    fit_to_workspace: bool = False,
+) -> Reference:
+    """Returns the episode's reference ``ref`` on the arm ``mech`` (its amplitudes scaled down
+    into the workspace if ``fit_to_workspace``), or raises naming what is wrong: a reference
+    or a corner of ``ranges`` that leaves the workspace, or a frequency with fewer than 10
+    control steps per period."""
+    if fit_to_workspace:
+        ref = ref.fit_to_workspace(mech)
+    elif problems := ref.workspace_violations(mech):
+        raise invalid(
+            "reference",
+            ref.to_dict(),
+            f"a reference inside the workspace, but it leaves it: {'; '.join(problems)} "
+            "(or pass fit_to_workspace=True to scale the amplitudes down)",
+        )
+    nyquist = 0.5 / ctrl_dt
+    freqs = [max(ref.omega) / (2 * math.pi)]
+    if ranges is not None:
+        freqs.append(max(hi for _, hi in ranges.freq_hz))
+        if problems := ranges.corner_violations(mech):
+            raise invalid(
+                "reference_ranges.bias_deg",
+                ranges.bias_deg,
+                "biases that fit the workspace, but a draw could leave it: " + "; ".join(problems),
+            )
+    if max(freqs) * ctrl_dt > 0.1:
+        raise invalid(
+            "reference frequency (Hz)",
+            max(freqs),
+            f"<= {0.1 / ctrl_dt:g} Hz: at least 10 control steps per period, a fifth "
+            f"of the Nyquist limit 0.5 / ctrl_dt = {nyquist:g} Hz (use a smaller ctrl_dt)",
+        )
+    return ref

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 
-from tendon2r_gym.envs.env import make as make_env
+from tendon2r_gym.envs.registration import make as make_env
 from tendon2r_gym.evaluation.metrics import (
     beats,
     selection_rank,
@@ -25,7 +25,8 @@ from tendon2r_gym.evaluation.metrics import (
 )
 from tendon2r_gym.evaluation.rollout import rollouts
 from tendon2r_gym.policies.baselines import PDPolicy
-from tendon2r_gym.policies.learned import PPOPolicy, Residual
+from tendon2r_gym.policies.learned import PPOPolicy
+from tendon2r_gym.policies.residual import Residual
 from tendon2r_gym.policies.runs import (
     BEST_METRICS,
     CHECKPOINT_PREFIX,

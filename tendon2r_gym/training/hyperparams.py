@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from tendon2r_gym.envs.env_config import EnvConfig
-from tendon2r_gym.policies.learned import Residual
+from tendon2r_gym.policies.residual import Residual
 from tendon2r_gym.presets import PPO_CONFIG, load_yaml
 from tendon2r_gym.task import observation
 from tendon2r_gym.validation import check_keys, integer, invalid, mapping, number
@@ -120,7 +120,7 @@ class Hyperparams:
     checkpoint_freq: int  # env steps between checkpoints
     residual_scale: float = 0.0  # > 0: residual on PD (command = PD + scale * action)
     # With residual_scale > 0: the time constant (s) of a first-order low-pass on the residual
-    # alone, PD's command unfiltered (tendon2r_gym.policies.learned.ResidualFilter).  0: none.
+    # alone, PD's command unfiltered (tendon2r_gym.policies.residual.ResidualFilter).  0: none.
     residual_filter_tau: float = 0.0
     # With residual_scale > 0: what residual_scale is a fraction of, per joint: "range", the
     # joint's command range, or "need", its torque need on the episode's arm and reference
@@ -133,7 +133,7 @@ class Hyperparams:
     normalize: dict[str, Any] = field(default_factory=dict)  # VecNormalize keyword arguments
     checkpoint_minutes: float = 2.0  # and a checkpoint at least this often (wall time)
     zero_obs: tuple[str, ...] = ()  # observation entries to blank out (ablations)
-    # Observation entries (EnvConfig.observation_entries: e.g. arm, or one drawn field such as
+    # Observation entries (EnvConfig.observation.entries(): e.g. arm, or one drawn field such as
     # arm.density_scale) that only the critic sees (privileged: hide_from_actor) or only the
     # actor (hide_from_critic): tendon2r_gym.policies.split_view.
     hide_from_actor: tuple[str, ...] = ()
@@ -212,7 +212,7 @@ class Hyperparams:
                 schedule(f"ppo.{key}", self.ppo[key])
         env_config = EnvConfig.make(**self.env_kwargs)  # before any worker starts
         self.residual.check_action_mode(env_config.action_mode)
-        names = env_config.observation_entries()
+        names = env_config.observation.entries()
         for key in ("hide_from_actor", "hide_from_critic"):
             hidden = tuple(getattr(self, key) or ())
             check_keys(key, hidden, names)
@@ -258,7 +258,7 @@ class Hyperparams:
     @property
     def residual(self) -> Residual:
         """Returns how the policy's action joins PD's command (residual_scale,
-        residual_filter_tau and residual_relative_to: tendon2r_gym.policies.learned.Residual)."""
+        residual_filter_tau and residual_relative_to: tendon2r_gym.policies.residual.Residual)."""
         return Residual(self.residual_scale, self.residual_filter_tau, self.residual_relative_to)
 
     @property
@@ -289,7 +289,7 @@ class Hyperparams:
         from tendon2r_gym.policies.split_view import SplitViewPolicy
 
         keep = {  # one mask per stacked frame
-            f"{who}_keep": env_config.observation_mask(hidden).tolist() * self.frame_stack
+            f"{who}_keep": env_config.observation.mask(hidden).tolist() * self.frame_stack
             for who, hidden in (("actor", self.hide_from_actor), ("critic", self.hide_from_critic))
         }
         return SplitViewPolicy, {**self.policy_kwargs, **keep}

@@ -26,22 +26,15 @@ tendon2r_gym.policies.runs) and survives interruption:
 from __future__ import annotations
 
 import contextlib
-import errno
 import json
-import os
-import time
 import warnings
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from tendon2r_gym.envs.env import make as make_env
 from tendon2r_gym.envs.env_config import EnvConfig
 from tendon2r_gym.policies.history import stacked
-from tendon2r_gym.policies.learned import make_training_env
+from tendon2r_gym.policies.residual import make_training_env
 from tendon2r_gym.policies.runs import (
     BEST_METRICS,
     CONFIG,
@@ -51,12 +44,8 @@ from tendon2r_gym.policies.runs import (
     SEEDS_SUMMARY,
     SUMMARY,
     RunFolder,
-    model_files,
-    saved_steps,
     seed_dir,
     seed_dirs,
-    stem_of,
-    training_record,
 )
 from tendon2r_gym.training.callbacks import (
     StopOnSignal,
@@ -66,7 +55,16 @@ from tendon2r_gym.training.callbacks import (
     quiet_writer_threads,
     save_model,
 )
-from tendon2r_gym.training.hyperparams import LOG_STD_RANGE, Hyperparams
+from tendon2r_gym.training.fine_tune import fine_tune, initial_model, load_initial
+from tendon2r_gym.training.hyperparams import Hyperparams
+from tendon2r_gym.training.records import (
+    RunWriteError,
+    Segment,
+    attempt_write,
+    is_write_error,
+    seeds_summary,
+    write_failure,
+)
 from tendon2r_gym.validation import invalid
 
 
@@ -231,96 +229,6 @@ def _load_newest(run: RunFolder, venv: Any, hp: Hyperparams) -> tuple[Any, Any]:
     raise FileNotFoundError(f"resume: every saved state in {run.path} is unreadable")
 
 
-def initial_model(hp: Hyperparams) -> tuple[Path, Path]:
-    """Returns (model zip, VecNormalize pkl) of ``hp.init_from`` (a bundle's primary seed, or
-    a model file) after checking that it covers the run's env and residual scale."""
-
-    from tendon2r_gym.policies.bundle import model_path
-    from tendon2r_gym.policies.learned import Residual, trained_model
-
-    source = hp.init_from
-    env = make_env(**hp.env_kwargs)
-    zip_path, stats, meta = trained_model(model_path(source), env, "init_from")
-    if Residual.from_record(meta).active != hp.residual.active:
-        kind = "a residual model (residual_scale > 0)" if hp.residual.active else "a plain model"
-        raise invalid(
-            "init_from",
-            source,
-            f"{kind} for this entry (the model has residual_scale {meta['residual_scale']})",
-        )
-    n = int(np.prod(env.action_space.shape))  # the model's actions: it was trained for env
-    if isinstance(hp.init_log_std, list) and len(hp.init_log_std) != n:
-        lo, hi = LOG_STD_RANGE
-        raise invalid(
-            "init_log_std",
-            hp.init_log_std,
-            f"one number in [{lo:g}, {hi:g}], or {n} (the model's actions)",
-        )
-    return zip_path, stats
-
-
-def fine_tune(hp: Hyperparams) -> Hyperparams:
-    """Returns the hyperparameters of a run that starts from ``hp.init_from``: its env kwargs
-    take the source model's settings and arm slice (learned.fine_tune_env_kwargs), and its
-    residual the source's scale and filter (``residual_scale``, ``residual_relative_to``,
-    ``residual_filter_tau``), so that every env of the run, its run.json and its deployment
-    see what the model saw and its actions mean what they meant; ``hp`` itself without
-    init_from.  A plain entry does not fine-tune a residual model, nor the reverse
-    (initial_model refuses it)."""
-    from tendon2r_gym.policies.bundle import model_path
-    from tendon2r_gym.policies.learned import Residual, fine_tune_env_kwargs
-
-    source = None if hp.init_from is None else model_path(hp.init_from)
-    if source is None or not model_files(stem_of(source))[0].is_file():
-        return hp  # (a missing source is refused by initial_model, naming init_from)
-    residual = Residual.from_record(training_record(source))
-    env_kwargs = fine_tune_env_kwargs(source, hp.env_kwargs)
-    if not hp.residual.active or not residual.active:
-        return hp.replace(env_kwargs=env_kwargs)
-    return hp.replace(env_kwargs=env_kwargs, **residual.to_record())
-
-
-def _load_initial(
-    hp: Hyperparams, source: tuple[Path, Path], venv: Any, seed: int, run: RunFolder
-) -> tuple[Any, Any]:
-    """Returns (PPO, VecNormalize) started from the weights and observation statistics of
-    ``source`` (:func:`initial_model`), training on ``venv`` with the run's PPO settings."""
-    from stable_baselines3.common.vec_env import VecNormalize
-
-    from tendon2r_gym.training.smoothing import SmoothPPO
-
-    zip_path, stats = source
-    vecnorm = VecNormalize.load(str(stats), venv)
-    vecnorm.training = True
-    vecnorm.norm_reward = bool(hp.normalize.get("norm_reward", True))
-    model = SmoothPPO.load(
-        zip_path, env=stacked(vecnorm, hp.frame_stack, hp.frame_stride), device="cpu",
-        custom_objects=hp.ppo_kwargs(), seed=seed, tensorboard_log=str(run.tensorboard),
-        smoothing=hp.smoothing,
-    )  # fmt: skip
-    model.num_timesteps = 0  # a fine-tune counts its own steps (the zip holds the source's)
-    if hp.init_log_std is not None:
-        _reset_log_std(model.policy.log_std, hp.init_log_std)
-    print(f"initialized from {zip_path}", flush=True)
-    return model, vecnorm
-
-
-def _reset_log_std(log_std: Any, value: float | list[float]) -> None:
-    """Sets the policy's log std (``init_log_std``): one value for every action, or one per
-    action (:func:`initial_model` checked their number)."""
-    import torch
-
-    values = torch.as_tensor(value, dtype=log_std.dtype).expand(log_std.shape)
-    with torch.no_grad():
-        log_std.copy_(values)
-
-
-class RunWriteError(ValueError):
-    """Writing to a run folder failed (read-only, or a full disk): the command's one-line error
-    (a ValueError, as the console commands print them) names the folder, the OS error and the
-    saved state a --resume continues from."""
-
-
 @dataclass(frozen=True)
 class RunPlan:
     """One run as checked before anything is written: what it trains, and from what."""
@@ -414,20 +322,20 @@ def train_planned(plan: RunPlan, command: str = "", progress_bar: bool = False) 
         except BaseException as e:  # noqa: BLE001 (saved below, then raised)
             error = e
         # Ctrl-C or a crash keeps the last state; each write is tried even if one fails.
-        failed = [error] if error is not None and _write_error(error, run) else []
-        failed += _attempt(lambda: save_model(model, run.last))
-        failed += _attempt(lambda: _close_logger(model))
+        failed = [error] if error is not None and is_write_error(error, run) else []
+        failed += attempt_write(lambda: save_model(model, run.last))
+        failed += attempt_write(lambda: _close_logger(model))
         _close(vecnorm)
         summary: dict[str, Any] = {}
-        failed += _attempt(
+        failed += attempt_write(
             lambda: summary.update(segment.end(model.num_timesteps, error is not None))
         )
     if summary:
         print(json.dumps({k: v for k, v in summary.items() if k != "segments"}), flush=True)
-    if error is not None and not _write_error(error, run):
+    if error is not None and not is_write_error(error, run):
         raise error
     if failed:
-        raise RunWriteError(_write_failure(run, model.num_timesteps, failed)) from failed[0]
+        raise RunWriteError(write_failure(run, model.num_timesteps, failed)) from failed[0]
     return summary
 
 
@@ -444,7 +352,7 @@ def _model(plan: RunPlan) -> tuple[Any, Any]:
         if plan.resume:
             return _load_newest(run, venv, hp)
         if plan.source is not None:
-            return _load_initial(hp, plan.source, venv, plan.seed, run)
+            return load_initial(hp, plan.source, venv, plan.seed, run)
         vecnorm = VecNormalize(venv, gamma=hp.gamma, **hp.normalize)
         policy, policy_kwargs = hp.policy(plan.env_config)
         model = SmoothPPO(
@@ -479,36 +387,10 @@ def _write_records(plan: RunPlan, command: str) -> None:
             "env_kwargs": hp.env_kwargs,
             "env_config": {
                 **env_config.to_dict(),
-                "observation": env_config.observation_layout(),
+                "observation": env_config.observation.layout(),
             },
         },
     )
-
-
-def _attempt(write: Callable[[], Any]) -> list[OSError]:
-    """Runs ``write``; returns its OSError (a read-only folder, a full disk) in a list, or []."""
-    try:
-        write()
-    except OSError as e:
-        return [e]
-    return []
-
-
-#: The errors of a folder that cannot be written (a failed write may not name its file).
-WRITE_ERRNOS = frozenset({errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOSPC, errno.EDQUOT,
-                          errno.EFBIG})  # fmt: skip
-
-
-def _write_error(error: BaseException, run: RunFolder) -> bool:
-    """Returns whether ``error`` is a failure to write to the run folder: an OSError of
-    :data:`WRITE_ERRNOS`, or of a file in the folder."""
-    if not isinstance(error, OSError):
-        return False
-    if error.errno in WRITE_ERRNOS:
-        return True
-    if not isinstance(error.filename, (str, bytes, os.PathLike)):
-        return False
-    return Path(os.fsdecode(error.filename)).resolve().is_relative_to(run.path.resolve())
 
 
 def _close_logger(model: Any) -> None:
@@ -518,113 +400,8 @@ def _close_logger(model: Any) -> None:
         logger.close()
 
 
-def _write_failure(run: RunFolder, steps: int, failed: list[OSError]) -> str:
-    """Returns the one-line error of a run whose folder could not be written: the folder, the
-    first OS error, and the saved state a --resume continues from."""
-    saved = []
-    with contextlib.suppress(OSError):  # a folder that cannot be read either
-        saved = run.checkpoint_candidates()
-    if not saved:
-        then = "run the command again (nothing was saved to continue from)"
-    else:
-        then = (
-            f"--resume continues from {saved[0][0].relative_to(run.path)} "
-            f"({saved_steps(saved[0][0])} steps)"
-        )
-    return (
-        f"writing to the run folder {run.path} failed at {steps} steps ({failed[0]}); training "
-        f"stopped; once the folder is writable and has room again, {then}"
-    )
-
-
-@dataclass
-class Segment:
-    """This command's segment of a run: summary.json adds it to the earlier ones, at each
-    checkpoint (as if the run were killed then, so that a SIGKILL loses only the time since)
-    and at the end."""
-
-    run: RunFolder
-    seed: int
-    command: str
-    previous: dict[str, Any] | None
-    start_steps: int
-    start: float = field(default_factory=time.perf_counter)
-
-    @property
-    def wall_offset_s(self) -> float:
-        """The wall time of the earlier segments."""
-        return float(self.previous["wall_time_s"]) if self.previous else 0.0
-
-    def checkpoint(self, steps: int) -> None:
-        """Records the segment so far, as interrupted at ``steps``."""
-        _write_summary(self.run, self.seed, self._segments(steps, True))
-
-    def end(self, steps: int, interrupted: bool) -> dict[str, Any]:
-        """Records the segment's end; returns the summary."""
-        return _write_summary(self.run, self.seed, self._segments(steps, interrupted))
-
-    def _segments(self, steps: int, interrupted: bool) -> list[dict[str, Any]]:
-        segment = {
-            "command": self.command,
-            "start_timesteps": self.start_steps,
-            "end_timesteps": int(steps),
-            "wall_time_s": round(time.perf_counter() - self.start, 1),
-            "interrupted": interrupted,
-        }
-        return [*(self.previous or {}).get("segments", []), segment]
-
-
-def first_beat_pd(run: RunFolder) -> dict[str, Any] | None:
-    """Returns the first evaluation of a run that beat PD on both joints, or None."""
-    for row in run.read_json(EVALUATIONS) or []:
-        if row["beats_pd"]:
-            return {"timesteps": row["timesteps"], "wall_time_s": row["wall_time_s"]}
-    return None
-
-
-def _write_summary(run: RunFolder, seed: int, segments: list[dict[str, Any]]) -> dict[str, Any]:
-    """Writes summary.json: steps and wall time summed over ``segments`` (the last one this
-    command's), and the best evaluation so far; returns it."""
-    last = segments[-1]
-    total_wall = round(sum(s["wall_time_s"] for s in segments), 1)
-    best = run.read_json(BEST_METRICS) or {}
-    summary = {
-        "seed": seed,
-        "timesteps": last["end_timesteps"],
-        "wall_time_s": total_wall,
-        "steps_per_s": round(
-            sum(s["end_timesteps"] - s["start_timesteps"] for s in segments)
-            / max(total_wall, 1e-9),
-            1,
-        ),
-        "interrupted": last["interrupted"],
-        "best_rms_deg": best.get("rms_deg"),
-        "best_timesteps": best.get("timesteps"),
-        "best_tension_rate_N_per_s": best.get("rms_tension_rate_N_per_s"),
-        "pd_eval_rms_deg": run.pd_eval_rms(),
-        "first_beat_pd": first_beat_pd(run),
-        "segments": segments,
-    }
-    run.write_json(SUMMARY, summary)
-    return summary
-
-
 def _close(vecnorm: Any) -> None:
     try:
         vecnorm.close()
     except (BrokenPipeError, EOFError, ConnectionResetError):  # workers already gone (Ctrl-C)
         pass
-
-
-def seeds_summary(seeds: list[int], results: list[dict[str, Any]]) -> dict[str, Any]:
-    """Returns mean +- std (ddof 0) of the finished runs' best RMS."""
-    done = [r for r in results if r.get("best_rms_deg") is not None]
-    out: dict[str, Any] = {"seeds": seeds, "finished": [r["seed"] for r in done], "runs": results}
-    if done:
-        rms = np.array([r["best_rms_deg"] for r in done], dtype=float)
-        out.update(
-            rms_deg_mean=rms.mean(0).tolist(),
-            rms_deg_std=rms.std(0).tolist(),
-            wall_time_s_mean=float(np.mean([r["wall_time_s"] for r in done])),
-        )
-    return out

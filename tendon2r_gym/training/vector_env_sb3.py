@@ -8,12 +8,7 @@ import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
 from tendon2r_gym.policies.baselines import PDPolicy
-from tendon2r_gym.policies.learned import (
-    NO_RESIDUAL,
-    Residual,
-    ResidualFilter,
-    residual_command,
-)
+from tendon2r_gym.policies.residual import NO_RESIDUAL, Residual, ResidualFilter, residual_command
 from tendon2r_gym.task import observation
 from tendon2r_gym.task.gains import gains_of
 from tendon2r_gym.validation import invalid
@@ -23,7 +18,8 @@ class SB3VecEnv(VecEnv):
     """Stable-Baselines3's VecEnv API over the native vector env (tendon2r_gym.envs.vector_env) in
     Gymnasium's SAME_STEP autoreset mode: ``terminal_observation`` and ``TimeLimit.truncated``
     go in each env's info, as SB3's own VecEnvs put them.  With an active ``residual``
-    (tendon2r_gym.policies.learned.Residual) it also adds the agent's action to a batched PD command
+    (tendon2r_gym.policies.residual.Residual) it also adds the agent's action to a batched PD
+    command
     (one numpy call for all arms), through the residual's filter, at its scale."""
 
     def __init__(

@@ -21,7 +21,7 @@ from tendon2r_gym.validation import invalid
 
 #: Zoo env id -> our entry.
 ENTRIES = {"Tendon2R-v1": "default_scratch", "Tendon2RResidual-v1": "default"}
-WRAPPER = "tendon2r_gym.policies.learned.ResidualPDWrapper"
+WRAPPER = "tendon2r_gym.policies.residual.ResidualPDWrapper"
 
 HEADER = """\
 # GENERATED from tendon2r_gym/data/ppo.yaml by `python scripts/export_zoo.py`; edit that file
