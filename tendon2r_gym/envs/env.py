@@ -115,7 +115,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     | `reference` | `None` | dict of Reference fields overriding the preset, or a Reference |
     | `reference_ranges` | `None` | dict of ReferenceRanges: draw a new reference every reset |
     | `mechanism_ranges` | `None` | {{field: [lo, hi]}} of Mechanism, sensor or PD gain fields, "course", "real_arm", or a list of these: a new arm every reset |
-    | `observe` | `()` | optional observation entries, from ``["error_rate", "feedforward", "force_limit", "arm"]``: the tracking error's rate, log-scaled (``error_rate_log``); the reference's acceleration in normalized joint torques (``feedforward``); ln of the arm's force limit, the actions' scale (``force_limit_log``); the drawn fields, normalized (``arm``, last) |
+    | `observe` | `()` | the optional observation entries to add, by the names of the Observation Space table (e.g. ``["error_rate"]``) |
     | `arm_feature_ranges` | `None` | ranges the ``arm`` slice is normalized over, if not mechanism_ranges (a generalist fine-tuned on one arm) |
     | `fit_to_workspace` | `False` | scale the amplitudes down (with a warning) instead of raising |
     | `ctrl_dt` | `0.001` | control period (s), an integer multiple of the mechanism's sim_dt |

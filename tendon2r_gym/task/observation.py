@@ -25,8 +25,14 @@ from tendon2r_gym.validation import boolean
 #: What ``observe`` may list: the optional entries, in the observation's order.
 OBSERVABLE = ("error_rate", "feedforward", "force_limit", "arm")
 #: The flags that ``observe`` replaced (tendon2r_gym 0.3.0), as older experiment files and run
-#: records hold them; read through :func:`from_flags`.
-FLAGS = {f"observe_{name}": name for name in OBSERVABLE}
+#: records hold them; read through :func:`from_flags`.  (An entry added to OBSERVABLE later
+#: has no flag.)
+FLAGS = {
+    "observe_error_rate": "error_rate",
+    "observe_feedforward": "feedforward",
+    "observe_force_limit": "force_limit",
+    "observe_arm": "arm",
+}
 
 
 def from_flags(kwargs: Mapping[str, Any], start: Iterable[str] = ()) -> dict[str, Any]:
@@ -59,6 +65,8 @@ def as_flags(record: Mapping[str, Any]) -> dict[str, Any]:
     so that a record of the same behaviour keeps its hash."""
     out = {k: v for k, v in record.items() if k != "observe"}
     observe = record.get("observe", ())
+    if later := [name for name in observe if name not in FLAGS.values()]:
+        out["observe"] = later  # entries that came after the flags, as themselves
     return {**out, **{flag: name in observe for flag, name in FLAGS.items()}}
 
 
