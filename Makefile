@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 export MUJOCO_GL ?= egl
 
-.PHONY: venv test research-test lint docs properties wheel-smoke benchmark speed learnability view clean
+.PHONY: venv test research-test lint docs properties wheel-smoke benchmark benchmark-check speed learnability view clean
 
 # The venv is rebuilt only when pyproject.toml changes (torch is a large download).
 $(BIN)/activate: pyproject.toml
@@ -45,6 +45,12 @@ wheel-smoke: venv
 
 benchmark: venv
 	$(BIN)/tendon2r-benchmark
+
+# Reruns the benchmark beside the committed one and compares every row within its
+# reproducibility (scripts/compare_benchmarks.py).
+benchmark-check: venv
+	$(BIN)/tendon2r-benchmark --out runs/benchmark-check
+	$(BIN)/python scripts/compare_benchmarks.py results/benchmark.json runs/benchmark-check/benchmark.json
 
 speed: venv
 	$(BIN)/python -m research.studies.speed

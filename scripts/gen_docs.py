@@ -637,6 +637,16 @@ def stale(pages: dict[str, str], docs: Path) -> list[str]:
     ]
 
 
+def report_pages(root: Path = ROOT) -> dict[Path, str]:
+    """Returns results/benchmark.md, the Markdown of results/benchmark.json
+    (tendon2r_gym.app.report, as ``tendon2r-benchmark`` writes it), by path."""
+    path = root / "results" / "benchmark.json"
+    if not path.is_file():
+        return {}
+    lines = report.bundled_page(json.loads(path.read_text()))
+    return {path.with_suffix(".md"): "\n".join(lines) + "\n"}
+
+
 #: README's headline table sits between these two lines.
 README_BEGIN, README_END = "<!-- results:begin -->", "<!-- results:end -->"
 
@@ -663,7 +673,7 @@ def with_readme_block(readme: str, block: str) -> str:
 
 @dataclass
 class Args:
-    """Writes the generated docs pages and README's headline table."""
+    """Writes the generated docs pages, README's headline table and results/benchmark.md."""
 
     check: bool = False  # exit 1 if a page (or README's table) is out of date
     root: Path = ROOT  # the repository
@@ -677,8 +687,10 @@ def main(argv: list[str] | None = None) -> int:
     pages = generate(args.root)
     readme = args.root / "README.md"
     text = with_readme_block(readme.read_text(), readme_block(args.root))
+    reports = report_pages(args.root)
     if args.check:
         out = [docs / n for n in stale(pages, docs)]
+        out += [p for p, page_text in reports.items() if p.read_text() != page_text]
         if readme.read_text() != text:
             out.append(readme)
         if out:
@@ -691,6 +703,9 @@ def main(argv: list[str] | None = None) -> int:
     for name, page_text in pages.items():
         (docs / name).write_text(page_text)
         print("wrote", docs / name)
+    for path, page_text in reports.items():
+        path.write_text(page_text)
+        print("wrote", path)
     readme.write_text(text)
     print("wrote", readme)
     return 0

@@ -177,3 +177,27 @@ def test_the_tables_print_each_rows_tolerance_beside_it():
     lines = table([{**row, "reproducible_to": [0.0, 3.2e-9]}])
     assert lines[0].split(" | ")[3] == "reproducible to (deg)"
     assert "| e | pd | 0.1000 / 0.2000 | 0 / 3.2e-09 | 0.300 / 0.400 |" in lines[2]
+
+
+def test_a_rerun_is_compared_row_by_row_within_its_tolerance():
+    """report.differences: the committed record against itself reproduces; a row whose error
+    moves by more than its tolerance, or a missing row, is named; one within it is not."""
+    import copy
+    import json
+    from pathlib import Path
+
+    from tendon2r_gym.app.report import differences
+
+    ours = json.loads((Path(__file__).parents[1] / "results" / "benchmark.json").read_text())
+    assert differences(ours, copy.deepcopy(ours)) == []
+    theirs = copy.deepcopy(ours)
+    row = next(r for r in theirs["rows"] if "model" in r)
+    row["rms_deg"] = [row["rms_deg"][0] + 2 * max(row["reproducible_to"]) + 1e-12,
+                      row["rms_deg"][1]]  # fmt: skip
+    (found,) = differences(ours, theirs)
+    assert found.startswith(f"{row['env']}, {row['policy']}: RMS")
+    row["rms_deg"][0] = next(r for r in ours["rows"] if r["policy"] == row["policy"]
+                             and r["env"] == row["env"])["rms_deg"][0]  # fmt: skip
+    assert differences(ours, theirs) == []
+    theirs["rows"].pop()
+    assert differences(ours, theirs)[0].endswith("only in one record")

@@ -11,6 +11,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import numpy as np
+
 from tendon2r_gym.evaluation.evaluator import BASELINE, JITTER, REPRO_RUNS, names
 from tendon2r_gym.evaluation.metrics import beats, smoothness_x_pd
 from tendon2r_gym.policies.model_env import MODEL_SETTINGS
@@ -65,12 +67,18 @@ NOTES = [
 def shown_policy(row: dict[str, Any]) -> str:
     """Returns a row's policy label, with the model settings (learned.MODEL_SETTINGS) it ran
     in where they differ from the env's: "residual (joint-torque mode)"."""
-    shown = [
-        f"{row[k].replace('_', '-')} mode" if k == "action_mode" else f"{k} {row[k]}"
-        for k in MODEL_SETTINGS
-        if k in row
-    ]
+    shown = [_setting(k, row[k]) for k in MODEL_SETTINGS if k in row]
     return row["policy"] + (f" ({', '.join(shown)})" if shown else "")
+
+
+def _setting(name: str, value: Any) -> str:
+    """Returns one model setting as a row label shows it: "joint-torque mode", "observe
+    error_rate", "action_filter_tau 0.002"."""
+    if name == "action_mode":
+        return f"{value.replace('_', '-')} mode"
+    if isinstance(value, (list, tuple)):
+        return f"{name} {', '.join(map(str, value)) or 'nothing'}"
+    return f"{name} {value}"
 
 
 def _beat(value: Any) -> str:
@@ -241,3 +249,34 @@ def own_arm_sections(result: dict[str, Any]) -> list[str]:
 def own_arm_page(result: dict[str, Any], env_config: str) -> list[str]:
     """Returns an own-arm report's benchmark.md."""
     return [f"# Benchmark on {env_config}", "", *own_arm_sections(result)]
+
+
+def _by_key(record: dict[str, Any]) -> dict[tuple[str, str], dict[str, Any]]:
+    rows = {(r["env"], r["policy"]): r for r in record.get("rows", [])}
+    rows |= {("held-out", r["policy"]): r for r in record.get("held_out", [])}
+    return rows
+
+
+def differences(ours: dict[str, Any], theirs: dict[str, Any]) -> list[str]:
+    """Returns how a rerun's benchmark record ``theirs`` differs from ``ours`` beyond each
+    row's reproducibility: a row missing on either side, or an RMS error per joint that moved
+    by more than the larger of the two rows' ``reproducible_to`` (the rows' other figures
+    follow their errors).  Empty when every row reproduces."""
+    a, b = _by_key(ours), _by_key(theirs)
+    out = [f"{k[0]}, {k[1]}: only in one record" for k in sorted(set(a) ^ set(b))]
+    for key in sorted(set(a) & set(b)):
+        x, y = a[key], b[key]
+        rms = "rms_deg_mean" if "rms_deg_mean" in x else "rms_deg"
+        if rms not in x or rms not in y:
+            if (rms in x) != (rms in y):
+                out.append(f"{key[0]}, {key[1]}: ran in one record only")
+            continue
+        zero = [0.0] * len(x[rms])
+        limit = np.maximum(x.get("reproducible_to", zero), y.get("reproducible_to", zero))
+        moved = np.abs(np.subtract(x[rms], y[rms]))
+        if np.any(moved > limit):
+            out.append(
+                f"{key[0]}, {key[1]}: RMS {fmt(x[rms])} then {fmt(y[rms])} deg, moved by "
+                f"{tol(moved)} where it is reproducible to {tol(limit)}"
+            )
+    return out
