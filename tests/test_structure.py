@@ -94,3 +94,16 @@ def test_no_layer_imports_a_later_one_type_checking_included():
         if _layer(b) > _layer(a) and a not in ("tendon2r_gym", "tendon2r_gym.training.split_view")
     )
     assert not upward, upward
+
+
+#: The longest a library module may grow (lines): past it, a module holds more than one job.
+MAX_MODULE_LINES = 450
+
+
+def test_no_library_module_is_longer_than_the_limit():
+    long = {
+        str(p.relative_to(PACKAGE)): n
+        for p in PACKAGE.rglob("*.py")
+        if (n := len(p.read_text().splitlines())) > MAX_MODULE_LINES
+    }
+    assert not long, long

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 import os
 from typing import Any
 
@@ -22,12 +21,7 @@ from tendon2r_gym.simulation.realism import CommandDelay, Drive, Sensors
 from tendon2r_gym.task import observation as obs_layout
 from tendon2r_gym.task.reference import Reference
 from tendon2r_gym.task.rewards import rewards_table
-from tendon2r_gym.validation import integer, invalid, real_array
-
-
-def _allowed_actions(n: int) -> str:
-    return f"({n},) finite real numbers (one per tendon) in [-1, 1]; values outside are clipped"
-
+from tendon2r_gym.validation import integer, invalid
 
 #: The env card's sections, in Gymnasium's order: the ``##`` headings of Tendon2REnv's docstring.
 CARD_SECTIONS = (
@@ -138,20 +132,14 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     | `camera_name` | `"side"` | camera that frames the whole arm |
 
     Real tendons and motors (``mechanism``: ``tendon_elasticity``, ``motor_mass``,
-    ``tendon_friction``, ``motor_tau``, ``motor_delay``; all off by default) and the nominal
-    model's errors (``density_scale``, ``extra_joint_damping``; exact by default) are
-    described in tendon2r_gym.simulation.realism; PD and CT keep the nominal model.
-
-    Random arms (``mechanism_ranges``, tendon2r_gym.task.arms.MechanismRanges): at every reset the
-    env draws the listed fields uniformly (the geometry, damping, density, the cables and
-    motors), keeps only valid arms (a Mechanism, stable, the reference fitted to its
-    workspace, its own ``auto`` force limit: EnvConfig.draw_arm) and rebuilds its model with
-    MjSpec; the reset info's ``mechanism`` is the episode's arm, which PD, CT and
-    ResidualPDWrapper follow.
-
-    ``mechanism.max_tendon_force`` defaults to ``"auto"``: FORCE_HEADROOM (2) times the peak
-    tendon force that inverse dynamics of the reference needs (for ``reference_ranges``, of its
-    worst corner), see ``force_need()``.  A fixed limit below that need warns.
+    ``tendon_friction``, ``motor_tau``, ``motor_delay``) and the nominal model's errors
+    (``density_scale``, ``extra_joint_damping``), all off by default: tendon2r_gym.simulation
+    .realism; PD and CT keep the nominal model.  Random arms (``mechanism_ranges``,
+    tendon2r_gym.task.arms): every reset draws a valid arm (EnvConfig.draw_arm), rebuilds its
+    model and reports it as the reset info's ``mechanism``, which PD, CT and the residual
+    follow.  ``mechanism.max_tendon_force: "auto"`` (the default) is FORCE_HEADROOM (2) times
+    the peak force that inverse dynamics of the reference (of the worst corner of
+    ``reference_ranges``) needs, ``force_need()``; a fixed limit below that need warns.
 
     ## Version History
     Each id's contract is frozen (tendon2r_gym.policies.contract); CHANGELOG.md says what each changed.
@@ -313,7 +301,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     # -- gymnasium API -----------------------------------------------------------------------------
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         last = self._last_action
-        a = self._check_action(action)
+        a = self.task.checked_action(action)
         if self._filtered:
             a = self.task.command(a, last)
         self._last_action = a
@@ -351,17 +339,6 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         if self.render_mode == "human":
             self.render()
         return obs, reward, diverged, False, info
-
-    def _check_action(self, action: Any) -> list[float]:
-        """Returns the action as n floats clipped to [-1, 1], or raises a ValueError naming it."""
-        n = self._n
-        if type(action) is not np.ndarray or action.shape != (n,) or action.dtype.kind != "f":
-            action = real_array("action", action, (n,), _allowed_actions(n))
-        a = action.tolist()
-        # A finite sum has finite terms; only a non-finite one needs each term checked.
-        if not math.isfinite(sum(a)) and not all(map(math.isfinite, a)):
-            raise invalid("action", action, _allowed_actions(n))
-        return [-1.0 if x < -1.0 else 1.0 if x > 1.0 else x for x in a]
 
     def _warnings(self) -> int:
         """Returns how many of DIVERGENCE_WARNINGS MuJoCo has raised since MjData was made."""

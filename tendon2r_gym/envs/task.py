@@ -26,7 +26,7 @@ from tendon2r_gym.task import observation as L
 from tendon2r_gym.task.gains import gains_of
 from tendon2r_gym.task.reference import Reference
 from tendon2r_gym.task.rewards import MULTISCALE, TERMS
-from tendon2r_gym.validation import invalid
+from tendon2r_gym.validation import invalid, real_array
 
 if TYPE_CHECKING:
     from tendon2r_gym.envs.env_config import EnvConfig
@@ -307,6 +307,19 @@ class Task:
         return [signed_log(ops, y1, L.ACTION_LOG_SCALE), signed_log(ops, y2, L.ACTION_LOG_SCALE)]
 
     # -- action ----------------------------------------------------------------------------------
+    def checked_action(self, action: Any) -> list[float]:
+        """Returns one env's action as its n floats clipped to [-1, 1], or raises a ValueError
+        naming it (a float array of the right shape takes the fast path)."""
+        n = self.config.n_actions
+        allowed = f"({n},) finite real numbers in [-1, 1]; values outside are clipped"
+        if type(action) is not np.ndarray or action.shape != (n,) or action.dtype.kind != "f":
+            action = real_array("action", action, (n,), allowed)
+        a = action.tolist()
+        # A finite sum has finite terms; only a non-finite one needs each term checked.
+        if not math.isfinite(sum(a)) and not all(map(math.isfinite, a)):
+            raise invalid("action", action, allowed)
+        return [-1.0 if x < -1.0 else 1.0 if x > 1.0 else x for x in a]
+
     def rest_command(self, arm: EnvConfig) -> list[float]:
         """Returns the command at rest on the arm of config ``arm``, the "last command" after a
         reset: no force, or for pull-only tendons in tension mode the pretension (-1 would be

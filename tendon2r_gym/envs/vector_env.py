@@ -28,6 +28,7 @@ from mujoco import batch as mj_batch
 
 from tendon2r_gym.envs.env_config import EnvConfig
 from tendon2r_gym.envs.task import DIVERGENCE_WARNING_IDS, Task, arm_params, reference_params
+from tendon2r_gym.envs.vector_info import autoreset, with_final, without_empty
 from tendon2r_gym.ops import BATCH
 from tendon2r_gym.simulation.actuation import TorqueToTension, cond_of_rows, sparse_rows
 from tendon2r_gym.simulation.model import build_model, tendon_name
@@ -41,9 +42,9 @@ class Tendon2RVectorEnv(VectorEnv):
     """N Tendon2R-v0 arms in one process (see the module docstring).  Takes the arguments of
     Tendon2R-v0 (preset, mechanism, reference, ...) plus ``num_envs``, ``autoreset_mode``,
     ``nthread`` (MuJoCo batch threads; None: one per ARMS_PER_THREAD arms, up to the CPUs this
-    process may use; 0: one per CPU) and ``stagger`` (training: after each
-    full reset, arm i's episode is already i / N of the way to its step limit, so the arms
-    desynchronize; off by default, as it breaks the equality with single envs)."""
+    process may use; 0: one per CPU) and ``stagger`` (training: after each full reset, arm i's
+    episode is already i / N of the way to its step limit, so the arms desynchronize; off by
+    default, as it breaks the equality with single envs)."""
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
 
@@ -59,11 +60,7 @@ class Tendon2RVectorEnv(VectorEnv):
     ) -> None:
         self.num_envs = integer("num_envs", num_envs, 1, 1_000_000)
         self.config = cfg = EnvConfig.make(preset, **kwargs)
-        modes = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
-        if autoreset_mode not in modes + tuple(m.value for m in modes):
-            allowed = " or ".join(f"AutoresetMode.{m.name} ({m.value!r})" for m in modes)
-            raise invalid("autoreset_mode", autoreset_mode, allowed)
-        mode = AutoresetMode(autoreset_mode)
+        mode = autoreset(autoreset_mode)
         self.metadata = {**type(self).metadata, "autoreset_mode": mode}
         self.autoreset_mode = mode
         self.max_episode_steps = (
@@ -74,9 +71,8 @@ class Tendon2RVectorEnv(VectorEnv):
         self.mechanism, self.ctrl_dt = cfg.mechanism, cfg.ctrl_dt
         n_act = cfg.n_actions
         self.single_action_space = spaces.Box(-1.0, 1.0, (n_act,), np.float32)
-        self.single_observation_space = spaces.Box(
-            -np.inf, np.inf, (cfg.observation.size,), np.float64
-        )
+        n_obs = cfg.observation.size
+        self.single_observation_space = spaces.Box(-np.inf, np.inf, (n_obs,), np.float64)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
 
@@ -325,24 +321,14 @@ class Tendon2RVectorEnv(VectorEnv):
             # As SyncVectorEnv: a finished arm reports its last step in final_obs and
             # final_info, then its reset observation and reset info.
             obs = obs.copy()  # info holds views of the final observations
-            ids = np.flatnonzero(done)
-            final = {k: v.copy() for k, v in info.items() if not k.startswith("_")}
-            final.update({f"_{k}": done.copy() for k in list(final)})
-            for key in list(info):
-                if key.startswith("_"):
-                    info[key] = info[key] & ~done
-            info["final_obs"] = np.full(n, None, dtype=object)
-            for i in ids:
-                info["final_obs"][i] = obs[i].copy()
-            info["_final_obs"] = done.copy()
-            info["final_info"], info["_final_info"] = final, done.copy()
+            info, ids = with_final(obs, info, done), np.flatnonzero(done)
             self._reset_ids(ids)
             fresh = self._observe()
             obs[ids] = fresh[ids]
             self._last_obs[ids] = fresh[ids]
             if self._sensing is not None:
                 self._last_truth[ids] = self._observe(measured=False)[ids]
-            info = self._reset_info(ids, _without_empty(info))
+            info = self._reset_info(ids, without_empty(info))
         else:
             self._needs_reset = done
         return obs.copy(), rewards, terminated, truncated, info
@@ -462,10 +448,3 @@ def default_nthread(num_envs: int) -> int:
     least one, at most the CPUs this process may run on."""
     cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     return max(1, min(cpus or 1, num_envs // ARMS_PER_THREAD))
-
-
-def _without_empty(info: dict[str, Any]) -> dict[str, Any]:
-    """Returns info without the keys that no arm has (all-False masks), as Gymnasium's vector
-    envs never create them."""
-    empty = {k[1:] for k, v in info.items() if k.startswith("_") and not np.any(v)}
-    return {k: v for k, v in info.items() if k not in empty and k.removeprefix("_") not in empty}
