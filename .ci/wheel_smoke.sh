@@ -7,6 +7,8 @@ cd "$(dirname "$0")/.."
 repo=$(pwd)
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
+# setuptools' own build folder can hold modules that were moved or deleted since: start clean.
+rm -rf build/lib build/bdist.*
 .venv/bin/python -m build --wheel --no-isolation --outdir "$work/dist" . >/dev/null
 python3 -m venv "$work/venv"
 deps=$(.venv/bin/python -c "import sysconfig; print(sysconfig.get_paths()['purelib'])")
