@@ -2,6 +2,7 @@
 defaults, observation, reward, actions, reset or episode length fails here until the id's
 version is raised and CHANGELOG.md says what changed."""
 
+import json
 import re
 from pathlib import Path
 
@@ -9,7 +10,7 @@ import gymnasium as gym
 import pytest
 
 import tendon2r_gym
-from tendon2r_gym.policies.contract import env_contract, env_contract_hash, pinned
+from tendon2r_gym.policies.contract import changes, env_contract, pinned, pinned_contract
 
 IDS = sorted(i for i in gym.registry if re.fullmatch(r"Tendon2R(Residual)?-v\d+", i))
 CHANGELOG = Path(__file__).resolve().parents[1] / "CHANGELOG.md"
@@ -23,11 +24,29 @@ def test_every_registered_id_is_pinned_and_every_pinned_id_registered():
 
 
 @pytest.mark.parametrize("env_id", IDS)
-def test_the_contract_is_the_pinned_one(env_id):
-    assert env_contract_hash(env_id) == pinned()[env_id], (
-        f"{env_id}'s contract changed: register a new version (tendon2r_gym.VERSIONS), pin it "
-        "in tendon2r_gym/data/contracts.yaml and say what changed in CHANGELOG.md"
+def test_the_contract_keeps_every_pinned_value(env_id):
+    changed = changes(pinned_contract(env_id), json.loads(json.dumps(env_contract(env_id))))
+    assert not changed, (
+        f"{env_id}'s contract changed at {changed[:5]}: register a new version "
+        "(tendon2r_gym.VERSIONS), pin it in tendon2r_gym/data/contracts.yaml (and its whole "
+        "contract in tendon2r_gym/data/contracts/) and say what changed in CHANGELOG.md"
     )
+
+
+def test_an_option_added_at_its_off_value_keeps_the_contract(monkeypatch):
+    """A new reward term of weight 0 adds paths and changes no pinned value: the same
+    contract; a changed default weight is a change, named by its path."""
+    from tendon2r_gym.task import rewards
+
+    pinned_v1 = pinned_contract("Tendon2R-v1")
+    monkeypatch.setitem(rewards.TERMS, "new_term", (0.0, "a term nobody weighs"))
+    monkeypatch.setitem(rewards.REWARD_SCALES, "new_term", 0.0)
+    grown = json.loads(json.dumps(env_contract("Tendon2R-v1")))
+    assert "new_term" in grown["reward_terms"] and changes(pinned_v1, grown) == []
+    monkeypatch.setitem(rewards.TERMS, "ctrl", (0.002, rewards.TERMS["ctrl"][1]))
+    monkeypatch.setitem(rewards.REWARD_SCALES, "ctrl", 0.002)
+    changed = changes(pinned_v1, json.loads(json.dumps(env_contract("Tendon2R-v1"))))
+    assert "reward_terms.ctrl" in changed and "config.reward_scales.ctrl" in changed
 
 
 @pytest.mark.parametrize("env_id", IDS)

@@ -43,10 +43,12 @@ def test_the_exact_actor_is_sb3s_deterministic_predict_to_float32_rounding(bundl
 
 def test_every_model_the_benchmark_runs_has_an_exact_actor():
     from tendon2r_gym.app import benchmark
+    from tendon2r_gym.policies import registry
     from tendon2r_gym.policies.bundle import bundle_meta
 
-    names = {p + s for p in benchmark.PRESETS for s, _ in benchmark.LEARNED.values()}
-    names |= {"random_reference", "real_arm"}  # and the real-arm study's residual
+    names = set(registry.names("preset") + registry.names("references") + registry.names("realism"))
+    assert {m.parent.parent.name for ms in benchmark.preset_models().values() for m in
+            sum(ms.values(), [])} <= names  # fmt: skip
     for name in sorted(names):
         for seed in bundle_meta(name)["seeds"]:
             policy = PPO.load(bundled_model(name, seed), device="cpu").policy

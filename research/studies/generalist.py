@@ -210,7 +210,7 @@ def sweep_arms(sweep: Path) -> dict[str, dict[str, Any]]:
 
 
 #: The configs/ppo.yaml entry of the sweep's residual specialists (their training steps).
-SPECIALIST_ENTRY = LEARNED["ppo residual"][1]
+SPECIALIST_ENTRY = LEARNED["ppo residual"]
 
 
 def action_mode_of(bundle: str) -> str:

@@ -33,18 +33,18 @@ from tendon2r_gym.evaluation.evaluator import (
     names,
     reproducible_to,
 )
+from tendon2r_gym.policies import registry
 from tendon2r_gym.policies.bundle import bundle_meta, bundle_names, bundled_model
 from tendon2r_gym.policies.model_env import in_model_settings, settings_on
+from tendon2r_gym.policies.residual import Residual
 from tendon2r_gym.policies.runs import model_files, training_record, training_summary
 from tendon2r_gym.presets import DATA_DIR
 from tendon2r_gym.validation import invalid
 
-#: Learned variants: label -> (bundle suffix, hyperparameter entry used to train on your arm).
-LEARNED = {
-    "ppo scratch": ("_scratch", "default_scratch"),
-    "ppo residual": ("", "default"),
-}
-PRESETS = ("default", "report_002", "pull_only")
+#: The learned rows: label -> the hyperparameter entry trained on your arm.  On the bundled
+#: presets, each shipped model of registry group ``preset`` (tendon2r_gym/data/shipped.yaml)
+#: runs under the label of its kind (:func:`preset_models`).
+LEARNED = {"ppo scratch": "default_scratch", "ppo residual": "default"}
 #: Held-out references for the generalization check (inside the training ranges of
 #: configs/ppo.yaml random_reference, never drawn exactly).
 HELD_OUT = [
@@ -92,9 +92,9 @@ def compare(
     return rows
 
 
-#: The generalist bundles (configs/ppo.yaml entries of the same names): trained across random
-#: arms, run zero-shot on a user's arm when it lies inside their training ranges.
-GENERALISTS = ("generalist", "generalist_scratch", "generalist_pull_only")
+#: The generalists (registry group ``generalist``): trained across random arms, run zero-shot
+#: on a user's arm when it lies inside their training ranges.
+GENERALISTS = tuple(registry.names("generalist"))
 
 
 #: Fine-tuning a generalist on a user's arm: row label -> configs/ppo.yaml entry (its
@@ -221,13 +221,32 @@ def _bundle_models(name: str) -> list[Path]:
     return [] if meta is None else [bundled_model(name, s) for s in meta["seeds"]]
 
 
+def preset_models() -> dict[str, dict[str, list[Path]]]:
+    """Returns, per preset, its shipped models of registry group ``preset`` (label -> the
+    model of every seed): labelled "ppo residual" or "ppo scratch" by the model's residual, in
+    LEARNED's order, or by the model's name where two of a kind share a preset.  A registered
+    bundle that is not installed gets no model (its row says so)."""
+    out: dict[str, dict[str, list[Path]]] = {}
+    for name in registry.names("preset"):
+        models, rows = _bundle_models(name), out.setdefault(registry.shipped()[name].env, {})
+        if not models:
+            rows[name] = []
+            continue
+        residual = Residual.from_record(training_record(models[0])).active
+        label = "ppo residual" if residual else "ppo scratch"
+        rows[name if label in rows else label] = models
+    order = lambda label: (list(LEARNED).index(label) if label in LEARNED else len(LEARNED), label)  # noqa: E731
+    return {
+        env: dict(sorted(rows.items(), key=lambda kv: order(kv[0]))) for env, rows in out.items()
+    }
+
+
 def benchmark_bundled(episodes: int, out: Path, command: str) -> dict[str, Any]:
-    """The bundled presets with their bundled models -> out/benchmark.md, .json, plots/."""
+    """The bundled presets with their shipped models -> out/benchmark.md, .json, plots/."""
     out.mkdir(parents=True, exist_ok=True)
     seeds = list(range(episodes))
     rows = []
-    for preset in PRESETS:
-        learned = {label: _bundle_models(preset + suffix) for label, (suffix, _) in LEARNED.items()}
+    for preset, learned in preset_models().items():
         rows += compare(preset, {"preset": preset}, learned, seeds, out / "plots")
     result = {"command": command, "rows": rows, "held_out": held_out()}
     return _write(out, result, report.bundled_page(result))
@@ -242,11 +261,12 @@ def _write(out: Path, result: dict[str, Any], lines: list[str]) -> dict[str, Any
 
 
 def held_out() -> list[dict[str, Any]]:
-    """PD and the random-reference PPO on HELD_OUT, with the env the model trained on."""
-    meta = bundle_meta("random_reference")
-    if meta is None:
-        return [{"policy": "ppo", "missing": "no bundled random_reference model"}]
-    model = bundled_model("random_reference")
+    """PD and the model trained on random references (registry group ``references``) on
+    HELD_OUT, with the env the model trained on."""
+    shipped = registry.names("references")
+    if not shipped or bundle_meta(shipped[0]) is None:
+        return [{"policy": "ppo", "missing": "no shipped model of random references installed"}]
+    model = bundled_model(shipped[0])
     env_kwargs = training_record(model)["env_kwargs"]
     rows = []
     for policy in ("pd", "ppo"):  # PD is the baseline that needs no knowledge of the reference
@@ -285,7 +305,7 @@ def benchmark_own_arm(
 
     env_kwargs = {"preset": env_config}
     config = EnvConfig.make(env_config)  # every error before any training
-    entries = {label: entry for label, (_, entry) in LEARNED.items()} | FINETUNED
+    entries = dict(LEARNED) | FINETUNED
     if labels is not None:
         if unknown := set(labels) - set(entries):
             raise invalid("labels", sorted(unknown), f"some of {list(entries)}")

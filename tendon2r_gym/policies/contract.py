@@ -9,6 +9,12 @@ seeded rollout's observations and rewards (six significant digits): the behaviou
 the settings.  ``tendon2r_gym/data/contracts.yaml`` holds each id's hash; tests/test_contract.py
 fails when a contract changes until the id's version is raised (tendon2r_gym.VERSIONS) and
 CHANGELOG.md says what changed.
+
+A contract may grow: ``tendon2r_gym/data/contracts/<hash>.json`` holds each pinned contract
+whole, and a contract that keeps every pinned value (:func:`changes` is empty) and only adds
+keys is the same contract.  A new option at the value that leaves the env as it was (a reward
+term of weight 0, a mechanism field that is off) then needs no new version: the pinned
+rollout shows that the behaviour did not change.
 """
 
 from __future__ import annotations
@@ -26,6 +32,8 @@ from tendon2r_gym.task import observation
 from tendon2r_gym.task.rewards import TERMS
 
 CONTRACTS = DATA_DIR / "contracts.yaml"
+#: The pinned contracts, whole, one file per hash.
+PINNED_DIR = DATA_DIR / "contracts"
 #: The fingerprint rollout: steps, seed and the action at step k, a slow sweep of the range.
 STEPS, SEED = 50, 0
 
@@ -70,3 +78,34 @@ def env_contract_hash(env_id: str) -> str:
 def pinned() -> dict[str, str]:
     """Returns the pinned hash of each id (tendon2r_gym/data/contracts.yaml)."""
     return {str(k): str(v) for k, v in load_yaml(CONTRACTS).items()}
+
+
+def pinned_contract(env_id: str) -> dict[str, Any]:
+    """Returns the id's pinned contract (``PINNED_DIR/<hash>.json``), or raises if the file
+    is missing or does not hash to the pinned hash."""
+    import json
+
+    digest = pinned()[env_id]
+    path = PINNED_DIR / f"{digest}.json"
+    contract = json.loads(path.read_text())
+    if contract_hash(contract) != digest:
+        raise ValueError(f"{path} does not hash to {digest}: restore it from the repository")
+    return contract
+
+
+def leaves(value: Any, path: str = "") -> dict[str, Any]:
+    """Returns a contract's values by path ("config.mechanism.R1"): mappings are walked,
+    anything else (a number, a list such as the rollout) is one value."""
+    if not isinstance(value, dict):
+        return {path: value}
+    out: dict[str, Any] = {}
+    for key, item in value.items():
+        out.update(leaves(item, f"{path}.{key}" if path else str(key)))
+    return out
+
+
+def changes(pinned_: dict[str, Any], current: dict[str, Any]) -> list[str]:
+    """Returns the paths of ``pinned_`` that ``current`` lost or holds another value at (added
+    paths are not changes: the contract grew)."""
+    ours = leaves(current)
+    return [k for k, v in leaves(pinned_).items() if k not in ours or ours[k] != v]
