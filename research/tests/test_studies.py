@@ -371,6 +371,7 @@ def test_generalist_ablation_reads_action_mode_and_network_from_each_run():
     evaluation episodes and optional observation entries come from each bundle's run record:
     what its configs/ppo.yaml entry trained it with."""
     from research.studies import generalist
+    from tendon2r_gym.task import observation
     from tendon2r_gym.task.observation import OPTIONAL
     from tendon2r_gym.training import Hyperparams
 
@@ -393,7 +394,8 @@ def test_generalist_ablation_reads_action_mode_and_network_from_each_run():
             if caps.active
             else "none"
         ), name
-        flags = [e[0] for e, flag in OPTIONAL.items() if hp.env_kwargs.get(flag)]
+        observe = observation.from_flags(hp.env_kwargs).get("observe", ())
+        flags = [e[0] for e, name in OPTIONAL.items() if name in observe]
         if hp.env_kwargs.get("error_units") == "action":
             flags.append("errors in action units")
         assert table[name]["observes"] == (", ".join(flags) or "none"), name

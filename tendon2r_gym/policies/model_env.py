@@ -180,7 +180,7 @@ def fine_tune_env_kwargs(model_path: str | Path, env_kwargs: dict[str, Any]) -> 
     out = in_model_settings(model_path, env_kwargs)
     recorded = (training_record(model_path) or {}).get("env_config", {})
     if observes_arm(recorded):
-        observe = [*EnvConfig.make(**out).observe, "arm"]
+        observe = [n for n in EnvConfig.make(**out).observe if n != "arm"] + ["arm"]
         out.update(observe=observe, arm_feature_ranges=feature_ranges(recorded).to_dict())
     return out
 

@@ -55,8 +55,8 @@ from tendon2r_gym.training.callbacks import (
     quiet_writer_threads,
     save_model,
 )
-from tendon2r_gym.training.fine_tune import fine_tune, initial_model, load_initial
 from tendon2r_gym.training.hyperparams import Hyperparams
+from tendon2r_gym.training.init_from import fine_tune, initial_model, load_initial
 from tendon2r_gym.training.records import (
     RunWriteError,
     Segment,
