@@ -261,16 +261,22 @@ def _write(out: Path, result: dict[str, Any], lines: list[str]) -> dict[str, Any
 
 
 def held_out() -> list[dict[str, Any]]:
-    """PD and the model trained on random references (registry group ``references``) on
-    HELD_OUT, with the env the model trained on."""
-    shipped = registry.names("references")
-    if not shipped or bundle_meta(shipped[0]) is None:
+    """PD and each model trained on random references (registry group ``references``:
+    "ppo", or its name beside another) on HELD_OUT, with the env the first one trained on."""
+    shipped = [n for n in registry.names("references") if bundle_meta(n) is not None]
+    if not shipped:
         return [{"policy": "ppo", "missing": "no shipped model of random references installed"}]
-    model = bundled_model(shipped[0])
-    env_kwargs = training_record(model)["env_kwargs"]
+    models = [bundled_model(n) for n in shipped]
+    env_kwargs = training_record(models[0])["env_kwargs"]
     rows = []
-    for policy in ("pd", "ppo"):  # PD is the baseline that needs no knowledge of the reference
-        learned = model if policy == "ppo" else None
+    # PD is the baseline that needs no knowledge of the reference.
+    for label, policy, learned in [
+        ("pd", "pd", None),
+        *(
+            ("ppo" if len(models) == 1 else n, "ppo", m)
+            for n, m in zip(shipped, models, strict=True)
+        ),
+    ]:
         errs, jittered = [], []
         for i, ref in enumerate(HELD_OUT):
             options = {"reference": ref}
@@ -278,10 +284,10 @@ def held_out() -> list[dict[str, Any]]:
             jittered.append(jittered_rms(policy, env_kwargs, [i], learned, options))
         mean = np.mean(errs, axis=0).tolist()
         rows.append(
-            {"policy": policy, "rms_deg_per_reference": errs, "rms_deg_mean": mean,
+            {"policy": label, "rms_deg_per_reference": errs, "rms_deg_mean": mean,
              "reproducible_to": reproducible_to(mean, np.mean(jittered, axis=0).tolist())}
         )  # fmt: skip
-        print(f"held-out {policy:4s} mean RMS {fmt(rows[-1]['rms_deg_mean'])} deg", flush=True)
+        print(f"held-out {label:4s} mean RMS {fmt(rows[-1]['rms_deg_mean'])} deg", flush=True)
     return rows
 
 
