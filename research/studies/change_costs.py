@@ -15,8 +15,8 @@ included), split into library files (``tendon2r_gym/`` but its models), data fil
 A fresh process on the edited copy (research/studies/change_probes.py) then uses the change
 as a user would, and compares what an off-by-default change must keep with the same process
 on HEAD: the registered env's single-env and vector-env rollouts, the compiled models of
-two presets, and every registered id's contract against its pinned hash
-(tests/test_contract.py).  ruff checks the edited Python files.
+two presets, and every registered id's contract against its pinned one, which it may grow
+but not change (tests/test_contract.py).  ruff checks the edited Python files.
 
 A kind meets its target when the example works, keeps the pinned contracts, and touches at
 most its target's number of library and data files (a promoted model: no library file, one
@@ -520,12 +520,12 @@ def kept(before: dict[str, Any], after: dict[str, Any]) -> list[dict[str, Any]]:
 
 
 def contract_changes(before: dict[str, Any], after: dict[str, Any]) -> list[str]:
-    """Returns the ids whose contract hash no longer is the pinned one; raises if one was not
-    at HEAD already (the study then cannot tell the change's effect)."""
-    pinned = after["pinned"]
-    if broken := [i for i, h in before["contracts"].items() if h != pinned.get(i)]:
+    """Returns the ids whose contract lost or changed a pinned value (a contract may grow:
+    tendon2r_gym.policies.contract.changes); raises if one had at HEAD already (the study then
+    cannot tell the change's effect)."""
+    if broken := [i for i, paths in before["contracts"].items() if paths]:
         raise RuntimeError(f"HEAD's contracts of {broken} are not the pinned ones")
-    return [i for i, h in after["contracts"].items() if h != pinned.get(i)]
+    return [i for i, paths in after["contracts"].items() if paths]
 
 
 def verdict(

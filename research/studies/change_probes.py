@@ -148,13 +148,14 @@ def raises(make: Callable[[], Any], field: str) -> tuple[bool, str]:
 def fingerprint() -> dict[str, Any]:
     """Returns what an off-by-default change must keep: digests of ENV_ID's single-env and
     vector-env rollouts and of the compiled models of FINGERPRINT_PRESETS, and every
-    registered id's contract hash beside its pinned one."""
+    registered id's contract paths that changed from its pinned contract (a contract may
+    grow: tendon2r_gym.policies.contract.changes)."""
     import re
 
     import gymnasium as gym
 
     from tendon2r_gym.envs.env_config import EnvConfig
-    from tendon2r_gym.policies.contract import env_contract_hash, pinned
+    from tendon2r_gym.policies.contract import changes, env_contract, pinned, pinned_contract
     from tendon2r_gym.simulation.model import build_model
 
     obs, rewards, _ = single()
@@ -166,7 +167,9 @@ def fingerprint() -> dict[str, Any]:
         "models": {
             p: model_digest(build_model(EnvConfig.make(p).mechanism)) for p in FINGERPRINT_PRESETS
         },
-        "contracts": {i: env_contract_hash(i) for i in ids},
+        "contracts": {
+            i: changes(pinned_contract(i), json.loads(json.dumps(env_contract(i)))) for i in ids
+        },
         "pinned": dict(pinned()),
     }
 
