@@ -263,16 +263,10 @@ KINDS: dict[str, Kind] = {
             Edit(VECTOR, "        self._ctrl[active] = u[active]\n",
                  "        if self._offset:  # Mechanism.motor_offset, on every command\n"
                  "            u = u + self._offset\n", "before"),
-            Edit("tendon2r_gym/app/tools.py",
-                 "    config's values): motor_delay (each command held back whole control "
-                 "steps),\n",
-                 "    motor_offset (added to every command),\n"),
-            Edit("tendon2r_gym/app/tools.py",
-                 '        python.append(f"motor_delay {mech.motor_delay:g} s = '
-                 '{cfg.delay_steps} x ctrl_dt")\n',
-                 "    if mech.motor_offset:\n"
-                 '        python.append(f"motor_offset {mech.motor_offset:g} (added to every '
-                 'command)")\n'),
+            Edit(REALISM, 'STEP_FIELDS = {"motor_delay": "each command held back whole control '
+                 'steps"}',
+                 'STEP_FIELDS = {\n    "motor_delay": "each command held back whole control '
+                 'steps",\n    "motor_offset": "added to every command",\n}', "replace"),
         ),
         ("motor_delay", "observation_delay"),
     ),

@@ -90,7 +90,7 @@ class ExportArgs:
     normalized command in [-1, 1]; the env applies an action for ctrl_dt / sim_dt steps.
 
     What the env does in its Python step is not in the XML (its top comment lists this
-    config's values): motor_delay (each command held back whole control steps),
+    config's values): the mechanism's tendon2r_gym.simulation.realism.STEP_FIELDS,
     observation_noise and observation_delay (what the policy observes), action_filter_tau and
     action_mode joint_torque (what an action becomes), the reset to rest (cables at their rest
     tension, motor lags at the rest command), and with mechanism_ranges the new arm of every
@@ -111,8 +111,11 @@ def export_note(cfg: EnvConfig, name: str) -> str:
         f"{cfg.ctrl_dt:g} s = {cfg.n_substeps} x timestep.",
     ]
     python = []
-    if mech.motor_delay > 0:
-        python.append(f"motor_delay {mech.motor_delay:g} s = {cfg.delay_steps} x ctrl_dt")
+    from tendon2r_gym.simulation.realism import STEP_FIELDS
+
+    python += [
+        f"{k} {getattr(mech, k):g} ({what})" for k, what in STEP_FIELDS.items() if getattr(mech, k)
+    ]
     if cfg.sensed:
         noise, delay = list(cfg.observation_noise), cfg.observation_delay
         python.append(f"observation_noise {noise}, observation_delay {delay:g} s")

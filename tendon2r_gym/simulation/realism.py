@@ -271,6 +271,9 @@ class Sensors:
         return self.ring.lagged()
 
 
+#: The Mechanism fields the envs apply between their steps, in Python, not in the compiled
+#: model, each with what it does: tendon2r-export lists those a config sets beside its XML.
+STEP_FIELDS = {"motor_delay": "each command held back whole control steps"}
 #: Ranges of the seeded perturbed arms (the real-arm study, research.studies.realism) and of the
 #: randomized training (``mechanism_ranges: real_arm``, tendon2r_gym.task.arms.MechanismRanges):
 #: each value drawn uniformly and independently, in this order; delays are rounded to whole
