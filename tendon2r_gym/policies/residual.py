@@ -30,7 +30,6 @@ import numpy as np
 from tendon2r_gym.envs.env_config import low_pass_alpha
 from tendon2r_gym.envs.registration import make as make_env
 from tendon2r_gym.policies.baselines import PDPolicy
-from tendon2r_gym.task import observation
 from tendon2r_gym.validation import invalid, number, real_array
 
 #: What a residual_scale is a fraction of (module docstring).
@@ -215,17 +214,10 @@ def residual_command(
     return np.clip(base + residual, -1.0, 1.0)
 
 
-def make_training_env(
-    env_kwargs: dict[str, Any], residual: Residual = NO_RESIDUAL, zero_obs: tuple[str, ...] = ()
-) -> gym.Env:
+def make_training_env(env_kwargs: dict[str, Any], residual: Residual = NO_RESIDUAL) -> gym.Env:
     """Returns Tendon2R-v0 with the given kwargs, wrapped for residual learning if
-    ``residual`` is active.  ``zero_obs`` names observation entries
-    (tendon2r_gym.task.observation) to blank out, for ablations: a constant zero carries no
-    information."""
+    ``residual`` is active."""
     env = make_env(**env_kwargs)
-    if zero_obs:
-        keep = observation.mask(zero_obs, env.observation_space.shape[0])
-        env = gym.wrappers.TransformObservation(env, lambda o: o * keep, env.observation_space)
     if not residual.active:
         return env
     return ResidualPDWrapper(env, **residual.to_record())

@@ -206,15 +206,6 @@ def layout(
     return out + [["arm", n_arm]] if n_arm else out
 
 
-def mask(zeroed: Iterable[str], n_obs: int) -> np.ndarray:
-    """Returns a multiplier of length ``n_obs`` that blanks the named fixed entries (for
-    ablations: a constant zero carries no information)."""
-    out = np.ones(n_obs)
-    for name in zeroed:
-        out[SLICES[name]] = 0.0
-    return out
-
-
 def table(preview_steps_name: str = "P") -> str:
     """Returns the docstring table of the layout (the env's docstring embeds it)."""
     rows = ["| index | observation | unit |", "|-------|-------------|------|"]

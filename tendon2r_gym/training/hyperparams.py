@@ -17,7 +17,6 @@ from typing import Any
 from tendon2r_gym.envs.env_config import EnvConfig
 from tendon2r_gym.policies.residual import Residual
 from tendon2r_gym.presets import PPO_CONFIG, load_yaml
-from tendon2r_gym.task import observation
 from tendon2r_gym.validation import check_keys, integer, invalid, mapping, number
 
 VEC_ENVS = ("native", "subproc", "dummy")
@@ -132,7 +131,6 @@ class Hyperparams:
     policy_kwargs: dict[str, Any] = field(default_factory=dict)
     normalize: dict[str, Any] = field(default_factory=dict)  # VecNormalize keyword arguments
     checkpoint_minutes: float = 2.0  # and a checkpoint at least this often (wall time)
-    zero_obs: tuple[str, ...] = ()  # observation entries to blank out (ablations)
     # Observation entries (EnvConfig.observation.entries(): e.g. arm, or one drawn field such as
     # arm.density_scale) that only the critic sees (privileged: hide_from_actor) or only the
     # actor (hide_from_critic): tendon2r_gym.policies.split_view.
@@ -200,9 +198,6 @@ class Hyperparams:
                 set_("init_log_std", [number("init_log_std", v, lo, hi) for v in values])
             else:
                 set_("init_log_std", number("init_log_std", values, lo, hi))
-        zero = tuple(self.zero_obs or ())
-        check_keys("zero_obs", zero, observation.SLICES)
-        set_("zero_obs", zero)
         if self.vec_env not in VEC_ENVS:
             raise invalid("vec_env", self.vec_env, f"one of {VEC_ENVS}")
         for name in ("ppo", "policy_kwargs", "normalize"):
@@ -250,7 +245,7 @@ class Hyperparams:
     def to_dict(self) -> dict[str, Any]:
         """Returns plain YAML-friendly values (what a run's config.yaml holds)."""
         out = copy.deepcopy(dataclasses.asdict(self))
-        for key in ("zero_obs", "hide_from_actor", "hide_from_critic"):
+        for key in ("hide_from_actor", "hide_from_critic"):
             out[key] = list(getattr(self, key))
         return out
 

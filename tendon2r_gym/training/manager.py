@@ -195,13 +195,13 @@ def make_vec_env(hp: Hyperparams, seed: int) -> Any:
     if hp.vec_env == "native":
         from tendon2r_gym.training.vector_env_sb3 import make_native
 
-        return make_native(hp.n_envs, hp.env_kwargs, hp.residual, hp.zero_obs, seed)
+        return make_native(hp.n_envs, hp.env_kwargs, hp.residual, seed)
     subproc = hp.vec_env == "subproc" and hp.n_envs > 1
     return sb3_make_vec_env(
         make_training_env,
         n_envs=hp.n_envs,
         seed=seed,
-        env_kwargs={"env_kwargs": hp.env_kwargs, "residual": hp.residual, "zero_obs": hp.zero_obs},
+        env_kwargs={"env_kwargs": hp.env_kwargs, "residual": hp.residual},
         vec_env_cls=SubprocVecEnv if subproc else DummyVecEnv,
     )
 
