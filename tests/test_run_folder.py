@@ -329,7 +329,7 @@ def test_the_plan_of_a_run_is_checked_for_every_seed_before_any_trains(tmp_path)
 
 # -- records of removed training options ---------------------------------------------------------
 #: A value of each removed option (REMOVED) that a run trained with it on.
-ON = {"zero_obs": ["error_log"]}
+ON = {"zero_obs": ["error_log"], "hide_from_critic": ["arm"]}
 
 
 def _recorded_off() -> dict:

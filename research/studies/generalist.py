@@ -85,8 +85,8 @@ from tendon2r_gym.validation import invalid
 #: without the feed-forward (generalist_scratch_rad, the plain generalist before them), and that
 #: blind to the arm and blind to its force limit; the unfiltered residual generalist blind to the
 #: arm; an earlier generalist (tension mode, blind, 64 x 64) and it with the arm's features; the
-#: "log" reward at 3M steps, and on that reward and budget the arm's features seen by both networks,
-#: by the actor only, by the critic only (privileged); the multiscale reward at 3M steps with two
+#: "log" reward at 3M steps, and on that reward and budget the arm's features seen by both networks
+#: and by the critic only (privileged); the multiscale reward at 3M steps with two
 #: weights of the action-rate term; on the pull-only cables that without action_rate_need, the
 #: generalist's own entry at its action-rate weight (3), the earlier pull-only generalist
 #: (generalist_tension's entry in joint-torque mode with a 2 ms residual filter, blind to the arm)
@@ -113,7 +113,6 @@ ABLATIONS = (
     "generalist_observe_arm",
     "generalist_log",
     "generalist_arm",
-    "generalist_actor_arm",
     "generalist_privileged",
     "generalist_multiscale",
     "generalist_multiscale_smooth",
@@ -299,9 +298,9 @@ def ablation(bundles: list[str]) -> dict[str, Any]:
 
 def arm_seen_by(model_path: Path) -> str:
     """Returns which networks of a bundled model saw the drawn arm's features, as its run
-    recorded them: its observation layout (observe arm) and the masks its hide_from_actor and
-    hide_from_critic lists give over the ``arm`` slice (observation.layout_mask, as training
-    applies them: a network that sees any of the arm's fields saw the arm)."""
+    recorded them: its observation layout (observe arm) and the mask its hide_from_actor list
+    gives the actor over the ``arm`` slice (observation.layout_mask, as training applies it:
+    an actor that sees any of the arm's fields saw the arm); the critic sees them all."""
     recorded = training_record(model_path)["env_config"]
     if not observes_arm(recorded):
         return "nobody (blind)"
@@ -309,12 +308,8 @@ def arm_seen_by(model_path: Path) -> str:
     fields = feature_ranges(recorded).names
     hp = RunFolder(stem_of(model_path).parent).read_config()
     n_arm = layout[-1][1]  # the arm slice closes the layout
-    actor, critic = (
-        bool(layout_mask(layout, hp.get(f"hide_from_{who}") or [], fields)[-n_arm:].any())
-        for who in ("actor", "critic")
-    )
-    return {(True, True): "actor and critic", (True, False): "actor only",
-            (False, True): "critic only"}.get((actor, critic), "nobody (hidden)")  # fmt: skip
+    actor = bool(layout_mask(layout, hp.get("hide_from_actor") or [], fields)[-n_arm:].any())
+    return "actor and critic" if actor else "critic only"
 
 
 def optional_entries(model_path: Path) -> str:
@@ -545,7 +540,7 @@ def write(result: dict[str, Any], out: Path) -> None:
         "generalist_blind, generalist_unfiltered without them; generalist_tension, an "
         "earlier generalist (tension mode, blind, 64 x 64), and generalist_observe_arm, it "
         "with the arm's features; generalist_log and "
-        "on its reward and budget generalist_arm, generalist_actor_arm and "
+        "on its reward and budget generalist_arm and "
         "generalist_privileged; generalist_multiscale and generalist_multiscale_smooth; "
         "generalist_pull_only_rate10, generalist_pull_only without the action_rate_need "
         "term (on 10M steps); generalist_pull_only_full, that at the generalist's action-rate "

@@ -100,6 +100,7 @@ RECOVERY = {
 #: Records of runs (config.yaml, run.json) hold them: :func:`without_removed`.
 REMOVED: dict[str, Any] = {
     "zero_obs": [],
+    "hide_from_critic": [],
 }
 
 

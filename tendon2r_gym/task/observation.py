@@ -245,8 +245,8 @@ def table(preview_steps_name: str = "P") -> str:
 
 def arm_entry(field: str) -> str:
     """Returns the name of one drawn field's entry of the ``arm`` slice, ``arm.<field>``:
-    hide_from_actor and hide_from_critic take it as well as a layout name (e.g. the model's
-    errors for the critic only, the fields a user knows for both)."""
+    hide_from_actor takes it as well as a layout name (e.g. the model's errors for the critic
+    only, the fields a user knows for both)."""
     return f"arm.{field}"
 
 

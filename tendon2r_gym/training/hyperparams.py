@@ -132,10 +132,9 @@ class Hyperparams:
     normalize: dict[str, Any] = field(default_factory=dict)  # VecNormalize keyword arguments
     checkpoint_minutes: float = 2.0  # and a checkpoint at least this often (wall time)
     # Observation entries (EnvConfig.observation.entries(): e.g. arm, or one drawn field such as
-    # arm.density_scale) that only the critic sees (privileged: hide_from_actor) or only the
-    # actor (hide_from_critic): tendon2r_gym.policies.split_view.
+    # arm.density_scale) that only the critic sees (a privileged critic):
+    # tendon2r_gym.policies.split_view.
     hide_from_actor: tuple[str, ...] = ()
-    hide_from_critic: tuple[str, ...] = ()
     # Start from a trained model's weights and VecNormalize statistics (fine-tuning): a bundle
     # name (e.g. generalist) or a model zip; it must cover the env (learned.check_model_env).
     init_from: str | None = None
@@ -207,13 +206,9 @@ class Hyperparams:
                 schedule(f"ppo.{key}", self.ppo[key])
         env_config = EnvConfig.make(**self.env_kwargs)  # before any worker starts
         self.residual.check_action_mode(env_config.action_mode)
-        names = env_config.observation.entries()
-        for key in ("hide_from_actor", "hide_from_critic"):
-            hidden = tuple(getattr(self, key) or ())
-            check_keys(key, hidden, names)
-            set_(key, hidden)
-        if set(self.hide_from_actor) & set(self.hide_from_critic):
-            raise invalid("hide_from_critic", list(self.hide_from_critic), "entries the actor sees")
+        hidden = tuple(self.hide_from_actor or ())
+        check_keys("hide_from_actor", hidden, env_config.observation.entries())
+        set_("hide_from_actor", hidden)
 
     # -- construction --------------------------------------------------------------------------
     @classmethod
@@ -245,8 +240,7 @@ class Hyperparams:
     def to_dict(self) -> dict[str, Any]:
         """Returns plain YAML-friendly values (what a run's config.yaml holds)."""
         out = copy.deepcopy(dataclasses.asdict(self))
-        for key in ("hide_from_actor", "hide_from_critic"):
-            out[key] = list(getattr(self, key))
+        out["hide_from_actor"] = list(self.hide_from_actor)
         return out
 
     # -- derived quantities ----------------------------------------------------------------------
@@ -278,16 +272,14 @@ class Hyperparams:
 
     def policy(self, env_config: EnvConfig) -> tuple[Any, dict[str, Any]]:
         """Returns SB3's policy (MlpPolicy, or SplitViewPolicy when an entry is hidden from
-        the actor or the critic) and its policy_kwargs, for an env of ``env_config``."""
-        if not (self.hide_from_actor or self.hide_from_critic):
+        the actor) and its policy_kwargs, for an env of ``env_config``."""
+        if not self.hide_from_actor:
             return "MlpPolicy", self.policy_kwargs
         from tendon2r_gym.policies.split_view import SplitViewPolicy
 
-        keep = {  # one mask per stacked frame
-            f"{who}_keep": env_config.observation.mask(hidden).tolist() * self.frame_stack
-            for who, hidden in (("actor", self.hide_from_actor), ("critic", self.hide_from_critic))
-        }
-        return SplitViewPolicy, {**self.policy_kwargs, **keep}
+        keep = env_config.observation.mask(self.hide_from_actor).tolist()
+        # one mask per stacked frame
+        return SplitViewPolicy, {**self.policy_kwargs, "actor_keep": keep * self.frame_stack}
 
 
 @dataclass(frozen=True)
