@@ -74,27 +74,24 @@ from tendon2r_gym.validation import invalid
 #: residual's entry on pull-only cables with action-rate weight 10 and action_rate_need), then the
 #: ablations (what each changes is in its entry's comment; the ablation table reads its action mode,
 #: network, learning rate, reward, arm features and evaluation episodes from its run record): the
-#: residual generalist with a decay tail on its learning rate (generalist_decay_tail), the residual
-#: generalist without the reference's feed-forward (generalist_action_units, the generalist before
-#: observe feedforward), and that observing its errors in radians (generalist_rad, the generalist
-#: before errors in action units); that with a decaying learning rate; with its residual relative to
-#: each joint's need; trained with CAPS's smoothness terms; with its action rate also charged in
-#: multiples of the task's; at its constant rate and relative to the range, with action-rate weight
-#: 1, that on the registered reward's sigma (1 deg), and that without its error rate and force
-#: limit; that without its residual filter; the plain generalist observing its errors in radians
-#: without the feed-forward (generalist_scratch_rad, the plain generalist before them), and that
-#: blind to the arm and blind to its force limit; the unfiltered residual generalist blind to the
-#: arm; an earlier generalist (tension mode, blind, 64 x 64) and it with the arm's features; the
-#: "log" reward at 3M steps, and on that reward and budget the arm's features seen by both networks
-#: and by the critic only (privileged); the multiscale reward at 3M steps with two
-#: weights of the action-rate term; on the pull-only cables that without action_rate_need, the
-#: generalist's own entry at its action-rate weight (3), the earlier pull-only generalist
-#: (generalist_tension's entry in joint-torque mode with a 2 ms residual filter, blind to the arm)
-#: and that in tension mode without the filter (generalist_tension's reward with a 3x heavier
-#: action-rate term).
+#: residual generalist without the reference's feed-forward (generalist_action_units, the generalist
+#: before observe feedforward), and that observing its errors in radians (generalist_rad, the
+#: generalist before errors in action units); that with a decaying learning rate; with its residual
+#: relative to each joint's need; trained with CAPS's smoothness terms; with its action rate also
+#: charged in multiples of the task's; at its constant rate and relative to the range, with
+#: action-rate weight 1, that on the registered reward's sigma (1 deg), and that without its error
+#: rate and force limit; that without its residual filter; the plain generalist observing its errors
+#: in radians without the feed-forward (generalist_scratch_rad, the plain generalist before them),
+#: and that blind to the arm and blind to its force limit; the unfiltered residual generalist blind
+#: to the arm; an earlier generalist (tension mode, blind, 64 x 64) and it with the arm's features;
+#: the "log" reward at 3M steps, and on that reward and budget the arm's features seen by both
+#: networks and by the critic only (privileged); the multiscale reward at 3M steps with two weights
+#: of the action-rate term; on the pull-only cables that without action_rate_need, the generalist's
+#: own entry at its action-rate weight (3), the earlier pull-only generalist (generalist_tension's
+#: entry in joint-torque mode with a 2 ms residual filter, blind to the arm) and that in tension
+#: mode without the filter (generalist_tension's reward with a 3x heavier action-rate term).
 BUNDLES = GENERALISTS
 ABLATIONS = (
-    "generalist_decay_tail",
     "generalist_action_units",
     "generalist_rad",
     "generalist_lin_lr",
@@ -518,8 +515,6 @@ def write(result: dict[str, Any], out: Path) -> None:
         "what it changes, and the ablation table below gives each one's action mode, network, "
         "learning rate, policy smoothing, reward, arm features, evaluation episodes and "
         "training steps): "
-        "generalist_decay_tail, the generalist with its learning rate held for 60% of the "
-        "run and then decaying linearly to 0; "
         "generalist_action_units, the generalist without the reference's feed-forward (the "
         "generalist before it observed feedforward); "
         "generalist_rad, that observing its error and error rate in radians (the "
@@ -696,12 +691,9 @@ def _filter(tau: float) -> str:
 
 def _rate(learning_rate: float | str) -> str:
     """Returns a learning rate as the ablation table shows it: a number, or ``lin_<v>``
-    (rl_zoo3's notation) as a linear decay from v to 0, ``lin_<v>_after_<f>`` as v then a
-    linear decay to 0 after that fraction of the run."""
+    (rl_zoo3's notation) as a linear decay from v to 0."""
     if isinstance(learning_rate, str) and learning_rate.startswith(LINEAR):
-        start, after = linear_schedule(learning_rate)
-        tail = f" after {after:.0%} of the run" if after else ""
-        return f"{start:g}, linear to 0{tail}"
+        return f"{linear_schedule(learning_rate):g}, linear to 0"
     return f"{learning_rate:g}" if isinstance(learning_rate, float | int) else learning_rate
 
 

@@ -25,11 +25,9 @@ MAX_FRAME_STRIDE = 1000
 #: The range of init_log_std (SB3's log std of an action).
 LOG_STD_RANGE = (-20.0, 2.0)
 #: PPO settings that may be a schedule, as rl_zoo3 writes one: ``lin_<v>`` decays linearly from
-#: v at the start of training to 0 at its end (SB3's progress_remaining times v);
-#: ``lin_<v>_after_<f>`` holds v for the first fraction f of the run, then decays linearly to 0
-#: at its end (:class:`DecayTail`).
+#: v at the start of training to 0 at its end (SB3's progress_remaining times v).
 SCHEDULES = ("learning_rate", "clip_range", "clip_range_vf")
-LINEAR, AFTER = "lin_", "_after_"
+LINEAR = "lin_"
 
 #: Smoothing's largest weight of a term and largest sigma (standard deviations of an input).
 MAX_SMOOTHING_WEIGHT = 100.0
@@ -261,8 +259,8 @@ class Hyperparams:
         return self.n_envs * int(self.ppo.get("n_steps", 2048))
 
     def ppo_kwargs(self) -> dict[str, Any]:
-        """Returns SB3 PPO's keyword arguments: ``ppo`` with each ``lin_<v>[_after_<f>]`` its
-        SB3 schedule (:func:`sb3_schedule`; validated at construction)."""
+        """Returns SB3 PPO's keyword arguments: ``ppo`` with each ``lin_<v>`` its SB3 schedule
+        (:func:`sb3_schedule`; validated at construction)."""
         out = dict(self.ppo)
         for key in SCHEDULES:
             value = out.get(key)
@@ -282,64 +280,40 @@ class Hyperparams:
         return SplitViewPolicy, {**self.policy_kwargs, "actor_keep": keep * self.frame_stack}
 
 
-@dataclass(frozen=True)
-class DecayTail:
-    """SB3 schedule of ``lin_<v>_after_<f>``: ``start`` until the fraction ``after`` of the run,
-    then linearly to 0 at its end (a constant rate's progress, then a decaying rate's
-    precision)."""
-
-    start: float
-    after: float
-
-    def __call__(self, progress_remaining: float) -> float:
-        return self.start * min(1.0, progress_remaining / (1.0 - self.after))
-
-
 def schedule(field: str, value: Any) -> float | str | None:
-    """Returns a positive number as a float, ``lin_<v>`` (rl_zoo3's notation, v > 0) or
-    ``lin_<v>_after_<f>`` (0 <= f < 1) as it is, or None (no value clipping); raises naming
-    ``field`` otherwise."""
+    """Returns a positive number as a float, ``lin_<v>`` (rl_zoo3's notation, v > 0) as it is,
+    or None (no value clipping); raises naming ``field`` otherwise."""
     if value is None:
         return None
-    allowed = (
-        f"a positive number, '{LINEAR}<positive number>' (linear decay to 0) or "
-        f"'{LINEAR}<positive number>{AFTER}<fraction in [0, 1)>' (constant, then linear to 0)"
-    )
+    allowed = f"a positive number or '{LINEAR}<positive number>' (linear decay to 0)"
     if isinstance(value, str):
         if not value.startswith(LINEAR):
             raise invalid(field, value, allowed)
         try:
-            start, after = linear_schedule(value)
-            number(field, start, 0.0, lo_open=True)
-            number(field, after, 0.0, 1.0, hi_open=True)
+            number(field, linear_schedule(value), 0.0, lo_open=True)
         except ValueError:
             raise invalid(field, value, allowed) from None
         return value
     return number(field, value, 0.0, lo_open=True)
 
 
-def linear_schedule(value: str) -> tuple[float, float]:
-    """Returns (v, f) of a ``lin_<v>`` (f = 0) or ``lin_<v>_after_<f>`` schedule; raises
-    ValueError if v or f is not a number."""
-    start, sep, after = value[len(LINEAR) :].partition(AFTER)
-    return float(start), float(after) if sep else 0.0
+def linear_schedule(value: str) -> float:
+    """Returns v of a ``lin_<v>`` schedule; raises ValueError if v is not a number."""
+    return float(value[len(LINEAR) :])
 
 
 def sb3_schedule(value: str) -> Any:
-    """Returns SB3's schedule of a validated ``lin_<v>`` (SB3's LinearSchedule from v to 0 over
-    the run) or ``lin_<v>_after_<f>`` (:class:`DecayTail`)."""
+    """Returns SB3's schedule of a validated ``lin_<v>``: SB3's LinearSchedule from v to 0 over
+    the run."""
     from stable_baselines3.common.utils import LinearSchedule
 
-    start, after = linear_schedule(value)
-    return DecayTail(start, after) if after else LinearSchedule(start, 0.0, 1.0)
+    return LinearSchedule(linear_schedule(value), 0.0, 1.0)
 
 
 def scaled_schedule(value: float | str, factor: float) -> float | str:
-    """Returns a number or a ``lin_<v>[_after_<f>]`` schedule times ``factor``: the schedule
-    ``lin_<v * factor>`` with the same f."""
+    """Returns a number or a ``lin_<v>`` schedule times ``factor`` (``lin_<v * factor>``)."""
     if isinstance(value, str) and value.startswith(LINEAR):
-        start, after = linear_schedule(value)
-        return f"{LINEAR}{start * factor:g}" + (f"{AFTER}{after:g}" if after else "")
+        return f"{LINEAR}{linear_schedule(value) * factor:g}"
     return float(value) * factor
 
 
