@@ -329,7 +329,11 @@ def test_the_plan_of_a_run_is_checked_for_every_seed_before_any_trains(tmp_path)
 
 # -- records of removed training options ---------------------------------------------------------
 #: A value of each removed option (REMOVED) that a run trained with it on.
-ON = {"zero_obs": ["error_log"], "hide_from_critic": ["arm"]}
+ON = {
+    "zero_obs": ["error_log"],
+    "hide_from_critic": ["arm"],
+    "smoothing": {"temporal": 0.03, "spatial": 0.1, "sigma": 0.05, "samples": 512},
+}
 
 
 def _recorded_off() -> dict:

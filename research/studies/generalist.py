@@ -67,7 +67,7 @@ from tendon2r_gym.presets import load_yaml, preset_path
 from tendon2r_gym.task.arms import GEOMETRY, draw_arms
 from tendon2r_gym.task.observation import OPTIONAL, layout_mask
 from tendon2r_gym.task.rewards import REWARD_SCALES
-from tendon2r_gym.training.hyperparams import LINEAR, Smoothing, linear_schedule
+from tendon2r_gym.training.hyperparams import LINEAR, linear_schedule
 from tendon2r_gym.validation import invalid
 
 #: The generalist bundles (configs/ppo.yaml entries of the same names: the residual, plain PPO, the
@@ -77,26 +77,25 @@ from tendon2r_gym.validation import invalid
 #: residual generalist without the reference's feed-forward (generalist_action_units, the generalist
 #: before observe feedforward), and that observing its errors in radians (generalist_rad, the
 #: generalist before errors in action units); that with a decaying learning rate; with its residual
-#: relative to each joint's need; trained with CAPS's smoothness terms; with its action rate also
-#: charged in multiples of the task's; at its constant rate and relative to the range, with
-#: action-rate weight 1, that on the registered reward's sigma (1 deg), and that without its error
-#: rate and force limit; that without its residual filter; the plain generalist observing its errors
-#: in radians without the feed-forward (generalist_scratch_rad, the plain generalist before them),
-#: and that blind to the arm and blind to its force limit; the unfiltered residual generalist blind
-#: to the arm; an earlier generalist (tension mode, blind, 64 x 64) and it with the arm's features;
-#: the "log" reward at 3M steps, and on that reward and budget the arm's features seen by both
-#: networks and by the critic only (privileged); the multiscale reward at 3M steps with two weights
-#: of the action-rate term; on the pull-only cables that without action_rate_need, the generalist's
-#: own entry at its action-rate weight (3), the earlier pull-only generalist (generalist_tension's
-#: entry in joint-torque mode with a 2 ms residual filter, blind to the arm) and that in tension
-#: mode without the filter (generalist_tension's reward with a 3x heavier action-rate term).
+#: relative to each joint's need; with its action rate also charged in multiples of the task's; at
+#: its constant rate and relative to the range, with action-rate weight 1, that on the registered
+#: reward's sigma (1 deg), and that without its error rate and force limit; that without its
+#: residual filter; the plain generalist observing its errors in radians without the feed-forward
+#: (generalist_scratch_rad, the plain generalist before them), and that blind to the arm and blind
+#: to its force limit; the unfiltered residual generalist blind to the arm; an earlier generalist
+#: (tension mode, blind, 64 x 64) and it with the arm's features; the "log" reward at 3M steps, and
+#: on that reward and budget the arm's features seen by both networks and by the critic only
+#: (privileged); the multiscale reward at 3M steps with two weights of the action-rate term; on the
+#: pull-only cables that without action_rate_need, the generalist's own entry at its action-rate
+#: weight (3), the earlier pull-only generalist (generalist_tension's entry in joint-torque mode
+#: with a 2 ms residual filter, blind to the arm) and that in tension mode without the filter
+#: (generalist_tension's reward with a 3x heavier action-rate term).
 BUNDLES = GENERALISTS
 ABLATIONS = (
     "generalist_action_units",
     "generalist_rad",
     "generalist_lin_lr",
     "generalist_need",
-    "generalist_caps",
     "generalist_rate_need",
     "generalist_rate1",
     "generalist_coarse",
@@ -289,7 +288,6 @@ def ablation(bundles: list[str]) -> dict[str, Any]:
         out[b]["eval_episodes"] = len(config["eval_seeds"])
         out[b]["learning_rate"] = config["ppo"]["learning_rate"]
         out[b]["residual"] = _residual(config)
-        out[b]["smoothing"] = _smoothing(config)
     return out
 
 
@@ -513,7 +511,7 @@ def write(result: dict[str, Any], out: Path) -> None:
         "is its primary seed, fixed before training). The other columns are ablations (one "
         "seed each; configs/ppo.yaml's comment on each entry says "
         "what it changes, and the ablation table below gives each one's action mode, network, "
-        "learning rate, policy smoothing, reward, arm features, evaluation episodes and "
+        "learning rate, reward, arm features, evaluation episodes and "
         "training steps): "
         "generalist_action_units, the generalist without the reference's feed-forward (the "
         "generalist before it observed feedforward); "
@@ -521,7 +519,6 @@ def write(result: dict[str, Any], out: Path) -> None:
         "generalist before error_units action); "
         "generalist_lin_lr, generalist_rad with its learning rate decaying linearly to 0; "
         "generalist_need, generalist_rad with its residual relative to each joint's need; "
-        "generalist_caps, generalist_rad trained with CAPS's smoothness terms; "
         "generalist_rate_need, generalist_rad with its action rate also charged in multiples "
         "of the rate its arm's reference needs (action_rate_need); "
         "generalist_rate1, generalist_rad with action-rate weight 1; generalist_coarse, that "
@@ -579,17 +576,17 @@ def write(result: dict[str, Any], out: Path) -> None:
             "PD on them). The summary above gives each on the unseen arms, zero-shot.",
             "",
             "| generalist | arm features seen by | also observes | action mode | residual "
-            "| residual filter | network | learning rate | policy smoothing | reward (tracking "
-            "form, changed weights) | evaluation episodes | RMS A / B (deg) | PD A / B (deg) | "
-            "RMS tension rate (N/s) | steps | wall time (s) |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+            "| residual filter | network | learning rate | reward (tracking form, changed "
+            "weights) | evaluation episodes | RMS A / B (deg) | PD A / B (deg) | RMS tension rate "
+            "(N/s) | steps | wall time (s) |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for b, a in result["ablation"].items():
             lines.append(
                 f"| {b} | {a.get('arm_seen_by', '?')} | {a.get('observes', '?')} | "
                 f"{a.get('action_mode', '?')} | {a.get('residual', '?')} | "
                 f"{_filter(a.get('residual_filter_tau', 0.0))} | {a.get('network', '?')} | "
-                f"{_rate(a.get('learning_rate', '?'))} | {a.get('smoothing', '?')} | "
+                f"{_rate(a.get('learning_rate', '?'))} | "
                 f"{a.get('reward', '?')} | "
                 f"{a.get('eval_episodes', '?')} | "
                 f"{fmt(a['best_rms_deg'])} | {fmt(a['pd_eval_rms_deg'])} | "
@@ -673,15 +670,6 @@ def _residual(config: dict[str, Any]) -> str:
     if residual.relative_to == "need":
         return f"{residual.scale:g} x each joint's need"
     return f"{residual.scale:g} x the command range"
-
-
-def _smoothing(config: dict[str, Any]) -> str:
-    """Returns a run's policy smoothing (tendon2r_gym.training.smoothing; its recorded
-    hyperparameters, where a run before it has none) as the ablation table shows it."""
-    s = Smoothing.from_mapping(config.get("smoothing"))
-    if not s.active:
-        return "none"
-    return f"CAPS: temporal {s.temporal:g}, spatial {s.spatial:g} (sigma {s.sigma:g})"
 
 
 def _filter(tau: float) -> str:

@@ -367,9 +367,9 @@ def test_generalist_ablation_reads_who_saw_the_arm_from_each_run():
 
 
 def test_generalist_ablation_reads_action_mode_and_network_from_each_run():
-    """The ablation table's action mode, residual, its filter, network, policy smoothing,
-    evaluation episodes and optional observation entries come from each bundle's run record:
-    what its configs/ppo.yaml entry trained it with."""
+    """The ablation table's action mode, residual, its filter, network, evaluation episodes and
+    optional observation entries come from each bundle's run record: what its configs/ppo.yaml
+    entry trained it with."""
     from research.studies import generalist
     from tendon2r_gym.task.observation import OPTIONAL
     from tendon2r_gym.training import Hyperparams
@@ -387,13 +387,8 @@ def test_generalist_ablation_reads_action_mode_and_network_from_each_run():
         relative = {"range": "the command range", "need": "each joint's need"}
         expected = f"{hp.residual_scale:g} x {relative[hp.residual_relative_to]}"
         assert table[name]["residual"] == (expected if hp.residual_scale else "none (plain PPO)")
-        caps = hp.smoothing
-        assert table[name]["smoothing"] == (
-            f"CAPS: temporal {caps.temporal:g}, spatial {caps.spatial:g} (sigma {caps.sigma:g})"
-            if caps.active
-            else "none"
-        ), name
-        flags = [e[0] for e, flag in OPTIONAL.items() if hp.env_kwargs.get(flag)]
+        observed = hp.env_kwargs.get("observe", [])
+        flags = [e[0] for e, name in OPTIONAL.items() if name in observed]
         if hp.env_kwargs.get("error_units") == "action":
             flags.append("errors in action units")
         assert table[name]["observes"] == (", ".join(flags) or "none"), name

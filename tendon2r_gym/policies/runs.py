@@ -101,6 +101,7 @@ RECOVERY = {
 REMOVED: dict[str, Any] = {
     "zero_obs": [],
     "hide_from_critic": [],
+    "smoothing": {"temporal": 0.0, "spatial": 0.0},
 }
 
 

@@ -77,18 +77,16 @@ def load_initial(
 ) -> tuple[Any, Any]:
     """Returns (PPO, VecNormalize) started from the weights and observation statistics of
     ``source`` (:func:`initial_model`), training on ``venv`` with the run's PPO settings."""
+    from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecNormalize
-
-    from tendon2r_gym.training.smoothing import SmoothPPO
 
     zip_path, stats = source
     vecnorm = VecNormalize.load(str(stats), venv)
     vecnorm.training = True
     vecnorm.norm_reward = bool(hp.normalize.get("norm_reward", True))
-    model = SmoothPPO.load(
+    model = PPO.load(
         zip_path, env=stacked(vecnorm, hp.frame_stack, hp.frame_stride), device="cpu",
         custom_objects=hp.ppo_kwargs(), seed=seed, tensorboard_log=str(run.tensorboard),
-        smoothing=hp.smoothing,
     )  # fmt: skip
     model.num_timesteps = 0  # a fine-tune counts its own steps (the zip holds the source's)
     if hp.init_log_std is not None:

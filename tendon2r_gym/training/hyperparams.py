@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -28,10 +28,6 @@ LOG_STD_RANGE = (-20.0, 2.0)
 #: v at the start of training to 0 at its end (SB3's progress_remaining times v).
 SCHEDULES = ("learning_rate", "clip_range", "clip_range_vf")
 LINEAR = "lin_"
-
-#: Smoothing's largest weight of a term and largest sigma (standard deviations of an input).
-MAX_SMOOTHING_WEIGHT = 100.0
-MAX_SMOOTHING_SIGMA = 10.0
 
 
 #: An entry's key naming the entry it starts from (in its own file, else in PPO_CONFIG).
@@ -70,39 +66,6 @@ def entry_values(name: str, path: str | Path = PPO_CONFIG, seen: tuple[str, ...]
     if not isinstance(base, str):
         raise invalid(f"{path}: {name}.{BASE}", base, "the name of another entry")
     return merged(entry_values(base, path, (*seen, name)), values)
-
-
-@dataclass(frozen=True)
-class Smoothing:
-    """CAPS's smoothness regularization of the policy (tendon2r_gym.training.smoothing): the
-    weights ``temporal`` (lambda_T) and ``spatial`` (lambda_S), the spatial term's noise
-    ``sigma`` (standard deviations of a normalized observation) and the states per step.
-    Both weights 0: SB3's PPO."""
-
-    temporal: float = 0.0
-    spatial: float = 0.0
-    sigma: float = 0.05
-    samples: int = 512  # random states of the rollout per term and step
-
-    def __post_init__(self) -> None:
-        integer("smoothing.samples", self.samples, 1, 2**20)
-        for key in ("temporal", "spatial"):
-            value = number(f"smoothing.{key}", getattr(self, key), 0.0, MAX_SMOOTHING_WEIGHT)
-            object.__setattr__(self, key, value)
-        sigma = number("smoothing.sigma", self.sigma, 0.0, MAX_SMOOTHING_SIGMA, lo_open=True)
-        object.__setattr__(self, "sigma", sigma)
-
-    @classmethod
-    def from_mapping(cls, values: Any) -> Smoothing:
-        """Builds from a hyperparameter entry's ``smoothing`` mapping (missing keys: defaults)."""
-        values = mapping("smoothing", values)
-        check_keys("smoothing", values, tuple(asdict(cls())))
-        return cls(**values)
-
-    @property
-    def active(self) -> bool:
-        """Returns whether either term is on."""
-        return self.temporal > 0 or self.spatial > 0
 
 
 @dataclass(frozen=True)
@@ -149,9 +112,6 @@ class Hyperparams:
     # same
     # frame_stack inputs span (frame_stack - 1) * frame_stride + 1 steps.  1: VecFrameStack.
     frame_stride: int = 1
-    # CAPS's smoothness terms on the policy's mean action ({temporal, spatial, sigma, samples};
-    # Smoothing): close and consecutive states give close actions.  Empty: SB3's PPO.
-    smoothing: Smoothing = field(default_factory=Smoothing)
 
     def __post_init__(self) -> None:
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
@@ -163,8 +123,6 @@ class Hyperparams:
         integer("frame_stride", self.frame_stride, 1, MAX_FRAME_STRIDE)
         if self.frame_stride > 1 and self.frame_stack == 1:
             raise invalid("frame_stride", self.frame_stride, "1 when frame_stack is 1")
-        if not isinstance(self.smoothing, Smoothing):
-            set_("smoothing", Smoothing.from_mapping(self.smoothing))
         residual = Residual(
             self.residual_scale, self.residual_filter_tau, self.residual_relative_to
         )  # validates the three, naming each
