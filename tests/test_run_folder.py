@@ -333,6 +333,7 @@ ON = {
     "zero_obs": ["error_log"],
     "hide_from_critic": ["arm"],
     "smoothing": {"temporal": 0.03, "spatial": 0.1, "sigma": 0.05, "samples": 512},
+    "residual_relative_to": "need",
 }
 
 

@@ -436,52 +436,6 @@ def test_a_filtered_residual_trains_deploys_and_fine_tunes_with_its_filter(tmp_p
         )
 
 
-def test_a_residual_relative_to_the_need_trains_deploys_and_fine_tunes_with_it(tmp_path):
-    """residual_relative_to "need": run.json records it; PPOPolicy.load scales the residual by
-    each joint's torque need over its torque range, the same in one env and in the vector
-    rollouts (one arm, several episodes); a fine-tune takes its source's scale, a plain entry
-    none; it needs a residual in joint-torque mode."""
-    from tendon2r_gym.evaluation.evaluator import evaluate
-    from tendon2r_gym.evaluation.rollout import rollout
-
-    env = {"action_mode": "joint_torque"}
-    _train(_tiny(tmp_path, residual=1.5, env=env, residual_relative_to="need"), tmp_path / "run")
-    run = RunFolder(tmp_path / "run" / "seed_0")
-    assert run.read_json("run.json")["residual_relative_to"] == "need"
-    kwargs = {"preset": "default", "episode_duration": 0.1, **env}
-    model_path = run.best.with_suffix(".zip")
-    single = gym.make("Tendon2R-v0", **kwargs)
-    policy = PPOPolicy.load(model_path, single)
-    config = single.unwrapped.config
-    scale = 1.5 * np.array(config.needs.torque_need) / policy.pd.actuation.max_torque
-    assert 0 < scale.min() and scale.max() < 1.5
-    obs, info = single.reset(seed=1)
-    policy.reset(info)
-    raw, _ = policy.model.predict(policy.vecnormalize.normalize_obs(obs), deterministic=True)
-    expected = np.clip(policy.pd.predict(obs)[0] + scale * np.clip(raw, -1, 1), -1, 1)
-    np.testing.assert_allclose(policy.predict(obs)[0], expected, atol=1e-6)
-    _, traces = evaluate("ppo", kwargs, [0, 1, 2], model_path)
-    alone = rollout(PPOPolicy.load(model_path, single), single, 2)
-    np.testing.assert_allclose(traces[2].action, alone.action, atol=1e-6)  # torch's batching
-    config_path = _tiny(tmp_path, steps=64, env=env, init_from=str(model_path))  # 0.5, range
-    _train(config_path, tmp_path / "tuned")
-    tuned = RunFolder(tmp_path / "tuned" / "seed_0").read_json("run.json")
-    assert (tuned["residual_relative_to"], tuned["residual_scale"]) == ("need", 1.5)
-    plain = _tiny(tmp_path, 0.0, steps=64, env=env, init_from=str(model_path))
-    with pytest.raises(ValueError, match=r"init_from = .*a plain model for this entry"):
-        _train(plain, tmp_path / "plain")
-    hp = Hyperparams.from_dict(yaml.safe_load(config_path.read_text())["tiny"])
-    with pytest.raises(ValueError, match=r"residual_relative_to = 'need' .*without a residual"):
-        hp.replace(residual_scale=0.0, init_from=None, residual_relative_to="need")
-    with pytest.raises(ValueError, match=r"residual_relative_to = 'need' .*action_mode 'tension'"):
-        hp.replace(
-            env_kwargs={"preset": "default"},
-            init_from=None,
-            residual_scale=1.5,
-            residual_relative_to="need",
-        )
-
-
 def test_a_fine_tune_starts_from_the_exploration_noise_it_asks_for(tmp_path):
     """init_log_std: the fine-tune starts from the source's weights with its exploration noise
     (the policy's log std) reset to that value; it needs init_from."""

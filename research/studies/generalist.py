@@ -76,26 +76,24 @@ from tendon2r_gym.validation import invalid
 #: network, learning rate, reward, arm features and evaluation episodes from its run record): the
 #: residual generalist without the reference's feed-forward (generalist_action_units, the generalist
 #: before observe feedforward), and that observing its errors in radians (generalist_rad, the
-#: generalist before errors in action units); that with a decaying learning rate; with its residual
-#: relative to each joint's need; with its action rate also charged in multiples of the task's; at
-#: its constant rate and relative to the range, with action-rate weight 1, that on the registered
-#: reward's sigma (1 deg), and that without its error rate and force limit; that without its
-#: residual filter; the plain generalist observing its errors in radians without the feed-forward
-#: (generalist_scratch_rad, the plain generalist before them), and that blind to the arm and blind
-#: to its force limit; the unfiltered residual generalist blind to the arm; an earlier generalist
-#: (tension mode, blind, 64 x 64) and it with the arm's features; the "log" reward at 3M steps, and
-#: on that reward and budget the arm's features seen by both networks and by the critic only
-#: (privileged); the multiscale reward at 3M steps with two weights of the action-rate term; on the
-#: pull-only cables that without action_rate_need, the generalist's own entry at its action-rate
-#: weight (3), the earlier pull-only generalist (generalist_tension's entry in joint-torque mode
-#: with a 2 ms residual filter, blind to the arm) and that in tension mode without the filter
-#: (generalist_tension's reward with a 3x heavier action-rate term).
+#: generalist before errors in action units); that with a decaying learning rate; with its action
+#: rate also charged in multiples of the task's; at its constant rate with action-rate weight 1,
+#: that on the registered reward's sigma (1 deg), and that without its error rate and force limit;
+#: that without its residual filter; the plain generalist observing its errors in radians without
+#: the feed-forward (generalist_scratch_rad, the plain generalist before them), and that blind to
+#: the arm and blind to its force limit; the unfiltered residual generalist blind to the arm; an
+#: earlier generalist (tension mode, blind, 64 x 64) and it with the arm's features; the "log"
+#: reward at 3M steps, and on that reward and budget the arm's features seen by both networks and by
+#: the critic only (privileged); the multiscale reward at 3M steps with two weights of the
+#: action-rate term; on the pull-only cables that without action_rate_need, the generalist's own
+#: entry at its action-rate weight (3), the earlier pull-only generalist (generalist_tension's entry
+#: in joint-torque mode with a 2 ms residual filter, blind to the arm) and that in tension mode
+#: without the filter (generalist_tension's reward with a 3x heavier action-rate term).
 BUNDLES = GENERALISTS
 ABLATIONS = (
     "generalist_action_units",
     "generalist_rad",
     "generalist_lin_lr",
-    "generalist_need",
     "generalist_rate_need",
     "generalist_rate1",
     "generalist_coarse",
@@ -518,7 +516,6 @@ def write(result: dict[str, Any], out: Path) -> None:
         "generalist_rad, that observing its error and error rate in radians (the "
         "generalist before error_units action); "
         "generalist_lin_lr, generalist_rad with its learning rate decaying linearly to 0; "
-        "generalist_need, generalist_rad with its residual relative to each joint's need; "
         "generalist_rate_need, generalist_rad with its action rate also charged in multiples "
         "of the rate its arm's reference needs (action_rate_need); "
         "generalist_rate1, generalist_rad with action-rate weight 1; generalist_coarse, that "
@@ -660,15 +657,11 @@ def transient_lines(arms: dict[str, Any], bundles: list[str]) -> list[str]:
 
 def _residual(config: dict[str, Any]) -> str:
     """Returns a run's residual (its recorded hyperparameters) as the ablation table shows it:
-    its scale and what the scale is relative to (tendon2r_gym.policies.learned: each command's
-    range,
-    a tendon's in tension mode, a joint's in joint-torque mode, or each joint's need), or none
-    (plain PPO)."""
+    its scale, a fraction of each command's range (tendon2r_gym.policies.residual: a tendon's in
+    tension mode, a joint's in joint-torque mode), or none (plain PPO)."""
     residual = Residual.from_record(config)
     if not residual.active:
         return "none (plain PPO)"
-    if residual.relative_to == "need":
-        return f"{residual.scale:g} x each joint's need"
     return f"{residual.scale:g} x the command range"
 
 

@@ -384,8 +384,7 @@ def test_generalist_ablation_reads_action_mode_and_network_from_each_run():
         assert table[name]["eval_episodes"] == len(hp.eval_seeds), name
         assert table[name]["residual_filter_tau"] == hp.residual_filter_tau, name
         assert table[name]["learning_rate"] == hp.ppo["learning_rate"], name
-        relative = {"range": "the command range", "need": "each joint's need"}
-        expected = f"{hp.residual_scale:g} x {relative[hp.residual_relative_to]}"
+        expected = f"{hp.residual_scale:g} x the command range"
         assert table[name]["residual"] == (expected if hp.residual_scale else "none (plain PPO)")
         observed = hp.env_kwargs.get("observe", [])
         flags = [e[0] for e, name in OPTIONAL.items() if name in observed]

@@ -102,6 +102,7 @@ REMOVED: dict[str, Any] = {
     "zero_obs": [],
     "hide_from_critic": [],
     "smoothing": {"temporal": 0.0, "spatial": 0.0},
+    "residual_relative_to": "range",
 }
 
 

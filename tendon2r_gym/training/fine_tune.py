@@ -53,11 +53,10 @@ def initial_model(hp: Hyperparams) -> tuple[Path, Path]:
 def fine_tune(hp: Hyperparams) -> Hyperparams:
     """Returns the hyperparameters of a run that starts from ``hp.init_from``: its env kwargs
     take the source model's settings and arm slice (learned.fine_tune_env_kwargs), and its
-    residual the source's scale and filter (``residual_scale``, ``residual_relative_to``,
-    ``residual_filter_tau``), so that every env of the run, its run.json and its deployment
-    see what the model saw and its actions mean what they meant; ``hp`` itself without
-    init_from.  A plain entry does not fine-tune a residual model, nor the reverse
-    (initial_model refuses it)."""
+    residual the source's scale and filter (``residual_scale``, ``residual_filter_tau``), so
+    that every env of the run, its run.json and its deployment see what the model saw and its
+    actions mean what they meant; ``hp`` itself without init_from.  A plain entry does not
+    fine-tune a residual model, nor the reverse (initial_model refuses it)."""
     from tendon2r_gym.policies.bundle import model_path
     from tendon2r_gym.policies.model_env import fine_tune_env_kwargs
     from tendon2r_gym.policies.residual import Residual

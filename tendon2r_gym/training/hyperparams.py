@@ -82,10 +82,6 @@ class Hyperparams:
     # With residual_scale > 0: the time constant (s) of a first-order low-pass on the residual
     # alone, PD's command unfiltered (tendon2r_gym.policies.residual.ResidualFilter).  0: none.
     residual_filter_tau: float = 0.0
-    # With residual_scale > 0: what residual_scale is a fraction of, per joint: "range", the
-    # joint's command range, or "need", its torque need on the episode's arm and reference
-    # (joint-torque mode; tendon2r_gym.policies.learned).
-    residual_relative_to: str = "range"
     vec_env: str = "subproc"  # native, subproc or dummy
     torch_threads: int = 1
     ppo: dict[str, Any] = field(default_factory=dict)  # SB3 PPO keyword arguments
@@ -123,9 +119,7 @@ class Hyperparams:
         integer("frame_stride", self.frame_stride, 1, MAX_FRAME_STRIDE)
         if self.frame_stride > 1 and self.frame_stack == 1:
             raise invalid("frame_stride", self.frame_stride, "1 when frame_stack is 1")
-        residual = Residual(
-            self.residual_scale, self.residual_filter_tau, self.residual_relative_to
-        )  # validates the three, naming each
+        residual = Residual(self.residual_scale, self.residual_filter_tau)  # validates both
         set_("residual_scale", residual.scale)
         set_("residual_filter_tau", residual.filter_tau)
         integer("eval_freq", self.eval_freq, 1, 10**10)
@@ -161,7 +155,6 @@ class Hyperparams:
             if key in self.ppo:
                 schedule(f"ppo.{key}", self.ppo[key])
         env_config = EnvConfig.make(**self.env_kwargs)  # before any worker starts
-        self.residual.check_action_mode(env_config.action_mode)
         hidden = tuple(self.hide_from_actor or ())
         check_keys("hide_from_actor", hidden, env_config.observation.entries())
         set_("hide_from_actor", hidden)
@@ -202,9 +195,9 @@ class Hyperparams:
     # -- derived quantities ----------------------------------------------------------------------
     @property
     def residual(self) -> Residual:
-        """Returns how the policy's action joins PD's command (residual_scale,
-        residual_filter_tau and residual_relative_to: tendon2r_gym.policies.residual.Residual)."""
-        return Residual(self.residual_scale, self.residual_filter_tau, self.residual_relative_to)
+        """Returns how the policy's action joins PD's command (residual_scale and
+        residual_filter_tau: tendon2r_gym.policies.residual.Residual)."""
+        return Residual(self.residual_scale, self.residual_filter_tau)
 
     @property
     def gamma(self) -> float:

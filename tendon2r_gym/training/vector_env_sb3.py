@@ -31,7 +31,6 @@ class SB3VecEnv(VecEnv):
         self.residual = residual
         self.pd = PDPolicy.from_env(venv) if residual.active else None
         self.filter = ResidualFilter(residual.filter_tau, venv.config.ctrl_dt)
-        residual.check_action_mode(venv.config.action_mode)
         self._starts = np.ones(venv.num_envs, dtype=bool)  # a slot's episode starts
         ranges = venv.config.mechanism_ranges
         self._random_arms = ranges is not None
@@ -61,8 +60,9 @@ class SB3VecEnv(VecEnv):
                     [a.mechanism for a in arms], [a.observation_delay for a in arms], gains
                 )
             base, _ = self.pd.predict(self._raw)
-            scale = self.residual.scales(self._need(), self.pd)
-            actions = residual_command(base, actions, scale, self.filter, self._starts)
+            actions = residual_command(
+                base, actions, self.residual.scale, self.filter, self._starts
+            )
         obs, rewards, terminated, truncated, info = self.venv.step(actions)
         dones = terminated | truncated
         infos = _arm_infos(info, self.num_envs)
@@ -75,15 +75,6 @@ class SB3VecEnv(VecEnv):
             infos[i]["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
         self._raw, self._starts = obs, dones
         return obs.copy(), rewards.astype(np.float32), dones, infos
-
-    def _need(self) -> Any:
-        """Returns each slot's torque need (EnvConfig.needs.torque_need; the config's for one fixed
-        arm), only where the residual is relative to the need (None otherwise: unused)."""
-        if self.residual.relative_to != "need":
-            return None
-        if self._random_arms:
-            return [a.needs.torque_need for a in self.venv.arms]
-        return self.venv.config.needs.torque_need
 
     def close(self) -> None:
         self.venv.close()

@@ -53,8 +53,6 @@ def zoo_entry(hp: Hyperparams) -> dict[str, Any]:
         kwargs = {"residual_scale": hp.residual_scale}
         if hp.residual_filter_tau > 0:
             kwargs["residual_filter_tau"] = hp.residual_filter_tau
-        if hp.residual_relative_to != "range":
-            kwargs["residual_relative_to"] = hp.residual_relative_to
         entry["env_wrapper"] = [{WRAPPER: kwargs}]
     return entry
 
