@@ -13,6 +13,21 @@ from tendon2r_gym.policies.bundle import bundle_names
 from tendon2r_gym.simulation.mechanism import Mechanism
 
 RESULTS = Path(__file__).resolve().parent.parent / "results"
+ABLATIONS = Path(__file__).resolve().parent.parent / "configs" / "ablations.yaml"
+
+
+def test_every_ablation_entry_builds():
+    """Each entry of research/configs/ablations.yaml resolves its base chain and validates
+    (none holds an option the library no longer has), and each generalist ablation that the
+    generalist study compares is one of them."""
+    from research.studies import generalist
+    from tendon2r_gym.presets import load_yaml
+    from tendon2r_gym.training import Hyperparams
+
+    names = list(load_yaml(ABLATIONS))
+    assert set(generalist.ABLATIONS) <= set(names)
+    for name in names:
+        assert Hyperparams.from_entry(name, ABLATIONS).total_timesteps > 0, name
 
 
 def test_bench_speed_writes_every_figure(tmp_path):
