@@ -111,17 +111,16 @@ def test_residual_filter_low_passes_the_residual_and_not_pd():
 def test_residual_settings_travel_as_one_record():
     """A Residual reads back from the record it writes (an entry's and run.json's names); a
     record without residual fields (plain PPO, or none) is no residual, and one written before
-    the filter and relative_to existed takes their defaults; bad values name the record's
-    field."""
-    for residual in (Residual(0.5), Residual(1.5, 0.002, "need"), NO_RESIDUAL):
+    the filter existed takes its default; bad values name the record's field."""
+    for residual in (Residual(0.5), Residual(1.5, 0.002), NO_RESIDUAL):
         assert Residual.from_record(residual.to_record()) == residual
     assert Residual.from_record(None) == Residual.from_record({}) == NO_RESIDUAL
     assert not NO_RESIDUAL.active and Residual(0.5).active
-    assert Residual.from_record({"residual_scale": 0.5}) == Residual(0.5, 0.0, "range")
-    for bad, match in (({"scale": 3.0}, r"residual_scale = 3"),
-                       ({"filter_tau": 0.01}, r"residual_filter_tau = 0.01 .*without a residual"),
-                       ({"scale": 0.5, "relative_to": "x"}, r"residual_relative_to = 'x'"),
-                       ({"relative_to": "need"}, r"residual_relative_to = 'need'")):  # fmt: skip
+    assert Residual.from_record({"residual_scale": 0.5}) == Residual(0.5, 0.0)
+    for bad, match in (
+        ({"scale": 3.0}, r"residual_scale = 3"),
+        ({"filter_tau": 0.01}, r"residual_filter_tau = 0.01 .*without a residual"),
+    ):
         with pytest.raises(ValueError, match=match):
             Residual(**bad)
 
@@ -178,37 +177,3 @@ def test_a_model_runs_only_in_the_action_semantics_it_was_trained_in(field, trai
     check_model_env(old, gym.make("Tendon2R-v0"), "model")
     with pytest.raises(ValueError, match=f"model was trained for another env: {field} = "):
         check_model_env(recorded(), gym.make("Tendon2R-v0", **{field: deployed}), "model")
-
-
-def test_residual_relative_to_need_scales_each_joint_by_its_torque_need():
-    """residual_relative_to "need": the residual on joint j is residual_scale * torque_need_j /
-    max_torque_j times the action (the arm's inverse-dynamics need over its torque range), on
-    each drawn arm; tension mode and unknown values are refused."""
-    from tendon2r_gym.simulation.actuation import TorqueToTension
-    from tendon2r_gym.simulation.mechanism import Mechanism
-
-    kwargs = {"preset": "generalist", "action_mode": "joint_torque"}
-    env = ResidualPDWrapper(gym.make("Tendon2R-v0", **kwargs), 1.5, residual_relative_to="need")
-    sent = []
-    inner_step = env.env.step
-    env.env.step = lambda command: sent.append(command) or inner_step(command)
-    scales, action = [], np.array([0.2, -0.3], dtype=np.float32)
-    for seed in (0, 1):
-        obs, info = env.reset(seed=seed)
-        need = env.unwrapped.arm.needs.torque_need
-        assert np.array_equal(info["torque_need_Nm"], need) and min(need) > 0
-        scale = (
-            1.5
-            * np.array(need)
-            / TorqueToTension(Mechanism.from_dict(info["mechanism"])).max_torque
-        )
-        base, _ = env.pd.predict(obs)
-        env.step(action)
-        np.testing.assert_allclose(sent[-1], np.clip(base + scale * action, -1, 1), rtol=1e-12)
-        assert 0 < scale.min() and scale.max() < 1.5
-        scales.append(scale)
-    assert not np.allclose(scales[0], scales[1])  # each arm its own
-    with pytest.raises(ValueError, match=r"residual_relative_to = 'need' .*'range' in action_mode"):
-        ResidualPDWrapper(gym.make("Tendon2R-v0"), 0.5, residual_relative_to="need")
-    with pytest.raises(ValueError, match=r"residual_relative_to = 'torque' .*one of"):
-        ResidualPDWrapper(gym.make("Tendon2R-v0"), 0.5, residual_relative_to="torque")

@@ -86,6 +86,8 @@ def test_auto_force_limit_fits_the_reference(tmp_path):
     assert u.mechanism.max_tendon_force == pytest.approx(FORCE_HEADROOM * need, rel=1e-2)
     _, info = env.reset(seed=0)
     assert info["force_need_N"] == need
+    torque_need = u.arm.needs.torque_need
+    assert tuple(info["torque_need_Nm"]) == torque_need and min(torque_need) > 0
     assert env.unwrapped.model.actuator_gainprm[0, 0] == u.mechanism.max_tendon_force
 
 

@@ -18,7 +18,9 @@ from test_training import _tiny, _train
 
 from tendon2r_gym.app.args import parse
 from tendon2r_gym.app.cli import TrainArgs, experiment, train_main
-from tendon2r_gym.policies.runs import RunFolder, saved_steps, training_record
+from tendon2r_gym.policies.bundle import bundled_model
+from tendon2r_gym.policies.residual import Residual
+from tendon2r_gym.policies.runs import REMOVED, RunFolder, saved_steps, stem_of, training_record
 from tendon2r_gym.training import Experiment, Hyperparams, manager
 from tendon2r_gym.training.records import RunWriteError
 
@@ -323,3 +325,78 @@ def test_the_plan_of_a_run_is_checked_for_every_seed_before_any_trains(tmp_path)
         exp.train(resume=True)
     assert _files(base) == before
     assert isinstance(manager.recorded_hyperparams(run0), Hyperparams)
+
+
+# -- records of removed training options ---------------------------------------------------------
+#: A value of each removed option (REMOVED) that a run trained with it on.
+ON = {
+    "zero_obs": ["error_log"],
+    "hide_from_critic": ["arm"],
+    "smoothing": {"temporal": 0.03, "spatial": 0.1, "sigma": 0.05, "samples": 512},
+    "residual_relative_to": "need",
+}
+
+
+def _recorded_off() -> dict:
+    """The removed options as the shipped generalist's run recorded them: each off."""
+    run = RunFolder(stem_of(bundled_model("generalist")).parent)
+    raw = yaml.safe_load(run.file("config.yaml").read_text())
+    return {key: raw[key] for key in REMOVED if key in raw}
+
+
+def _old_run(tmp_path, config=(), meta=()):
+    """seed_0 of a run of the entry ``default`` as a version with the removed options recorded
+    it (each off), with ``config`` and ``meta`` on top of its config.yaml and run.json."""
+    hp = Hyperparams.from_entry("default")
+    run = RunFolder(tmp_path / "run" / "seed_0")
+    off = _recorded_off()
+    run.write_config({**hp.to_dict(), **off, **dict(config)})
+    meta = {**hp.residual.to_record(), **off, "seed": 0, "env_kwargs": hp.env_kwargs,
+            "env_config": {}, **dict(meta)}  # fmt: skip
+    run.write_json("run.json", meta)
+    run.file("best_model.zip").write_bytes(b"model")
+    run.file("best_model_vecnormalize.pkl").write_bytes(b"stats")
+    return hp, run
+
+
+def test_each_removed_option_is_tested_on_and_recorded_off_by_a_shipped_run():
+    assert set(ON) == set(REMOVED) == set(_recorded_off())
+
+
+def test_a_record_holding_the_removed_options_off_loads_and_resumes_as_before(tmp_path):
+    """config.yaml and run.json of a run trained before the options went: read without them,
+    the run's hyperparameters are its entry's, it resumes with them and its residual is the
+    entry's."""
+    hp, run = _old_run(tmp_path)
+    assert set(REMOVED) <= set(yaml.safe_load(run.file("config.yaml").read_text()))
+    for read in (run.read_config(), run.read_json("run.json")):
+        assert not set(REMOVED) & set(read)
+    assert manager.recorded_hyperparams(run) == hp
+    assert Experiment.resume(run.path.parent).hyperparams == hp
+    assert Residual.from_record(training_record(run.file("best_model.zip"))) == hp.residual
+
+
+@pytest.mark.parametrize("key", sorted(ON))
+@pytest.mark.parametrize("name", ["config.yaml", "run.json"])
+def test_a_record_holding_a_removed_option_on_is_refused_naming_file_key_and_value(
+    tmp_path, key, name
+):
+    """A run that trained with a removed option on is not read as if it had been off: its
+    config.yaml (a resume) or run.json (a fine-tune from its model) is a ValueError naming the
+    record, the option and its value, and nothing is written."""
+    _, run = _old_run(tmp_path, **{"config" if name == "config.yaml" else "meta": {key: ON[key]}})
+    config, before = _tiny(tmp_path), _files(tmp_path)
+    where = re.escape(f"{run.file(name)}: {key} = {ON[key]!r} is invalid; allowed: ")
+    match = rf"^{where}.*no longer has the option {key} .*research/results/"
+    if name == "config.yaml":
+        with pytest.raises(ValueError, match=match):
+            run.read_config()
+        with pytest.raises(ValueError, match=match):
+            train_main(["--run-dir", str(run.path.parent), "--resume"])
+    else:
+        model = run.file("best_model.zip")
+        with pytest.raises(ValueError, match=match):
+            training_record(model)
+        with pytest.raises(ValueError, match=match):
+            _train(config, tmp_path / "tuned", "--init-from", str(model))
+    assert _files(tmp_path) == before

@@ -21,10 +21,9 @@ from tendon2r_gym.evaluation.metrics import beats, selection_rank, within_limits
 from tendon2r_gym.policies.bundle import bundle_meta, bundle_runs, bundled_model
 from tendon2r_gym.policies.learned import PPOPolicy
 from tendon2r_gym.policies.residual import residual_command
-from tendon2r_gym.policies.runs import RunFolder
+from tendon2r_gym.policies.runs import REMOVED, RunFolder
 from tendon2r_gym.presets import PPO_CONFIG
 from tendon2r_gym.training import Hyperparams
-from tendon2r_gym.training.hyperparams import scaled_schedule
 
 
 def _tiny(tmp_path, residual=0.5, steps=256, ppo=(), env=(), **extra):
@@ -199,18 +198,6 @@ def test_a_linear_schedule_as_rl_zoo3_writes_it_decays_over_the_run(tmp_path):
     assert model.policy.optimizer.param_groups[0]["lr"] < 1e-4, "the last update ran decayed"
 
 
-def test_a_decay_tail_holds_the_rate_then_decays_it_to_zero(tmp_path):
-    config = _tiny(tmp_path, ppo={"learning_rate": "lin_3e-4_after_0.6"})
-    run = tmp_path / "run"
-    _train(config, run)
-    model = PPO.load(RunFolder(run / "seed_0").file("last_model.zip"), device="cpu")
-    assert model.lr_schedule(1.0) == model.lr_schedule(0.41) == pytest.approx(3e-4)
-    assert model.lr_schedule(0.2) == pytest.approx(1.5e-4)
-    assert model.lr_schedule(0.0) == 0.0
-    assert model.policy.optimizer.param_groups[0]["lr"] < 1.5e-4, "the last update ran decayed"
-    assert scaled_schedule("lin_3e-4_after_0.6", 2) == "lin_0.0006_after_0.6"
-
-
 @pytest.mark.parametrize(
     ("override", "match"),
     [
@@ -227,12 +214,12 @@ def test_bad_train_arguments_are_rejected(override, match):
 @pytest.mark.parametrize(
     ("field", "value", "match"),
     [("total_timesteps", 0, "total_timesteps = 0"), ("eval_seeds", [], "eval_seeds"),
-     ("vec_env", "gpu", "vec_env = 'gpu'"), ("zero_obs", ["qq"], "did you mean 'q'"),
+     ("vec_env", "gpu", "vec_env = 'gpu'"),
      ("residual_scale", -1, "residual_scale = -1"), ("env_kwargs", {"ctrl_dt": -1}, "ctrl_dt"),
      ("ppo", {"learning_rate": "lin_x"}, "ppo.learning_rate = 'lin_x'"),
      ("ppo", {"clip_range": "cos_0.2"}, "ppo.clip_range = 'cos_0.2'"),
-     ("ppo", {"learning_rate": "lin_3e-4_after_1"}, r"fraction in \[0, 1\)"),
-     ("ppo", {"learning_rate": "lin_3e-4_after_x"}, "ppo.learning_rate = 'lin_3e-4_after_x'"),
+     ("ppo", {"learning_rate": "lin_3e-4_after_0.6"},  # no decay tail: rl_zoo3's lin_<v> only
+      r"ppo.learning_rate = 'lin_3e-4_after_0.6' is invalid; allowed: .* or 'lin_<positive"),
      ("ppo", {"learning_rate": -3e-4}, "ppo.learning_rate = -0.0003")],
 )  # fmt: skip
 def test_hyperparams_are_validated_once_naming_the_field(field, value, match):
@@ -240,6 +227,18 @@ def test_hyperparams_are_validated_once_naming_the_field(field, value, match):
         Hyperparams.from_entry("default").replace(**{field: value})
     with pytest.raises(ValueError, match="unknown key 'totl_timesteps'"):
         Hyperparams.from_dict({**Hyperparams.from_entry("default").to_dict(), "totl_timesteps": 1})
+
+
+@pytest.mark.parametrize("key", sorted(REMOVED))
+def test_a_removed_option_in_a_new_entry_is_an_unknown_key(tmp_path, key):
+    """A removed option (held off or on) is no key of a hyperparameter entry; only a run
+    record written before it went may hold it off (tendon2r_gym.policies.runs.REMOVED)."""
+    path = tmp_path / "mine.yaml"
+    path.write_text(yaml.safe_dump({"mine": {"base": "default", key: REMOVED[key]}}))
+    with pytest.raises(ValueError, match=rf"mine: unknown key '{key}'"):
+        Hyperparams.from_entry("mine", path)
+    with pytest.raises(ValueError, match=rf"unknown key '{key}'"):
+        Hyperparams.from_entry("default").replace(**{key: REMOVED[key]})
 
 
 def _start_training(tmp_path, seeds, steps, *more):
@@ -437,52 +436,6 @@ def test_a_filtered_residual_trains_deploys_and_fine_tunes_with_its_filter(tmp_p
         )
 
 
-def test_a_residual_relative_to_the_need_trains_deploys_and_fine_tunes_with_it(tmp_path):
-    """residual_relative_to "need": run.json records it; PPOPolicy.load scales the residual by
-    each joint's torque need over its torque range, the same in one env and in the vector
-    rollouts (one arm, several episodes); a fine-tune takes its source's scale, a plain entry
-    none; it needs a residual in joint-torque mode."""
-    from tendon2r_gym.evaluation.evaluator import evaluate
-    from tendon2r_gym.evaluation.rollout import rollout
-
-    env = {"action_mode": "joint_torque"}
-    _train(_tiny(tmp_path, residual=1.5, env=env, residual_relative_to="need"), tmp_path / "run")
-    run = RunFolder(tmp_path / "run" / "seed_0")
-    assert run.read_json("run.json")["residual_relative_to"] == "need"
-    kwargs = {"preset": "default", "episode_duration": 0.1, **env}
-    model_path = run.best.with_suffix(".zip")
-    single = gym.make("Tendon2R-v0", **kwargs)
-    policy = PPOPolicy.load(model_path, single)
-    config = single.unwrapped.config
-    scale = 1.5 * np.array(config.needs.torque_need) / policy.pd.actuation.max_torque
-    assert 0 < scale.min() and scale.max() < 1.5
-    obs, info = single.reset(seed=1)
-    policy.reset(info)
-    raw, _ = policy.model.predict(policy.vecnormalize.normalize_obs(obs), deterministic=True)
-    expected = np.clip(policy.pd.predict(obs)[0] + scale * np.clip(raw, -1, 1), -1, 1)
-    np.testing.assert_allclose(policy.predict(obs)[0], expected, atol=1e-6)
-    _, traces = evaluate("ppo", kwargs, [0, 1, 2], model_path)
-    alone = rollout(PPOPolicy.load(model_path, single), single, 2)
-    np.testing.assert_allclose(traces[2].action, alone.action, atol=1e-6)  # torch's batching
-    config_path = _tiny(tmp_path, steps=64, env=env, init_from=str(model_path))  # 0.5, range
-    _train(config_path, tmp_path / "tuned")
-    tuned = RunFolder(tmp_path / "tuned" / "seed_0").read_json("run.json")
-    assert (tuned["residual_relative_to"], tuned["residual_scale"]) == ("need", 1.5)
-    plain = _tiny(tmp_path, 0.0, steps=64, env=env, init_from=str(model_path))
-    with pytest.raises(ValueError, match=r"init_from = .*a plain model for this entry"):
-        _train(plain, tmp_path / "plain")
-    hp = Hyperparams.from_dict(yaml.safe_load(config_path.read_text())["tiny"])
-    with pytest.raises(ValueError, match=r"residual_relative_to = 'need' .*without a residual"):
-        hp.replace(residual_scale=0.0, init_from=None, residual_relative_to="need")
-    with pytest.raises(ValueError, match=r"residual_relative_to = 'need' .*action_mode 'tension'"):
-        hp.replace(
-            env_kwargs={"preset": "default"},
-            init_from=None,
-            residual_scale=1.5,
-            residual_relative_to="need",
-        )
-
-
 def test_a_fine_tune_starts_from_the_exploration_noise_it_asks_for(tmp_path):
     """init_log_std: the fine-tune starts from the source's weights with its exploration noise
     (the policy's log std) reset to that value; it needs init_from."""
@@ -544,12 +497,9 @@ def test_a_residual_trained_on_tuned_gains_is_scored_and_loaded_with_them(tmp_pa
     assert metrics["rms_deg"] == run.read_json("best_metrics.json")["rms_deg"]
 
 
-@pytest.mark.parametrize(("hidden", "who"), [("hide_from_actor", "actor"),
-                                             ("hide_from_critic", "critic")])  # fmt: skip
-def test_arm_features_for_one_network_only(tmp_path, hidden, who):
-    """hide_from_actor (privileged critic) / hide_from_critic: the hidden slice does not reach
-    that network (its output ignores it), the other still reads it, and the saved model
-    loads and acts."""
+def test_arm_features_for_the_critic_only(tmp_path):
+    """hide_from_actor (privileged critic): the hidden slice does not reach the actor (its
+    output ignores it), the critic still reads it, and the saved model loads and acts."""
     import torch
     from stable_baselines3 import PPO
 
@@ -559,7 +509,7 @@ def test_arm_features_for_one_network_only(tmp_path, hidden, who):
     cfg = yaml.safe_load(config.read_text())
     cfg["tiny"]["env_kwargs"] = {"preset": "generalist", "observe": ["arm"],
                                  "episode_duration": 0.1}  # fmt: skip
-    cfg["tiny"][hidden] = ["arm"]
+    cfg["tiny"]["hide_from_actor"] = ["arm"]
     config.write_text(yaml.safe_dump(cfg))
     _train(config, tmp_path / "run")
     run = RunFolder(tmp_path / "run" / "seed_0")
@@ -572,10 +522,9 @@ def test_arm_features_for_one_network_only(tmp_path, hidden, who):
     other[:, arm_slice(3, 2, 5)] += 1.0  # another arm
     actor = lambda o: policy.get_distribution(o).distribution.mean  # noqa: E731
     critic = policy.predict_values
-    hidden_net, seen_net = (actor, critic) if who == "actor" else (critic, actor)
     with torch.no_grad():
-        assert torch.equal(hidden_net(obs), hidden_net(other))
-        assert not torch.equal(seen_net(obs), seen_net(other))
+        assert torch.equal(actor(obs), actor(other))
+        assert not torch.equal(critic(obs), critic(other))
     env = gym.make("Tendon2R-v0", **run.read_json("run.json")["env_kwargs"])
     PPOPolicy.load(run.best.with_suffix(".zip"), env).predict(env.reset(seed=0)[0])
     with pytest.raises(ValueError, match="hide_from_actor: unknown key 'armm'"):

@@ -261,22 +261,3 @@ def test_training_staggers_the_first_episodes():
         *_, trunc, _ = envs.step(np.zeros((4, 2)))
         lengths[trunc & (lengths == 0)] = step
     assert sorted(lengths.tolist()) == [2, 4, 6, 8]
-
-
-def test_sb3_adapter_scales_the_residual_to_each_arms_need_as_the_wrapper_does():
-    """residual_relative_to "need": on random arms, the native vector env's batched residual
-    has the single env's per-joint scale, residual_scale * torque_need / max_torque of each
-    slot's arm, through every autoreset to a new arm."""
-    from stable_baselines3.common.env_util import make_vec_env
-
-    from tendon2r_gym.policies.residual import Residual, make_training_env
-    from tendon2r_gym.training.vector_env_sb3 import SB3VecEnv
-
-    kwargs = {"preset": "generalist", "action_mode": "joint_torque", "episode_duration": 0.008}
-    need = Residual(1.5, relative_to="need")
-    native = SB3VecEnv(Tendon2RVectorEnv(2, autoreset_mode="SameStep", **kwargs), need)
-    dummy = make_vec_env(make_training_env, n_envs=2,
-                         env_kwargs={"env_kwargs": kwargs, "residual": need})  # fmt: skip
-    ranged = SB3VecEnv(Tendon2RVectorEnv(2, autoreset_mode="SameStep", **kwargs), Residual(1.5))
-    ends, differs = _step_alike(native, dummy, ranged, 0.5)
-    assert ends >= 4 and differs  # new arms, and the scale changed the commands

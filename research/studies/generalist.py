@@ -67,39 +67,33 @@ from tendon2r_gym.presets import load_yaml, preset_path
 from tendon2r_gym.task.arms import GEOMETRY, draw_arms
 from tendon2r_gym.task.observation import OPTIONAL, layout_mask
 from tendon2r_gym.task.rewards import REWARD_SCALES
-from tendon2r_gym.training.hyperparams import LINEAR, Smoothing, linear_schedule
+from tendon2r_gym.training.hyperparams import LINEAR, linear_schedule
 from tendon2r_gym.validation import invalid
 
 #: The generalist bundles (configs/ppo.yaml entries of the same names: the residual, plain PPO, the
 #: residual's entry on pull-only cables with action-rate weight 10 and action_rate_need), then the
 #: ablations (what each changes is in its entry's comment; the ablation table reads its action mode,
 #: network, learning rate, reward, arm features and evaluation episodes from its run record): the
-#: residual generalist with a decay tail on its learning rate (generalist_decay_tail), the residual
-#: generalist without the reference's feed-forward (generalist_action_units, the generalist before
-#: observe feedforward), and that observing its errors in radians (generalist_rad, the generalist
-#: before errors in action units); that with a decaying learning rate; with its residual relative to
-#: each joint's need; trained with CAPS's smoothness terms; with its action rate also charged in
-#: multiples of the task's; at its constant rate and relative to the range, with action-rate weight
-#: 1, that on the registered reward's sigma (1 deg), and that without its error rate and force
-#: limit; that without its residual filter; the plain generalist observing its errors in radians
-#: without the feed-forward (generalist_scratch_rad, the plain generalist before them), and that
-#: blind to the arm and blind to its force limit; the unfiltered residual generalist blind to the
-#: arm; an earlier generalist (tension mode, blind, 64 x 64) and it with the arm's features; the
-#: "log" reward at 3M steps, and on that reward and budget the arm's features seen by both networks,
-#: by the actor only, by the critic only (privileged); the multiscale reward at 3M steps with two
-#: weights of the action-rate term; on the pull-only cables that without action_rate_need, the
-#: generalist's own entry at its action-rate weight (3), the earlier pull-only generalist
-#: (generalist_tension's entry in joint-torque mode with a 2 ms residual filter, blind to the arm)
-#: and that in tension mode without the filter (generalist_tension's reward with a 3x heavier
-#: action-rate term).
+#: residual generalist without the reference's feed-forward (generalist_action_units, the generalist
+#: before observe feedforward), and that observing its errors in radians (generalist_rad, the
+#: generalist before errors in action units); that with a decaying learning rate; with its action
+#: rate also charged in multiples of the task's; at its constant rate with action-rate weight 1,
+#: that on the registered reward's sigma (1 deg), and that without its error rate and force limit;
+#: that without its residual filter; the plain generalist observing its errors in radians without
+#: the feed-forward (generalist_scratch_rad, the plain generalist before them), and that blind to
+#: the arm and blind to its force limit; the unfiltered residual generalist blind to the arm; an
+#: earlier generalist (tension mode, blind, 64 x 64) and it with the arm's features; the "log"
+#: reward at 3M steps, and on that reward and budget the arm's features seen by both networks and by
+#: the critic only (privileged); the multiscale reward at 3M steps with two weights of the
+#: action-rate term; on the pull-only cables that without action_rate_need, the generalist's own
+#: entry at its action-rate weight (3), the earlier pull-only generalist (generalist_tension's entry
+#: in joint-torque mode with a 2 ms residual filter, blind to the arm) and that in tension mode
+#: without the filter (generalist_tension's reward with a 3x heavier action-rate term).
 BUNDLES = GENERALISTS
 ABLATIONS = (
-    "generalist_decay_tail",
     "generalist_action_units",
     "generalist_rad",
     "generalist_lin_lr",
-    "generalist_need",
-    "generalist_caps",
     "generalist_rate_need",
     "generalist_rate1",
     "generalist_coarse",
@@ -113,7 +107,6 @@ ABLATIONS = (
     "generalist_observe_arm",
     "generalist_log",
     "generalist_arm",
-    "generalist_actor_arm",
     "generalist_privileged",
     "generalist_multiscale",
     "generalist_multiscale_smooth",
@@ -293,15 +286,14 @@ def ablation(bundles: list[str]) -> dict[str, Any]:
         out[b]["eval_episodes"] = len(config["eval_seeds"])
         out[b]["learning_rate"] = config["ppo"]["learning_rate"]
         out[b]["residual"] = _residual(config)
-        out[b]["smoothing"] = _smoothing(config)
     return out
 
 
 def arm_seen_by(model_path: Path) -> str:
     """Returns which networks of a bundled model saw the drawn arm's features, as its run
-    recorded them: its observation layout (observe arm) and the masks its hide_from_actor and
-    hide_from_critic lists give over the ``arm`` slice (observation.layout_mask, as training
-    applies them: a network that sees any of the arm's fields saw the arm)."""
+    recorded them: its observation layout (observe arm) and the mask its hide_from_actor list
+    gives the actor over the ``arm`` slice (observation.layout_mask, as training applies it:
+    an actor that sees any of the arm's fields saw the arm); the critic sees them all."""
     recorded = training_record(model_path)["env_config"]
     if not observes_arm(recorded):
         return "nobody (blind)"
@@ -309,12 +301,8 @@ def arm_seen_by(model_path: Path) -> str:
     fields = feature_ranges(recorded).names
     hp = RunFolder(stem_of(model_path).parent).read_config()
     n_arm = layout[-1][1]  # the arm slice closes the layout
-    actor, critic = (
-        bool(layout_mask(layout, hp.get(f"hide_from_{who}") or [], fields)[-n_arm:].any())
-        for who in ("actor", "critic")
-    )
-    return {(True, True): "actor and critic", (True, False): "actor only",
-            (False, True): "critic only"}.get((actor, critic), "nobody (hidden)")  # fmt: skip
+    actor = bool(layout_mask(layout, hp.get("hide_from_actor") or [], fields)[-n_arm:].any())
+    return "actor and critic" if actor else "critic only"
 
 
 def optional_entries(model_path: Path) -> str:
@@ -521,17 +509,13 @@ def write(result: dict[str, Any], out: Path) -> None:
         "is its primary seed, fixed before training). The other columns are ablations (one "
         "seed each; configs/ppo.yaml's comment on each entry says "
         "what it changes, and the ablation table below gives each one's action mode, network, "
-        "learning rate, policy smoothing, reward, arm features, evaluation episodes and "
+        "learning rate, reward, arm features, evaluation episodes and "
         "training steps): "
-        "generalist_decay_tail, the generalist with its learning rate held for 60% of the "
-        "run and then decaying linearly to 0; "
         "generalist_action_units, the generalist without the reference's feed-forward (the "
         "generalist before it observed feedforward); "
         "generalist_rad, that observing its error and error rate in radians (the "
         "generalist before error_units action); "
         "generalist_lin_lr, generalist_rad with its learning rate decaying linearly to 0; "
-        "generalist_need, generalist_rad with its residual relative to each joint's need; "
-        "generalist_caps, generalist_rad trained with CAPS's smoothness terms; "
         "generalist_rate_need, generalist_rad with its action rate also charged in multiples "
         "of the rate its arm's reference needs (action_rate_need); "
         "generalist_rate1, generalist_rad with action-rate weight 1; generalist_coarse, that "
@@ -545,7 +529,7 @@ def write(result: dict[str, Any], out: Path) -> None:
         "generalist_blind, generalist_unfiltered without them; generalist_tension, an "
         "earlier generalist (tension mode, blind, 64 x 64), and generalist_observe_arm, it "
         "with the arm's features; generalist_log and "
-        "on its reward and budget generalist_arm, generalist_actor_arm and "
+        "on its reward and budget generalist_arm and "
         "generalist_privileged; generalist_multiscale and generalist_multiscale_smooth; "
         "generalist_pull_only_rate10, generalist_pull_only without the action_rate_need "
         "term (on 10M steps); generalist_pull_only_full, that at the generalist's action-rate "
@@ -589,17 +573,17 @@ def write(result: dict[str, Any], out: Path) -> None:
             "PD on them). The summary above gives each on the unseen arms, zero-shot.",
             "",
             "| generalist | arm features seen by | also observes | action mode | residual "
-            "| residual filter | network | learning rate | policy smoothing | reward (tracking "
-            "form, changed weights) | evaluation episodes | RMS A / B (deg) | PD A / B (deg) | "
-            "RMS tension rate (N/s) | steps | wall time (s) |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+            "| residual filter | network | learning rate | reward (tracking form, changed "
+            "weights) | evaluation episodes | RMS A / B (deg) | PD A / B (deg) | RMS tension rate "
+            "(N/s) | steps | wall time (s) |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for b, a in result["ablation"].items():
             lines.append(
                 f"| {b} | {a.get('arm_seen_by', '?')} | {a.get('observes', '?')} | "
                 f"{a.get('action_mode', '?')} | {a.get('residual', '?')} | "
                 f"{_filter(a.get('residual_filter_tau', 0.0))} | {a.get('network', '?')} | "
-                f"{_rate(a.get('learning_rate', '?'))} | {a.get('smoothing', '?')} | "
+                f"{_rate(a.get('learning_rate', '?'))} | "
                 f"{a.get('reward', '?')} | "
                 f"{a.get('eval_episodes', '?')} | "
                 f"{fmt(a['best_rms_deg'])} | {fmt(a['pd_eval_rms_deg'])} | "
@@ -673,25 +657,12 @@ def transient_lines(arms: dict[str, Any], bundles: list[str]) -> list[str]:
 
 def _residual(config: dict[str, Any]) -> str:
     """Returns a run's residual (its recorded hyperparameters) as the ablation table shows it:
-    its scale and what the scale is relative to (tendon2r_gym.policies.learned: each command's
-    range,
-    a tendon's in tension mode, a joint's in joint-torque mode, or each joint's need), or none
-    (plain PPO)."""
+    its scale, a fraction of each command's range (tendon2r_gym.policies.residual: a tendon's in
+    tension mode, a joint's in joint-torque mode), or none (plain PPO)."""
     residual = Residual.from_record(config)
     if not residual.active:
         return "none (plain PPO)"
-    if residual.relative_to == "need":
-        return f"{residual.scale:g} x each joint's need"
     return f"{residual.scale:g} x the command range"
-
-
-def _smoothing(config: dict[str, Any]) -> str:
-    """Returns a run's policy smoothing (tendon2r_gym.training.smoothing; its recorded
-    hyperparameters, where a run before it has none) as the ablation table shows it."""
-    s = Smoothing.from_mapping(config.get("smoothing"))
-    if not s.active:
-        return "none"
-    return f"CAPS: temporal {s.temporal:g}, spatial {s.spatial:g} (sigma {s.sigma:g})"
 
 
 def _filter(tau: float) -> str:
@@ -701,12 +672,9 @@ def _filter(tau: float) -> str:
 
 def _rate(learning_rate: float | str) -> str:
     """Returns a learning rate as the ablation table shows it: a number, or ``lin_<v>``
-    (rl_zoo3's notation) as a linear decay from v to 0, ``lin_<v>_after_<f>`` as v then a
-    linear decay to 0 after that fraction of the run."""
+    (rl_zoo3's notation) as a linear decay from v to 0."""
     if isinstance(learning_rate, str) and learning_rate.startswith(LINEAR):
-        start, after = linear_schedule(learning_rate)
-        tail = f" after {after:.0%} of the run" if after else ""
-        return f"{start:g}, linear to 0{tail}"
+        return f"{linear_schedule(learning_rate):g}, linear to 0"
     return f"{learning_rate:g}" if isinstance(learning_rate, float | int) else learning_rate
 
 

@@ -32,15 +32,6 @@ from tendon2r_gym.app.args import arg, parse
 #: ``default_scratch`` unless their hyperparameter changes name another ``entry``.
 ROWS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
     "defaults": ("the new defaults (registered env, default_scratch)", {}, {}),
-    "landed_all": (
-        "all landed choices: quadratic normalized reward, log_std -1.5, reset noise 0.001, no "
-        "log-scaled error",
-        {"tracking_form": "quadratic", "reset_noise_scale": 0.001,
-         "reward_scales": {"tracking": 1.0, "ctrl": 0.01, "divergence": 1000.0}},
-        {"normalize": {"norm_reward": True}, "log_std_init": -1.5, "zero_obs": ["error_log"]},
-    ),
-    "no_error_log": ("observation without the log-scaled error (zeroed)", {},
-                     {"zero_obs": ["error_log"]}),
     "landed_reward": (
         "landed reward: quadratic in deg^2, scales 1 / 0.01 / 1000, VecNormalize rewards",
         {
@@ -137,8 +128,6 @@ def row_config(name: str, steps: int) -> Hyperparams:
             changes["policy_kwargs"][key] = value
         elif key == "normalize":
             changes["normalize"].update(value)
-        elif key == "zero_obs":
-            changes["zero_obs"] = value
         else:
             changes["ppo"][key] = value
     return base.replace(**changes)

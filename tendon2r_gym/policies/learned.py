@@ -77,9 +77,8 @@ class PPOPolicy:
     acting on raw observations of the unwrapped env: normalizes them with VecNormalize's own
     ``normalize_obs``, and adds PD if it was residual: the PD of its training env's gains
     (``pd_gains``), whatever the env's are, except gains drawn in training, which are the
-    env's (:func:`deployed_gains`), and the residual through the filter it trained with
-    (``residual_filter_tau``), at the scale it trained with (``residual_relative_to``: per
-    joint relative to each episode's torque need, from the reset info)."""
+    env's (:func:`deployed_gains`), and the residual at the scale and through the filter it
+    trained with (``residual_scale``, ``residual_filter_tau``)."""
 
     def __init__(
         self,
@@ -105,13 +104,10 @@ class PPOPolicy:
             from tendon2r_gym.policies.history import FrameHistory
 
             self._history = FrameHistory(frame_stack, frame_stride)
-        self.pd, self.filter, self._scale = None, None, residual.scale
+        self.pd, self.filter = None, None
         if residual.active and env is not None:  # the PD it was trained on: its gains
-            config = env.unwrapped.config
-            residual.check_action_mode(config.action_mode)
             self.pd = PDPolicy.from_env(env, gains=gains_of(pd_gains))
-            self.filter = ResidualFilter(residual.filter_tau, config.ctrl_dt)
-            self._scale = residual.scales(config.needs.torque_need, self.pd)
+            self.filter = ResidualFilter(residual.filter_tau, env.unwrapped.config.ctrl_dt)
 
     @classmethod
     def load(cls, model_path: str | Path, env: gym.Env) -> PPOPolicy:
@@ -139,7 +135,6 @@ class PPOPolicy:
             self._history.clear()
         if self.pd is not None:
             self.pd.reset(info)
-            self._scale = self.residual.scales(info["torque_need_Nm"], self.pd)
             self.filter.clear()
 
     def predict(
@@ -161,7 +156,7 @@ class PPOPolicy:
         if self.pd is None:
             return np.clip(action, -1.0, 1.0).astype(np.float32), state
         base, _ = self.pd.predict(obs)
-        command = residual_command(base, action, self._scale, self.filter, episode_start)
+        command = residual_command(base, action, self.residual.scale, self.filter, episode_start)
         return command.astype(np.float32), state
 
 

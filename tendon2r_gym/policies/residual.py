@@ -6,17 +6,9 @@ command = clip(PD(obs) + residual_scale * a, -1, 1).  The agent starts at PD's p
 feed-forward.  With ``residual_scale = 0`` the agent drives the motors directly ("from
 scratch").  With ``residual_filter_tau > 0`` the residual passes a first-order low-pass
 (:class:`ResidualFilter`) before it is added, and PD's own command does not: a filter on the
-whole command would put its lag inside PD's loop.
-
-``residual_relative_to`` sets what ``residual_scale`` is a fraction of, per joint:
-
-- ``range`` (default): the joint's whole command range, the same on every arm;
-- ``need`` (joint-torque mode only): the joint's torque need, the peak torque that inverse
-  dynamics of the arm's reference needs (EnvConfig.needs.torque_need), over the joint's torque
-  range (:attr:`TorqueToTension.max_torque`): residual_scale * need_j / max_torque_j.  On an
-  arm whose joint needs a small part of its range, a residual relative to the range can
-  move that joint far more than its task does; relative to the need, the residual's reach
-  follows the task on every arm.
+whole command would put its lag inside PD's loop.  ``residual_scale`` is a fraction of each
+command's whole range (a tendon's in tension mode, a joint's in joint-torque mode), the same on
+every arm.
 """
 
 from __future__ import annotations
@@ -30,25 +22,9 @@ import numpy as np
 from tendon2r_gym.envs.env_config import low_pass_alpha
 from tendon2r_gym.envs.registration import make as make_env
 from tendon2r_gym.policies.baselines import PDPolicy
-from tendon2r_gym.task import observation
 from tendon2r_gym.validation import invalid, number, real_array
 
-#: What a residual_scale is a fraction of (module docstring).
-RESIDUAL_RELATIVE_TO = ("range", "need")
-
-
-def residual_scales(scale: float, relative_to: str, torque_need: Any, pd: PDPolicy) -> Any:
-    """Returns the residual's scale: ``scale``, or relative to the need (module docstring)
-    ``scale * torque_need / max_torque`` per joint: (2,) for one arm, (N, 2) for N
-    (``torque_need``: each episode's EnvConfig.needs.torque_need, as reset infos give it, (2,) or
-    (N, 2), read only relative to the need; max_torque: that of the arms ``pd`` follows, one
-    or N)."""
-    if relative_to == "range":
-        return scale
-    return scale * np.asarray(torque_need, dtype=float) / pd.actuation.max_torque
-
-
-#: The largest residual_scale (a fraction of the command range, or of the need).
+#: The largest residual_scale (a fraction of the command range).
 MAX_RESIDUAL_SCALE = 2.0
 
 
@@ -59,14 +35,12 @@ MAX_RESIDUAL_FILTER_TAU = 1.0
 @dataclasses.dataclass(frozen=True)
 class Residual:
     """How a policy's action joins PD's command (module docstring): ``scale`` (0: no PD, the
-    action is the command; > 0: a residual on PD), the residual's low-pass ``filter_tau`` (s)
-    and what the scale is ``relative_to``.  An entry, a run record and a deployed policy
-    carry these three as ``residual_scale``, ``residual_filter_tau`` and
-    ``residual_relative_to`` (:meth:`to_record`, :meth:`from_record`); errors name those."""
+    action is the command; > 0: a residual on PD) and the residual's low-pass ``filter_tau``
+    (s).  An entry, a run record and a deployed policy carry these two as ``residual_scale``
+    and ``residual_filter_tau`` (:meth:`to_record`, :meth:`from_record`); errors name those."""
 
     scale: float = 0.0
     filter_tau: float = 0.0
-    relative_to: str = "range"
 
     def __post_init__(self) -> None:
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
@@ -75,51 +49,25 @@ class Residual:
         if tau > 0 and self.scale == 0:
             raise invalid("residual_filter_tau", tau, "0 without a residual (residual_scale 0)")
         set_("filter_tau", tau)
-        if self.relative_to not in RESIDUAL_RELATIVE_TO:
-            raise invalid(
-                "residual_relative_to", self.relative_to, f"one of {list(RESIDUAL_RELATIVE_TO)}"
-            )
-        if self.relative_to != "range" and self.scale == 0:
-            raise invalid("residual_relative_to", self.relative_to, "'range' without a residual")
 
     @property
     def active(self) -> bool:
         """Whether the action is a residual on PD (scale > 0)."""
         return self.scale > 0
 
-    def check_action_mode(self, action_mode: str) -> None:
-        """Raises if the residual cannot act in an env of ``action_mode``: ``need`` is a
-        joint's torque need, so only joint-torque actions are relative to it."""
-        if self.relative_to == "need" and action_mode != "joint_torque":
-            raise invalid(
-                "residual_relative_to",
-                self.relative_to,
-                f"'range' in action_mode {action_mode!r} ('need' "
-                "only with action_mode 'joint_torque', whose actions are joint torques)",
-            )
-
     def to_record(self) -> dict[str, Any]:
         """Returns the fields under the names an entry and a run record give them."""
-        return {
-            "residual_scale": self.scale,
-            "residual_filter_tau": self.filter_tau,
-            "residual_relative_to": self.relative_to,
-        }
+        return {"residual_scale": self.scale, "residual_filter_tau": self.filter_tau}
 
     @classmethod
     def from_record(cls, record: dict[str, Any] | None) -> Residual:
-        """Returns the residual an entry or a model's run record (run.json) gives; a field
-        recorded before it existed, or no record, takes its default (no filter, ``range``)."""
+        """Returns the residual an entry or a model's run record (run.json, as
+        tendon2r_gym.policies.runs reads it) gives; a field recorded before it existed, or no
+        record, takes its default (no filter)."""
         record = record or {}
         return cls(
-            float(record.get("residual_scale", 0.0)),
-            float(record.get("residual_filter_tau", 0.0)),
-            str(record.get("residual_relative_to", "range")),
+            float(record.get("residual_scale", 0.0)), float(record.get("residual_filter_tau", 0.0))
         )
-
-    def scales(self, torque_need: Any, pd: PDPolicy) -> Any:
-        """Returns the residual's scale on the arms ``pd`` follows: :func:`residual_scales`."""
-        return residual_scales(self.scale, self.relative_to, torque_need, pd)
 
 
 #: No residual: the policy's action is the command (plain PPO).
@@ -130,38 +78,27 @@ class ResidualPDWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """The agent's action is a residual on the PD command (see module docstring)."""
 
     def __init__(
-        self,
-        env: gym.Env,
-        residual_scale: float,
-        residual_filter_tau: float = 0.0,
-        residual_relative_to: str = "range",
+        self, env: gym.Env, residual_scale: float, residual_filter_tau: float = 0.0
     ) -> None:
         gym.utils.RecordConstructorArgs.__init__(
-            self,
-            residual_scale=residual_scale,
-            residual_filter_tau=residual_filter_tau,
-            residual_relative_to=residual_relative_to,
+            self, residual_scale=residual_scale, residual_filter_tau=residual_filter_tau
         )
         super().__init__(env)
         number("residual_scale", residual_scale, 0.0, MAX_RESIDUAL_SCALE, lo_open=True)
-        self.residual = Residual(residual_scale, residual_filter_tau, residual_relative_to)
-        config = env.unwrapped.config
-        self.residual.check_action_mode(config.action_mode)
+        self.residual = Residual(residual_scale, residual_filter_tau)
         self.pd = PDPolicy.from_env(env)
-        self.filter = ResidualFilter(residual_filter_tau, config.ctrl_dt)
+        self.filter = ResidualFilter(residual_filter_tau, env.unwrapped.config.ctrl_dt)
         self._obs: np.ndarray | None = None
-        self._scale = self.residual.scales(config.needs.torque_need, self.pd)
 
     def reset(self, **kwargs: Any):
         self._obs, info = self.env.reset(**kwargs)
         self.pd.reset(info)  # follows the episode's arm, if the env draws arms
-        self._scale = self.residual.scales(info["torque_need_Nm"], self.pd)
         self.filter.clear()
         return self._obs, info
 
     def step(self, action: np.ndarray):
         base, _ = self.pd.predict(self._obs)
-        command = residual_command(base, action, self._scale, self.filter)
+        command = residual_command(base, action, self.residual.scale, self.filter)
         self._obs, reward, terminated, truncated, info = self.env.step(command)
         return self._obs, reward, terminated, truncated, info
 
@@ -197,14 +134,13 @@ class ResidualFilter:
 def residual_command(
     base: np.ndarray,
     action: np.ndarray,
-    scale: Any,
+    scale: float,
     filter_: ResidualFilter | None = None,
     start: Any = None,
 ) -> np.ndarray:
-    """Returns clip(base + r, -1, 1) with r = scale * clip(action, -1, 1) (``scale``: a number,
-    or one per joint, :func:`residual_scales`; through ``filter_`` if given; ``start`` as
-    :meth:`ResidualFilter.__call__` takes it): the PD command ``base`` plus the agent's
-    residual.  Training (ResidualPDWrapper, the native vector env) and
+    """Returns clip(base + r, -1, 1) with r = scale * clip(action, -1, 1) (through ``filter_``
+    if given; ``start`` as :meth:`ResidualFilter.__call__` takes it): the PD command ``base``
+    plus the agent's residual.  Training (ResidualPDWrapper, the native vector env) and
     deployment (PPOPolicy) share it, and it refuses an action of the wrong shape or a
     non-finite one."""
     shape = np.shape(base)
@@ -215,17 +151,10 @@ def residual_command(
     return np.clip(base + residual, -1.0, 1.0)
 
 
-def make_training_env(
-    env_kwargs: dict[str, Any], residual: Residual = NO_RESIDUAL, zero_obs: tuple[str, ...] = ()
-) -> gym.Env:
+def make_training_env(env_kwargs: dict[str, Any], residual: Residual = NO_RESIDUAL) -> gym.Env:
     """Returns Tendon2R-v0 with the given kwargs, wrapped for residual learning if
-    ``residual`` is active.  ``zero_obs`` names observation entries
-    (tendon2r_gym.task.observation) to blank out, for ablations: a constant zero carries no
-    information."""
+    ``residual`` is active."""
     env = make_env(**env_kwargs)
-    if zero_obs:
-        keep = observation.mask(zero_obs, env.observation_space.shape[0])
-        env = gym.wrappers.TransformObservation(env, lambda o: o * keep, env.observation_space)
     if not residual.active:
         return env
     return ResidualPDWrapper(env, **residual.to_record())

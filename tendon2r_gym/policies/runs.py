@@ -20,7 +20,9 @@ A training run writes, in ``runs/<name>/seed_<n>/``::
 
 A bundle (tendon2r_gym.policies.bundle) copies the small files of a run: :data:`BUNDLE_FILES`.  Each
 record is checked when it is read (:func:`read_record`): a corrupt one is a ValueError naming
-the file, what is wrong with it and how to recover.
+the file, what is wrong with it and how to recover.  A training option this version no longer
+has (:data:`REMOVED`) is dropped from a record that holds it off, and refused in one that
+holds it on.
 """
 
 from __future__ import annotations
@@ -33,6 +35,8 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+
+from tendon2r_gym.validation import invalid
 
 RUN_META = "run.json"
 CONFIG = "config.yaml"
@@ -90,6 +94,40 @@ RECOVERY = {
 }
 
 
+#: The training options this version no longer has (only ablations that lost used them; the
+#: ablations' results stay in research/results/), each with the value a run records while it
+#: is off; a mapping is off when it holds these values (its other keys unused while off).
+#: Records of runs (config.yaml, run.json) hold them: :func:`without_removed`.
+REMOVED: dict[str, Any] = {
+    "zero_obs": [],
+    "hide_from_critic": [],
+    "smoothing": {"temporal": 0.0, "spatial": 0.0},
+    "residual_relative_to": "range",
+}
+
+
+def without_removed(data: dict[str, Any], path: Path) -> dict[str, Any]:
+    """Returns a run record's ``data`` without the options of :data:`REMOVED`, each recorded
+    off (the run trained without it, as this version trains); raises naming the file, the key
+    and the value if one is recorded on."""
+    out = dict(data)
+    for key, off in REMOVED.items():
+        if key in out and not _is_off(value := out.pop(key), off):
+            raise invalid(
+                f"{path}: {key}",
+                value,
+                f"{off!r} (off): this version no longer has the option {key} (tendon2r_gym 0.2 "
+                "has it; the results of the ablations that used it stay in research/results/)",
+            )
+    return out
+
+
+def _is_off(value: Any, off: Any) -> bool:
+    if isinstance(off, dict):
+        return isinstance(value, dict) and all(value.get(k) == v for k, v in off.items())
+    return value == off
+
+
 def corrupt(path: Path, what: str) -> ValueError:
     """Returns the ValueError of a corrupt run file: ``<path> is corrupt: <what>; to recover,
     <how>`` (:data:`RECOVERY`), on one line."""
@@ -100,7 +138,7 @@ def corrupt(path: Path, what: str) -> ValueError:
 def read_record(path: Path) -> Any:
     """Returns the data of a run record (JSON, or YAML for config.yaml), or None if there is
     no such file; raises :func:`corrupt` if it is empty, does not parse, or is not shaped as
-    :data:`SHAPES` says."""
+    :data:`SHAPES` says.  The hyperparameters and run.json come :func:`without_removed`."""
     if not path.is_file():
         return None
     try:
@@ -116,7 +154,7 @@ def read_record(path: Path) -> Any:
         raise corrupt(path, f"it is not valid {'YAML' if yaml_file else 'JSON'} ({e})") from None
     if (problem := _mismatch(data, SHAPES.get(path.name))) is not None:
         raise corrupt(path, problem)
-    return data
+    return without_removed(data, path) if path.name in (CONFIG, RUN_META) else data
 
 
 def _mismatch(data: Any, shape: Any, where: str = "") -> str | None:

@@ -1,10 +1,10 @@
-"""An SB3 actor-critic whose actor and critic see different parts of the observation.
+"""An SB3 actor-critic whose critic sees parts of the observation that its actor does not.
 
 ``hide_from_actor: [arm]`` gives the critic privileged information that the deployed actor
 never needs (asymmetric actor-critic: the critic sees the drawn arm, the actor must cope with
-any arm); ``hide_from_critic: [arm]`` is the opposite ablation.  The hidden entries are zero
-for that network (after VecNormalize, a constant zero carries no information), so both keep
-the observation's shape and SB3 saves and loads the policy like MlpPolicy.
+any arm).  The hidden entries are zero for the actor (after VecNormalize, a constant zero
+carries no information), so both networks keep the observation's shape and SB3 saves and loads
+the policy like MlpPolicy.
 """
 
 from __future__ import annotations
@@ -30,13 +30,19 @@ class MaskedFlatten(BaseFeaturesExtractor):
 
 
 class SplitViewPolicy(ActorCriticPolicy):
-    """ActorCriticPolicy with separate feature extractors: the actor's keeps ``actor_keep``,
-    the critic's ``critic_keep`` (0/1 per observation entry)."""
+    """ActorCriticPolicy with separate feature extractors: the actor's keeps ``actor_keep``
+    (0/1 per observation entry), the critic's every entry.  ``critic_keep`` (default: all
+    ones) is the critic's mask as the model files of earlier versions record it."""
 
     def __init__(
-        self, *args: Any, actor_keep: list[float], critic_keep: list[float], **kwargs: Any
+        self,
+        *args: Any,
+        actor_keep: list[float],
+        critic_keep: list[float] | None = None,
+        **kwargs: Any,
     ) -> None:
-        self.actor_keep, self.critic_keep = list(actor_keep), list(critic_keep)
+        self.actor_keep = list(actor_keep)
+        self.critic_keep = list(critic_keep or [1.0] * len(self.actor_keep))
         self._next_keep = [self.actor_keep, self.critic_keep]  # SB3 builds the actor's first
         kwargs.update(share_features_extractor=False, features_extractor_class=MaskedFlatten)
         super().__init__(*args, **kwargs)

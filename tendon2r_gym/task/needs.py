@@ -32,8 +32,8 @@ class Needs:
     #: Peak tendon force (N) that inverse dynamics of the references needs (the pretension, if
     #: more, for pull-only tendons).
     force_need: float
-    #: Peak torque (N m) of each joint that inverse dynamics of the references needs: the
-    #: scale of a residual relative to the arm's need (``residual_relative_to: need``).
+    #: Peak torque (N m) of each joint that inverse dynamics of the references needs (the
+    #: reset info's ``torque_need_Nm``).
     torque_need: tuple[float, float]
     #: Peak rate (N m / s) of each joint's torque that inverse dynamics of the references
     #: needs: the scale of the ``action_rate_need`` reward term (Task.rate_need_inverse).

@@ -206,15 +206,6 @@ def layout(
     return out + [["arm", n_arm]] if n_arm else out
 
 
-def mask(zeroed: Iterable[str], n_obs: int) -> np.ndarray:
-    """Returns a multiplier of length ``n_obs`` that blanks the named fixed entries (for
-    ablations: a constant zero carries no information)."""
-    out = np.ones(n_obs)
-    for name in zeroed:
-        out[SLICES[name]] = 0.0
-    return out
-
-
 def table(preview_steps_name: str = "P") -> str:
     """Returns the docstring table of the layout (the env's docstring embeds it)."""
     rows = ["| index | observation | unit |", "|-------|-------------|------|"]
@@ -254,8 +245,8 @@ def table(preview_steps_name: str = "P") -> str:
 
 def arm_entry(field: str) -> str:
     """Returns the name of one drawn field's entry of the ``arm`` slice, ``arm.<field>``:
-    hide_from_actor and hide_from_critic take it as well as a layout name (e.g. the model's
-    errors for the critic only, the fields a user knows for both)."""
+    hide_from_actor takes it as well as a layout name (e.g. the model's errors for the critic
+    only, the fields a user knows for both)."""
     return f"arm.{field}"
 
 

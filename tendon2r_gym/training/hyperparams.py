@@ -10,14 +10,13 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from tendon2r_gym.envs.env_config import EnvConfig
 from tendon2r_gym.policies.residual import Residual
 from tendon2r_gym.presets import PPO_CONFIG, load_yaml
-from tendon2r_gym.task import observation
 from tendon2r_gym.validation import check_keys, integer, invalid, mapping, number
 
 VEC_ENVS = ("native", "subproc", "dummy")
@@ -26,15 +25,9 @@ MAX_FRAME_STRIDE = 1000
 #: The range of init_log_std (SB3's log std of an action).
 LOG_STD_RANGE = (-20.0, 2.0)
 #: PPO settings that may be a schedule, as rl_zoo3 writes one: ``lin_<v>`` decays linearly from
-#: v at the start of training to 0 at its end (SB3's progress_remaining times v);
-#: ``lin_<v>_after_<f>`` holds v for the first fraction f of the run, then decays linearly to 0
-#: at its end (:class:`DecayTail`).
+#: v at the start of training to 0 at its end (SB3's progress_remaining times v).
 SCHEDULES = ("learning_rate", "clip_range", "clip_range_vf")
-LINEAR, AFTER = "lin_", "_after_"
-
-#: Smoothing's largest weight of a term and largest sigma (standard deviations of an input).
-MAX_SMOOTHING_WEIGHT = 100.0
-MAX_SMOOTHING_SIGMA = 10.0
+LINEAR = "lin_"
 
 
 #: An entry's key naming the entry it starts from (in its own file, else in PPO_CONFIG).
@@ -76,39 +69,6 @@ def entry_values(name: str, path: str | Path = PPO_CONFIG, seen: tuple[str, ...]
 
 
 @dataclass(frozen=True)
-class Smoothing:
-    """CAPS's smoothness regularization of the policy (tendon2r_gym.training.smoothing): the
-    weights ``temporal`` (lambda_T) and ``spatial`` (lambda_S), the spatial term's noise
-    ``sigma`` (standard deviations of a normalized observation) and the states per step.
-    Both weights 0: SB3's PPO."""
-
-    temporal: float = 0.0
-    spatial: float = 0.0
-    sigma: float = 0.05
-    samples: int = 512  # random states of the rollout per term and step
-
-    def __post_init__(self) -> None:
-        integer("smoothing.samples", self.samples, 1, 2**20)
-        for key in ("temporal", "spatial"):
-            value = number(f"smoothing.{key}", getattr(self, key), 0.0, MAX_SMOOTHING_WEIGHT)
-            object.__setattr__(self, key, value)
-        sigma = number("smoothing.sigma", self.sigma, 0.0, MAX_SMOOTHING_SIGMA, lo_open=True)
-        object.__setattr__(self, "sigma", sigma)
-
-    @classmethod
-    def from_mapping(cls, values: Any) -> Smoothing:
-        """Builds from a hyperparameter entry's ``smoothing`` mapping (missing keys: defaults)."""
-        values = mapping("smoothing", values)
-        check_keys("smoothing", values, tuple(asdict(cls())))
-        return cls(**values)
-
-    @property
-    def active(self) -> bool:
-        """Returns whether either term is on."""
-        return self.temporal > 0 or self.spatial > 0
-
-
-@dataclass(frozen=True)
 class Hyperparams:
     """One entry of configs/ppo.yaml (see the comments there for each field)."""
 
@@ -122,22 +82,16 @@ class Hyperparams:
     # With residual_scale > 0: the time constant (s) of a first-order low-pass on the residual
     # alone, PD's command unfiltered (tendon2r_gym.policies.residual.ResidualFilter).  0: none.
     residual_filter_tau: float = 0.0
-    # With residual_scale > 0: what residual_scale is a fraction of, per joint: "range", the
-    # joint's command range, or "need", its torque need on the episode's arm and reference
-    # (joint-torque mode; tendon2r_gym.policies.learned).
-    residual_relative_to: str = "range"
     vec_env: str = "subproc"  # native, subproc or dummy
     torch_threads: int = 1
     ppo: dict[str, Any] = field(default_factory=dict)  # SB3 PPO keyword arguments
     policy_kwargs: dict[str, Any] = field(default_factory=dict)
     normalize: dict[str, Any] = field(default_factory=dict)  # VecNormalize keyword arguments
     checkpoint_minutes: float = 2.0  # and a checkpoint at least this often (wall time)
-    zero_obs: tuple[str, ...] = ()  # observation entries to blank out (ablations)
     # Observation entries (EnvConfig.observation.entries(): e.g. arm, or one drawn field such as
-    # arm.density_scale) that only the critic sees (privileged: hide_from_actor) or only the
-    # actor (hide_from_critic): tendon2r_gym.policies.split_view.
+    # arm.density_scale) that only the critic sees (a privileged critic):
+    # tendon2r_gym.policies.split_view.
     hide_from_actor: tuple[str, ...] = ()
-    hide_from_critic: tuple[str, ...] = ()
     # Start from a trained model's weights and VecNormalize statistics (fine-tuning): a bundle
     # name (e.g. generalist) or a model zip; it must cover the env (learned.check_model_env).
     init_from: str | None = None
@@ -154,9 +108,6 @@ class Hyperparams:
     # same
     # frame_stack inputs span (frame_stack - 1) * frame_stride + 1 steps.  1: VecFrameStack.
     frame_stride: int = 1
-    # CAPS's smoothness terms on the policy's mean action ({temporal, spatial, sigma, samples};
-    # Smoothing): close and consecutive states give close actions.  Empty: SB3's PPO.
-    smoothing: Smoothing = field(default_factory=Smoothing)
 
     def __post_init__(self) -> None:
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
@@ -168,11 +119,7 @@ class Hyperparams:
         integer("frame_stride", self.frame_stride, 1, MAX_FRAME_STRIDE)
         if self.frame_stride > 1 and self.frame_stack == 1:
             raise invalid("frame_stride", self.frame_stride, "1 when frame_stack is 1")
-        if not isinstance(self.smoothing, Smoothing):
-            set_("smoothing", Smoothing.from_mapping(self.smoothing))
-        residual = Residual(
-            self.residual_scale, self.residual_filter_tau, self.residual_relative_to
-        )  # validates the three, naming each
+        residual = Residual(self.residual_scale, self.residual_filter_tau)  # validates both
         set_("residual_scale", residual.scale)
         set_("residual_filter_tau", residual.filter_tau)
         integer("eval_freq", self.eval_freq, 1, 10**10)
@@ -200,9 +147,6 @@ class Hyperparams:
                 set_("init_log_std", [number("init_log_std", v, lo, hi) for v in values])
             else:
                 set_("init_log_std", number("init_log_std", values, lo, hi))
-        zero = tuple(self.zero_obs or ())
-        check_keys("zero_obs", zero, observation.SLICES)
-        set_("zero_obs", zero)
         if self.vec_env not in VEC_ENVS:
             raise invalid("vec_env", self.vec_env, f"one of {VEC_ENVS}")
         for name in ("ppo", "policy_kwargs", "normalize"):
@@ -211,14 +155,9 @@ class Hyperparams:
             if key in self.ppo:
                 schedule(f"ppo.{key}", self.ppo[key])
         env_config = EnvConfig.make(**self.env_kwargs)  # before any worker starts
-        self.residual.check_action_mode(env_config.action_mode)
-        names = env_config.observation.entries()
-        for key in ("hide_from_actor", "hide_from_critic"):
-            hidden = tuple(getattr(self, key) or ())
-            check_keys(key, hidden, names)
-            set_(key, hidden)
-        if set(self.hide_from_actor) & set(self.hide_from_critic):
-            raise invalid("hide_from_critic", list(self.hide_from_critic), "entries the actor sees")
+        hidden = tuple(self.hide_from_actor or ())
+        check_keys("hide_from_actor", hidden, env_config.observation.entries())
+        set_("hide_from_actor", hidden)
 
     # -- construction --------------------------------------------------------------------------
     @classmethod
@@ -250,16 +189,15 @@ class Hyperparams:
     def to_dict(self) -> dict[str, Any]:
         """Returns plain YAML-friendly values (what a run's config.yaml holds)."""
         out = copy.deepcopy(dataclasses.asdict(self))
-        for key in ("zero_obs", "hide_from_actor", "hide_from_critic"):
-            out[key] = list(getattr(self, key))
+        out["hide_from_actor"] = list(self.hide_from_actor)
         return out
 
     # -- derived quantities ----------------------------------------------------------------------
     @property
     def residual(self) -> Residual:
-        """Returns how the policy's action joins PD's command (residual_scale,
-        residual_filter_tau and residual_relative_to: tendon2r_gym.policies.residual.Residual)."""
-        return Residual(self.residual_scale, self.residual_filter_tau, self.residual_relative_to)
+        """Returns how the policy's action joins PD's command (residual_scale and
+        residual_filter_tau: tendon2r_gym.policies.residual.Residual)."""
+        return Residual(self.residual_scale, self.residual_filter_tau)
 
     @property
     def gamma(self) -> float:
@@ -272,8 +210,8 @@ class Hyperparams:
         return self.n_envs * int(self.ppo.get("n_steps", 2048))
 
     def ppo_kwargs(self) -> dict[str, Any]:
-        """Returns SB3 PPO's keyword arguments: ``ppo`` with each ``lin_<v>[_after_<f>]`` its
-        SB3 schedule (:func:`sb3_schedule`; validated at construction)."""
+        """Returns SB3 PPO's keyword arguments: ``ppo`` with each ``lin_<v>`` its SB3 schedule
+        (:func:`sb3_schedule`; validated at construction)."""
         out = dict(self.ppo)
         for key in SCHEDULES:
             value = out.get(key)
@@ -283,76 +221,50 @@ class Hyperparams:
 
     def policy(self, env_config: EnvConfig) -> tuple[Any, dict[str, Any]]:
         """Returns SB3's policy (MlpPolicy, or SplitViewPolicy when an entry is hidden from
-        the actor or the critic) and its policy_kwargs, for an env of ``env_config``."""
-        if not (self.hide_from_actor or self.hide_from_critic):
+        the actor) and its policy_kwargs, for an env of ``env_config``."""
+        if not self.hide_from_actor:
             return "MlpPolicy", self.policy_kwargs
         from tendon2r_gym.policies.split_view import SplitViewPolicy
 
-        keep = {  # one mask per stacked frame
-            f"{who}_keep": env_config.observation.mask(hidden).tolist() * self.frame_stack
-            for who, hidden in (("actor", self.hide_from_actor), ("critic", self.hide_from_critic))
-        }
-        return SplitViewPolicy, {**self.policy_kwargs, **keep}
-
-
-@dataclass(frozen=True)
-class DecayTail:
-    """SB3 schedule of ``lin_<v>_after_<f>``: ``start`` until the fraction ``after`` of the run,
-    then linearly to 0 at its end (a constant rate's progress, then a decaying rate's
-    precision)."""
-
-    start: float
-    after: float
-
-    def __call__(self, progress_remaining: float) -> float:
-        return self.start * min(1.0, progress_remaining / (1.0 - self.after))
+        keep = env_config.observation.mask(self.hide_from_actor).tolist()
+        # one mask per stacked frame
+        return SplitViewPolicy, {**self.policy_kwargs, "actor_keep": keep * self.frame_stack}
 
 
 def schedule(field: str, value: Any) -> float | str | None:
-    """Returns a positive number as a float, ``lin_<v>`` (rl_zoo3's notation, v > 0) or
-    ``lin_<v>_after_<f>`` (0 <= f < 1) as it is, or None (no value clipping); raises naming
-    ``field`` otherwise."""
+    """Returns a positive number as a float, ``lin_<v>`` (rl_zoo3's notation, v > 0) as it is,
+    or None (no value clipping); raises naming ``field`` otherwise."""
     if value is None:
         return None
-    allowed = (
-        f"a positive number, '{LINEAR}<positive number>' (linear decay to 0) or "
-        f"'{LINEAR}<positive number>{AFTER}<fraction in [0, 1)>' (constant, then linear to 0)"
-    )
+    allowed = f"a positive number or '{LINEAR}<positive number>' (linear decay to 0)"
     if isinstance(value, str):
         if not value.startswith(LINEAR):
             raise invalid(field, value, allowed)
         try:
-            start, after = linear_schedule(value)
-            number(field, start, 0.0, lo_open=True)
-            number(field, after, 0.0, 1.0, hi_open=True)
+            number(field, linear_schedule(value), 0.0, lo_open=True)
         except ValueError:
             raise invalid(field, value, allowed) from None
         return value
     return number(field, value, 0.0, lo_open=True)
 
 
-def linear_schedule(value: str) -> tuple[float, float]:
-    """Returns (v, f) of a ``lin_<v>`` (f = 0) or ``lin_<v>_after_<f>`` schedule; raises
-    ValueError if v or f is not a number."""
-    start, sep, after = value[len(LINEAR) :].partition(AFTER)
-    return float(start), float(after) if sep else 0.0
+def linear_schedule(value: str) -> float:
+    """Returns v of a ``lin_<v>`` schedule; raises ValueError if v is not a number."""
+    return float(value[len(LINEAR) :])
 
 
 def sb3_schedule(value: str) -> Any:
-    """Returns SB3's schedule of a validated ``lin_<v>`` (SB3's LinearSchedule from v to 0 over
-    the run) or ``lin_<v>_after_<f>`` (:class:`DecayTail`)."""
+    """Returns SB3's schedule of a validated ``lin_<v>``: SB3's LinearSchedule from v to 0 over
+    the run."""
     from stable_baselines3.common.utils import LinearSchedule
 
-    start, after = linear_schedule(value)
-    return DecayTail(start, after) if after else LinearSchedule(start, 0.0, 1.0)
+    return LinearSchedule(linear_schedule(value), 0.0, 1.0)
 
 
 def scaled_schedule(value: float | str, factor: float) -> float | str:
-    """Returns a number or a ``lin_<v>[_after_<f>]`` schedule times ``factor``: the schedule
-    ``lin_<v * factor>`` with the same f."""
+    """Returns a number or a ``lin_<v>`` schedule times ``factor`` (``lin_<v * factor>``)."""
     if isinstance(value, str) and value.startswith(LINEAR):
-        start, after = linear_schedule(value)
-        return f"{LINEAR}{start * factor:g}" + (f"{AFTER}{after:g}" if after else "")
+        return f"{LINEAR}{linear_schedule(value) * factor:g}"
     return float(value) * factor
 
 

@@ -53,11 +53,10 @@ def initial_model(hp: Hyperparams) -> tuple[Path, Path]:
 def fine_tune(hp: Hyperparams) -> Hyperparams:
     """Returns the hyperparameters of a run that starts from ``hp.init_from``: its env kwargs
     take the source model's settings and arm slice (learned.fine_tune_env_kwargs), and its
-    residual the source's scale and filter (``residual_scale``, ``residual_relative_to``,
-    ``residual_filter_tau``), so that every env of the run, its run.json and its deployment
-    see what the model saw and its actions mean what they meant; ``hp`` itself without
-    init_from.  A plain entry does not fine-tune a residual model, nor the reverse
-    (initial_model refuses it)."""
+    residual the source's scale and filter (``residual_scale``, ``residual_filter_tau``), so
+    that every env of the run, its run.json and its deployment see what the model saw and its
+    actions mean what they meant; ``hp`` itself without init_from.  A plain entry does not
+    fine-tune a residual model, nor the reverse (initial_model refuses it)."""
     from tendon2r_gym.policies.bundle import model_path
     from tendon2r_gym.policies.model_env import fine_tune_env_kwargs
     from tendon2r_gym.policies.residual import Residual
@@ -77,18 +76,16 @@ def load_initial(
 ) -> tuple[Any, Any]:
     """Returns (PPO, VecNormalize) started from the weights and observation statistics of
     ``source`` (:func:`initial_model`), training on ``venv`` with the run's PPO settings."""
+    from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecNormalize
-
-    from tendon2r_gym.training.smoothing import SmoothPPO
 
     zip_path, stats = source
     vecnorm = VecNormalize.load(str(stats), venv)
     vecnorm.training = True
     vecnorm.norm_reward = bool(hp.normalize.get("norm_reward", True))
-    model = SmoothPPO.load(
+    model = PPO.load(
         zip_path, env=stacked(vecnorm, hp.frame_stack, hp.frame_stride), device="cpu",
         custom_objects=hp.ppo_kwargs(), seed=seed, tensorboard_log=str(run.tensorboard),
-        smoothing=hp.smoothing,
     )  # fmt: skip
     model.num_timesteps = 0  # a fine-tune counts its own steps (the zip holds the source's)
     if hp.init_log_std is not None:

@@ -195,13 +195,13 @@ def make_vec_env(hp: Hyperparams, seed: int) -> Any:
     if hp.vec_env == "native":
         from tendon2r_gym.training.vector_env_sb3 import make_native
 
-        return make_native(hp.n_envs, hp.env_kwargs, hp.residual, hp.zero_obs, seed)
+        return make_native(hp.n_envs, hp.env_kwargs, hp.residual, seed)
     subproc = hp.vec_env == "subproc" and hp.n_envs > 1
     return sb3_make_vec_env(
         make_training_env,
         n_envs=hp.n_envs,
         seed=seed,
-        env_kwargs={"env_kwargs": hp.env_kwargs, "residual": hp.residual, "zero_obs": hp.zero_obs},
+        env_kwargs={"env_kwargs": hp.env_kwargs, "residual": hp.residual},
         vec_env_cls=SubprocVecEnv if subproc else DummyVecEnv,
     )
 
@@ -209,9 +209,8 @@ def make_vec_env(hp: Hyperparams, seed: int) -> Any:
 def _load_newest(run: RunFolder, venv: Any, hp: Hyperparams) -> tuple[Any, Any]:
     """Returns (PPO, VecNormalize) from the newest readable saved state of the run; a corrupt
     one is skipped with a warning."""
+    from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecNormalize
-
-    from tendon2r_gym.training.smoothing import SmoothPPO
 
     candidates = run.checkpoint_candidates()
     if not candidates:
@@ -220,7 +219,7 @@ def _load_newest(run: RunFolder, venv: Any, hp: Hyperparams) -> tuple[Any, Any]:
         try:
             vecnorm = VecNormalize.load(str(stats), venv)
             env = stacked(vecnorm, hp.frame_stack, hp.frame_stride)
-            model = SmoothPPO.load(zip_path, env=env, device="cpu", smoothing=hp.smoothing)
+            model = PPO.load(zip_path, env=env, device="cpu")
         except Exception as e:  # noqa: BLE001 (any unreadable file: try the one before)
             warnings.warn(f"resume: skipping unreadable {zip_path.name} ({e!r})", stacklevel=2)
             continue
@@ -342,9 +341,8 @@ def train_planned(plan: RunPlan, command: str = "", progress_bar: bool = False) 
 def _model(plan: RunPlan) -> tuple[Any, Any]:
     """Returns (PPO, VecNormalize) of a planned run on its training envs: resumed, started
     from init_from's weights, or new; the envs are closed if that fails."""
+    from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecNormalize
-
-    from tendon2r_gym.training.smoothing import SmoothPPO
 
     hp, run = plan.hp, plan.run
     venv = make_vec_env(hp, plan.seed)
@@ -355,7 +353,7 @@ def _model(plan: RunPlan) -> tuple[Any, Any]:
             return load_initial(hp, plan.source, venv, plan.seed, run)
         vecnorm = VecNormalize(venv, gamma=hp.gamma, **hp.normalize)
         policy, policy_kwargs = hp.policy(plan.env_config)
-        model = SmoothPPO(
+        model = PPO(
             policy,
             stacked(vecnorm, hp.frame_stack, hp.frame_stride),
             seed=plan.seed,
@@ -363,7 +361,6 @@ def _model(plan: RunPlan) -> tuple[Any, Any]:
             verbose=0,
             tensorboard_log=str(run.tensorboard),
             policy_kwargs=policy_kwargs,
-            smoothing=hp.smoothing,
             **hp.ppo_kwargs(),
         )
         return model, vecnorm

@@ -9,7 +9,6 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from tendon2r_gym.policies.baselines import PDPolicy
 from tendon2r_gym.policies.residual import NO_RESIDUAL, Residual, ResidualFilter, residual_command
-from tendon2r_gym.task import observation
 from tendon2r_gym.task.gains import gains_of
 from tendon2r_gym.validation import invalid
 
@@ -22,9 +21,7 @@ class SB3VecEnv(VecEnv):
     command
     (one numpy call for all arms), through the residual's filter, at its scale."""
 
-    def __init__(
-        self, venv: Any, residual: Residual = NO_RESIDUAL, zero_obs: tuple[str, ...] = ()
-    ) -> None:
+    def __init__(self, venv: Any, residual: Residual = NO_RESIDUAL) -> None:
         from gymnasium.vector import AutoresetMode
 
         if venv.autoreset_mode != AutoresetMode.SAME_STEP:
@@ -34,12 +31,10 @@ class SB3VecEnv(VecEnv):
         self.residual = residual
         self.pd = PDPolicy.from_env(venv) if residual.active else None
         self.filter = ResidualFilter(residual.filter_tau, venv.config.ctrl_dt)
-        residual.check_action_mode(venv.config.action_mode)
         self._starts = np.ones(venv.num_envs, dtype=bool)  # a slot's episode starts
         ranges = venv.config.mechanism_ranges
         self._random_arms = ranges is not None
         self._drawn_gains = ranges is not None and ranges.draws_gains
-        self._mask = observation.mask(zero_obs, venv.single_observation_space.shape[0])
         self._raw: np.ndarray | None = None
         self._actions: np.ndarray | None = None
 
@@ -50,7 +45,7 @@ class SB3VecEnv(VecEnv):
         self._reset_seeds()
         self._reset_options()
         self._starts[:] = True
-        return self._raw * self._mask
+        return self._raw.copy()  # PD reads self._raw: the caller gets its own
 
     def step_async(self, actions: np.ndarray) -> None:
         self._actions = np.asarray(actions)
@@ -65,8 +60,9 @@ class SB3VecEnv(VecEnv):
                     [a.mechanism for a in arms], [a.observation_delay for a in arms], gains
                 )
             base, _ = self.pd.predict(self._raw)
-            scale = self.residual.scales(self._need(), self.pd)
-            actions = residual_command(base, actions, scale, self.filter, self._starts)
+            actions = residual_command(
+                base, actions, self.residual.scale, self.filter, self._starts
+            )
         obs, rewards, terminated, truncated, info = self.venv.step(actions)
         dones = terminated | truncated
         infos = _arm_infos(info, self.num_envs)
@@ -74,20 +70,11 @@ class SB3VecEnv(VecEnv):
             final = _arm_infos(info["final_info"], self.num_envs)
             for i in np.flatnonzero(dones):
                 self.reset_infos[i], infos[i] = infos[i], final[i]
-                infos[i]["terminal_observation"] = info["final_obs"][i] * self._mask
+                infos[i]["terminal_observation"] = info["final_obs"][i]
         for i in range(self.num_envs):  # as DummyVecEnv: on every step
             infos[i]["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
         self._raw, self._starts = obs, dones
-        return obs * self._mask, rewards.astype(np.float32), dones, infos
-
-    def _need(self) -> Any:
-        """Returns each slot's torque need (EnvConfig.needs.torque_need; the config's for one fixed
-        arm), only where the residual is relative to the need (None otherwise: unused)."""
-        if self.residual.relative_to != "need":
-            return None
-        if self._random_arms:
-            return [a.needs.torque_need for a in self.venv.arms]
-        return self.venv.config.needs.torque_need
+        return obs.copy(), rewards.astype(np.float32), dones, infos
 
     def close(self) -> None:
         self.venv.close()
@@ -109,7 +96,6 @@ def make_native(
     n_envs: int,
     env_kwargs: dict[str, Any],
     residual: Residual = NO_RESIDUAL,
-    zero_obs: tuple[str, ...] = (),
     seed: int | None = None,
 ) -> VecEnv:
     """Returns the native vector env for SB3 training: N arms in one process with staggered
@@ -120,7 +106,7 @@ def make_native(
     from tendon2r_gym.envs.vector_env import Tendon2RVectorEnv
 
     native = Tendon2RVectorEnv(n_envs, autoreset_mode="SameStep", stagger=True, **env_kwargs)
-    venv = SB3VecEnv(native, residual, zero_obs)
+    venv = SB3VecEnv(native, residual)
     venv.seed(seed)
     return VecMonitor(venv)
 

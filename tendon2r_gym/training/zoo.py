@@ -9,7 +9,6 @@ rl_zoo3 keys its entries by env id, so the residual entry uses a second id of th
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 from typing import Any
 
@@ -48,18 +47,12 @@ def zoo_entry(hp: Hyperparams) -> dict[str, Any]:
     }
     if hp.frame_stride > 1:
         raise invalid("frame_stride", hp.frame_stride, "1 in an rl_zoo3 entry (no stride there)")
-    if hp.smoothing.active:
-        raise invalid(
-            "smoothing", dataclasses.asdict(hp.smoothing), "none in an rl_zoo3 entry (SB3's PPO)"
-        )
     if hp.frame_stack > 1:
         entry["frame_stack"] = hp.frame_stack
     if hp.residual_scale > 0:
         kwargs = {"residual_scale": hp.residual_scale}
         if hp.residual_filter_tau > 0:
             kwargs["residual_filter_tau"] = hp.residual_filter_tau
-        if hp.residual_relative_to != "range":
-            kwargs["residual_relative_to"] = hp.residual_relative_to
         entry["env_wrapper"] = [{WRAPPER: kwargs}]
     return entry
 
