@@ -385,7 +385,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         joints, rest = self.task.state_entries(SCALAR, *state, qd1, qd2, self._arm)
         head, tail = obs_layout.STATE
         out = joints + parts[head.stop : tail.start] + rest + parts[tail.stop :]
-        if "error_rate" in self.config.observe:
+        if self.task.observes_rate:
             where = obs_layout.error_rate_slice(self.preview_steps, self._n)
             out[where] = self.task.error_rate_entries(
                 SCALAR, *state[2:], *parts[obs_layout.DQ_DES], self._arm

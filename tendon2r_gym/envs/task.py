@@ -116,6 +116,10 @@ class Task:
 
     def __init__(self, config: EnvConfig) -> None:
         self.config = config
+        self.n_actions = config.n_actions
+        # The optional entries, read on every step.
+        self.observes_rate = "error_rate" in config.observe
+        self.observes_feedforward = "feedforward" in config.observe
         mech = config.mechanism
         self.q_lo, self.q_hi = mech.joint_range_rad
         # Soft joint limits let a joint overshoot a little; this far past them (NaN included)
@@ -243,9 +247,9 @@ class Task:
         for dt in self.offsets:
             joints += [amp1 * sin(arg1 + om1 * dt) + bias1, amp2 * sin(arg2 + om2 * dt) + bias2]
         joints += last_action
-        if "error_rate" in self.config.observe:
+        if self.observes_rate:
             joints += self.error_rate_entries(ops, w1, w2, dqd1, dqd2, arm)
-        if "feedforward" in self.config.observe:
+        if self.observes_feedforward:
             joints += self.feedforward_entries(ops, t, ref, arm)
         if len(arm) > N_ARM_PARAMS:  # force_limit_log and arm, if observed
             joints += arm[N_ARM_PARAMS:]
@@ -310,15 +314,17 @@ class Task:
     def checked_action(self, action: Any) -> list[float]:
         """Returns one env's action as its n floats clipped to [-1, 1], or raises a ValueError
         naming it (a float array of the right shape takes the fast path)."""
-        n = self.config.n_actions
-        allowed = f"({n},) finite real numbers in [-1, 1]; values outside are clipped"
+        n = self.n_actions
         if type(action) is not np.ndarray or action.shape != (n,) or action.dtype.kind != "f":
-            action = real_array("action", action, (n,), allowed)
+            action = real_array("action", action, (n,), self._allowed_actions())
         a = action.tolist()
         # A finite sum has finite terms; only a non-finite one needs each term checked.
         if not math.isfinite(sum(a)) and not all(map(math.isfinite, a)):
-            raise invalid("action", action, allowed)
+            raise invalid("action", action, self._allowed_actions())
         return [-1.0 if x < -1.0 else 1.0 if x > 1.0 else x for x in a]
+
+    def _allowed_actions(self) -> str:
+        return f"({self.n_actions},) finite real numbers in [-1, 1]; values outside are clipped"
 
     def rest_command(self, arm: EnvConfig) -> list[float]:
         """Returns the command at rest on the arm of config ``arm``, the "last command" after a

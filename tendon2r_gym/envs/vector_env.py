@@ -388,7 +388,7 @@ class Tendon2RVectorEnv(VectorEnv):
         )
         head, tail = obs_layout.STATE
         truth[:, head], truth[:, tail] = np.stack(joints, axis=1), np.stack(rest, axis=1)
-        if "error_rate" in self.config.observe:
+        if self.task.observes_rate:
             cfg, dq_des = self.config, measured[:, obs_layout.DQ_DES]
             where = obs_layout.error_rate_slice(cfg.preview_steps, cfg.n_actions)
             rate = self.task.error_rate_entries(
