@@ -309,14 +309,14 @@ class Tendon2REnv(MujocoEnv, EzPickle):
             u = a
         else:  # joint_torque: PD's tension distribution at the current q
             u = self._torque_map.joint_torque_command(self._qpos[None], np.array([a]))[0]
+        self.sent_command = u  # the motors' normalized command as sent (recordings hold it)
         if self._delay is not None:  # the motors get the command of delay_steps ago
             u = self._delay.one(u)
         self._ctrl[:] = u
         mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
         state = self._state()
         diverged = self._check_divergence(state)
-        if diverged:  # the state left finite by _check_divergence
-            state = self._state()
+        state = self._state() if diverged else state  # left finite by _check_divergence
         seen = state
         if self._sensing is not None:  # what the controller gets this step
             seen = self._measured = self._sensing.one(state, self.np_random)

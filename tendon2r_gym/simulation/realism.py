@@ -69,9 +69,12 @@ class Drive:
         if mech.elastic and self.spool_dof.tolist() != list(range(2, 2 + n)):
             raise RuntimeError(f"spool dofs {self.spool_dof.tolist()} are not 2..{n + 1}")
 
-    def settle(self, data: mujoco.MjData, q: np.ndarray, dq: np.ndarray) -> None:
+    def settle(
+        self, data: mujoco.MjData, q: np.ndarray, dq: np.ndarray, tension: Any = None
+    ) -> None:
         """Sets a freshly reset ``data`` (time 0) to the joint state (q, dq), every cable at its
-        rest tension and still, every lag at the rest command; then runs mj_forward."""
+        rest tension (or at ``tension``, N, one per cable) and still, every lag at the rest
+        command; then runs mj_forward."""
         m, mech = self.model, self.mech
         data.qpos[:2], data.qvel[:2] = q, dq
         if mech.elastic:
@@ -81,7 +84,13 @@ class Drive:
             # The spool-anchor segment shortens as the spool moves to the wall (+x), so the
             # length is L(q, 0) - s, and the cable is still when ds/dt = J_arm dq.
             length = data.ten_length[: self.n].copy()
-            data.qpos[spools] = length - self.rest_length - self.stretch
+            stretch = self.stretch
+            if tension is not None:  # a pull-only cable carries no push
+                tension = np.asarray(tension, dtype=float)
+                stretch = (np.maximum(tension, 0.0) if mech.pull_only else tension) / (
+                    mech.tendon_elasticity
+                )
+            data.qpos[spools] = length - self.rest_length - stretch
             J = MomentArms(m, data).dense()  # the motors' tendons over the arm's joints
             data.qvel[dofs] = J @ np.asarray(dq, dtype=float)
         data.ctrl[:] = self.ctrl

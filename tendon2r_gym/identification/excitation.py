@@ -1,0 +1,230 @@
+"""Recordings from the simulator, and the excitation a user plays on a physical arm.
+
+:func:`record` runs any policy on any arm (a preset, an experiment file, with any realism,
+noise and delay) and writes what a physical arm's logger would: the commands as sent, the
+angles as measured (recording format: tendon2r_gym.identification.recording).
+
+:func:`design` chooses the excitation: PD tracking a multi-sine reference about the experiment
+file's bias, each joint a sum of sines over ``MultiSine.freq_hz`` with Schroeder phases (a flat
+spectrum with a low peak), its amplitude the largest (at most the file's) for which PD keeps
+every command within :data:`FORCE_MARGIN` of the force limit and the joints
+:data:`RANGE_MARGIN_DEG` inside their range on the nominal arm.  Low frequencies move the links'
+mass and damping; the high ones make the cables stretch and the motors lag; every reversal of a
+joint makes the cables' friction change sign.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from tendon2r_gym.envs.env_config import EnvConfig
+from tendon2r_gym.evaluation.rollout import Policy
+from tendon2r_gym.identification.recording import Recording
+from tendon2r_gym.task.observation import DQ, DQ_DES, Q_DES, Q
+from tendon2r_gym.validation import invalid, number
+
+#: PD's commands stay below this fraction of the force limit on the nominal arm.
+FORCE_MARGIN = 0.8
+#: The joints stay this far inside their range (deg) on the nominal arm.
+RANGE_MARGIN_DEG = 5.0
+
+
+@dataclass(frozen=True)
+class MultiSine:
+    """q_des(t) = bias + sum_k amp_j / sqrt(K) sin(2 pi f_k t + phi_jk) per joint j; phases are
+    Schroeder's, joint B's offset by half a period of each sine's index (so that the joints do
+    not move in step)."""
+
+    amp_rad: tuple[float, float]
+    bias_rad: tuple[float, float]
+    freq_hz: tuple[float, ...] = (0.4, 0.7, 1.1, 1.6, 2.3, 3.1, 4.2, 5.5)
+    ramp_s: float = 0.5
+    #: Small fast sines on top (Hz, and rad each): the arm follows them only partly, but PD's
+    #: commands carry them, and the joints' response shows the motors' lag apart from their
+    #: delay (which the slow sines alone cannot tell apart) and the cables' stretch.
+    dither_hz: tuple[float, ...] = (13.0, 21.0, 34.0, 55.0, 89.0)
+    dither_rad: float = 0.003
+    #: The bandwidth of the PD that tracks it (pd_gains.bandwidth_hz): soft, so that an arm
+    #: lagging twice as long as the nominal one still tracks it without chatter, which would
+    #: saturate the commands and leave the recording's speeds unreadable.
+    bandwidth_hz: float = 8.0
+
+    def _phases(self) -> np.ndarray:
+        k = np.arange(1, len(self.freq_hz) + len(self.dither_hz) + 1)
+        phi = -math.pi * k * (k - 1) / len(k)
+        return np.stack([phi, phi + math.pi * k / 2])  # (2, K)
+
+    def q(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Returns (q_des, dq_des) at time t (s): the sines fade in over the first ``ramp_s``
+        (a raised cosine), so that the arm starts at rest at the bias."""
+        w = 2 * math.pi * np.asarray(self.freq_hz + self.dither_hz)
+        arg = w * t + self._phases()
+        n = len(self.freq_hz)
+        scale = np.empty((2, len(w)))
+        scale[:, :n] = np.asarray(self.amp_rad)[:, None] / math.sqrt(n)
+        scale[:, n:] = self.dither_rad
+        s, ds = (scale * np.sin(arg)).sum(1), (scale * w * np.cos(arg)).sum(1)
+        if t < self.ramp_s:
+            x = math.pi * t / self.ramp_s
+            r, dr = 0.5 * (1 - math.cos(x)), 0.5 * math.pi / self.ramp_s * math.sin(x)
+            s, ds = r * s, r * ds + dr * s
+        return np.asarray(self.bias_rad) + s, ds
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "amp_deg": [math.degrees(a) for a in self.amp_rad],
+            "bias_deg": [math.degrees(b) for b in self.bias_rad],
+            "freq_hz": list(self.freq_hz),
+            "ramp_s": self.ramp_s,
+            "dither_hz": list(self.dither_hz),
+            "dither_deg": math.degrees(self.dither_rad),
+            "pd_bandwidth_hz": self.bandwidth_hz,
+        }
+
+
+class Excitation:
+    """A policy that tracks a :class:`MultiSine` instead of the env's reference: the policy's
+    observation gets the multi-sine's q_des and dq_des at each step's time (PD reads only q,
+    dq, q_des and dq_des)."""
+
+    def __init__(self, policy: Policy, signal: MultiSine, ctrl_dt: float) -> None:
+        self.policy, self.signal, self.ctrl_dt = policy, signal, ctrl_dt
+        self._step = 0
+
+    def reset(self, info: dict[str, Any]) -> None:
+        self._step = 0
+        inner = getattr(self.policy, "reset", None)
+        if callable(inner):
+            inner(info)
+
+    def predict(self, observation: np.ndarray, state: Any = None, episode_start: Any = None,
+                deterministic: bool = True) -> tuple[np.ndarray, Any]:  # fmt: skip
+        obs = np.array(observation, dtype=np.float64)
+        obs[Q_DES], obs[DQ_DES] = self.signal.q(self._step * self.ctrl_dt)
+        self._step += 1
+        return self.policy.predict(obs, state, episode_start, deterministic)
+
+
+def _env(config: EnvConfig | str | os.PathLike, duration: float, **overrides: Any):
+    from tendon2r_gym.envs.env import Tendon2REnv
+
+    cfg = config if isinstance(config, EnvConfig) else EnvConfig.make(config)
+    kwargs = {**cfg.to_dict(), **overrides, "episode_duration": duration}
+    return Tendon2REnv(**kwargs)
+
+
+def record(
+    config: EnvConfig | str | os.PathLike,
+    policy: str | Policy = "pd",
+    duration: float = 10.0,
+    seed: int = 0,
+    signal: MultiSine | None = None,
+    tensions: bool = False,
+    model: str | os.PathLike | None = None,
+) -> Recording:
+    """Runs ``policy`` (a name of tendon2r-evaluate's policies, with ``model`` for a learned
+    one, or an object with ``predict``) for ``duration`` s on the arm of ``config`` from
+    ``reset(seed=seed)``, tracking ``signal`` if given (else the config's reference), and
+    returns the recording: each row the measurement the policy saw and the command it sent
+    (N); with ``tensions``, the true cable tensions too."""
+    from tendon2r_gym.evaluation.evaluator import make_policy
+
+    number("duration", duration, 0.0, 3600.0, lo_open=True)
+    overrides = {}
+    if signal is not None:  # at rest at the signal's start, with the arm's force limit
+        cfg = config if isinstance(config, EnvConfig) else EnvConfig.make(config)
+        start = [math.degrees(b) for b in signal.bias_rad]
+        overrides = {
+            "reference": {"amp_deg": [0.0, 0.0], "bias_deg": start},
+            "mechanism": {**cfg.mechanism.to_dict(), "max_tendon_force": cfg.mechanism.max_tendon_force},
+            "pd_gains": {"bandwidth_hz": signal.bandwidth_hz, "max_delay_phase": None},
+        }
+    env = _env(config, duration, **overrides)
+    try:
+        pol = make_policy(policy, env, model) if isinstance(policy, str) else policy
+        if signal is not None:
+            pol = Excitation(pol, signal, env.ctrl_dt)
+        obs, info = env.reset(seed=seed)
+        reset = getattr(pol, "reset", None)
+        if callable(reset):
+            reset(info)
+        mech = env.mechanism
+        gain, offset = mech.command_map
+        force = float(mech.max_tendon_force)
+        rows: dict[str, list] = {"q": [], "dq": [], "command": [], "tension": []}
+        tension = env.tendon_tensions()
+        for _ in range(env.config.max_episode_steps):
+            action, _ = pol.predict(obs, deterministic=True)
+            rows["q"].append(obs[Q])
+            rows["dq"].append(obs[DQ])
+            rows["tension"].append(tension)
+            obs, _, terminated, _, info = env.step(np.asarray(action, dtype=np.float32))
+            rows["command"].append(force * (gain * np.asarray(env.sent_command) + offset))
+            tension = env.tendon_tensions()
+            if terminated:
+                raise RuntimeError(f"the arm diverged at t = {info['time']:.3f} s")
+        n = len(rows["q"])
+        cfg = env.config
+        notes = {
+            "recorded_on": "tendon2r_gym simulator",
+            "policy": policy if isinstance(policy, str) else type(policy).__name__,
+            "seed": str(seed),
+            "mechanism": str(cfg.mechanism.to_dict()),
+            "observation_noise": str(list(cfg.observation_noise)),
+            "observation_delay": str(cfg.observation_delay),
+        }
+        return Recording(
+            time=np.arange(n) * env.ctrl_dt,
+            command=np.clip(np.array(rows["command"]), *_command_range(mech)),
+            q=np.array(rows["q"]),
+            tension=np.array(rows["tension"]) if tensions else None,
+            source="simulator",
+            notes=notes,
+        )
+    finally:
+        env.close()
+
+
+def _command_range(mech: Any) -> tuple[float, float]:
+    force = float(mech.max_tendon_force)
+    return (0.0 if mech.pull_only else -force), force
+
+
+def design(
+    config: EnvConfig | str | os.PathLike, duration: float = 10.0
+) -> tuple[MultiSine, Recording]:
+    """Returns the excitation of the arm of ``config`` (module docstring) and its rehearsal:
+    the recording of PD tracking it on the nominal arm, noise-free."""
+    cfg = config if isinstance(config, EnvConfig) else EnvConfig.make(config)
+    nominal = EnvConfig.from_kwargs(
+        {**cfg.to_dict(), "observation_noise": [0.0, 0.0], "observation_delay": 0.0}
+    )
+    mech = nominal.mechanism
+    lo, hi = (math.radians(x) for x in mech.joint_range_deg)
+    margin = math.radians(RANGE_MARGIN_DEG)
+    bias = tuple(float(np.clip(b, lo + margin, hi - margin)) for b in cfg.reference.bias_rad)
+    room = [min(b - lo, hi - b) - margin for b in bias]
+    amp = [min(float(a), r) for a, r in zip(cfg.reference.amp_rad, room, strict=True)]
+    force = float(mech.max_tendon_force)
+    dither = MultiSine.dither_rad
+    for _ in range(12):
+        signal = MultiSine(amp_rad=tuple(amp), bias_rad=bias, dither_rad=dither)
+        rec = record(nominal, "pd", duration, seed=0, signal=signal)
+        peak = float(np.abs(rec.command).max()) / force
+        over = max(float(np.max(np.abs(rec.q - np.asarray(bias)) - np.asarray(room))), 0.0)
+        if peak <= FORCE_MARGIN and over == 0.0:
+            return signal, rec
+        shrink = min(FORCE_MARGIN / peak, 0.9) if peak > FORCE_MARGIN else 0.9
+        amp, dither = [a * shrink for a in amp], dither * shrink
+    raise invalid(
+        "reference",
+        cfg.reference.to_dict(),
+        f"an arm and force limit on which PD can track an excitation within {FORCE_MARGIN:g} "
+        f"of max_tendon_force and {RANGE_MARGIN_DEG:g} deg inside joint_range_deg (the last "
+        f"try peaked at {peak:.2f} of the limit)",
+    )
