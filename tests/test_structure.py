@@ -71,7 +71,9 @@ def test_no_two_modules_import_each_other_type_checking_included():
 
 #: The package's layers, in the order data flows (arm parameters -> model -> env -> policy ->
 #: rollout -> metrics -> report); the top-level modules are shared helpers below them all.
-LAYERS = ("", "simulation", "task", "envs", "policies", "evaluation", "training", "app")
+LAYERS = (
+    "", "simulation", "task", "envs", "policies", "evaluation", "identification", "training", "app"
+)
 
 
 def _layer(module: str) -> int:

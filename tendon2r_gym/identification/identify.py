@@ -192,6 +192,86 @@ def load_recordings(
     return recs
 
 
+class _Problem:
+    """The fit's state: the fields, their bounds and scales, and the current pieces."""
+
+    def __init__(self, recordings: Sequence[Recording], config: EnvConfig,
+                 names: list[str], box: dict[str, tuple[float, float, float]],
+                 threads: int) -> None:  # fmt: skip
+        self.recordings, self.config, self.names, self.box = list(recordings), config, names, box
+        self.mech, self.threads = config.mechanism, threads
+        self.scales = np.array([box[n][2] for n in names])
+        self.x0 = np.array([float(getattr(self.mech, n)) for n in names]) / self.scales
+        self.rep: Replay | None = None
+
+    def arm(self, x: np.ndarray) -> Mechanism:
+        """The nominal arm with the fields at scaled values ``x``."""
+        values = {n: float(v) for n, v in zip(self.names, x * self.scales, strict=True)}
+        return self.mech.replace(**values)
+
+    def pieces(self, d: int, x: np.ndarray, stage: Stage, passes: int = 2) -> Replay:
+        """Sets and returns the pieces of ``stage`` at loop delay ``d``, their starts refined
+        on the arm at ``x``."""
+        cfg = self.config
+        pieces = Pieces(self.recordings, cfg.ctrl_dt, d, stage.piece_s, stage.spacing_s)
+        self.rep = Replay(pieces, self.mech, cfg.n_substeps, self.threads)
+        self.rep.refine_starts(self.arm(x), passes)
+        return self.rep
+
+    def cost(self, x: np.ndarray) -> float:
+        return float(np.sum(self.rep.residual([self.arm(x)]) ** 2))
+
+    def residual(self, x: np.ndarray, _params: Any = None, **_: Any):
+        """The toolbox's residual function: one column per column of ``x`` (batched finite
+        differences)."""
+        cols = x.reshape(len(self.names), -1)
+        r = self.rep.residual([self.arm(cols[:, k]) for k in range(cols.shape[1])])
+        r = r.reshape(cols.shape[1], -1).T
+        return [r[:, 0] if x.ndim == 1 else r], None, None
+
+    def fit(self, x: np.ndarray, stage: Stage, rounds: int) -> np.ndarray:
+        """Returns the fit from ``x`` on the current pieces: ``rounds`` times a Gauss-Newton
+        fit of ``stage.max_iters`` iterations (mujoco.sysid.optimize, box-constrained), then
+        the starts refined at it."""
+        from absl import logging
+        from mujoco import sysid
+
+        logging.set_verbosity(logging.ERROR)  # its notes on starting at a bound (0 damping)
+        for _ in range(rounds if self.names else 0):
+            params = sysid.ParameterDict()
+            for i, n in enumerate(self.names):
+                lo, hi, s = self.box[n]
+                params.add(sysid.Parameter(n, self.x0[i], lo / s, hi / s))
+                params[n].value[:] = x[i]
+            opt, _ = sysid.optimize(
+                params, self.residual, optimizer="mujoco", verbose=False,
+                max_iters=stage.max_iters, eps=1e-6, xtol=1e-4, x_scale="jac",
+                output=io.StringIO(),
+            )  # fmt: skip
+            x = opt.as_vector()
+            self.rep.refine_starts(self.arm(x), 1)
+        return x
+
+
+def _fields(asked: list[str], mech: Mechanism, explicit: bool):
+    """Returns (continuous fields, their bounds, skipped fields and why)."""
+    names, box, skipped = [], {}, {}
+    for name in asked:
+        if name not in FIELDS:
+            raise invalid("fit", name, f"names from {list(FIELDS)}")
+        if name in DELAYS:
+            continue
+        b = bounds(name, mech)
+        if isinstance(b, str):
+            if explicit:
+                raise invalid("fit", name, f"a field the nominal arm can vary: {b}")
+            skipped[name] = b
+        else:
+            names.append(name)
+            box[name] = b
+    return names, box, skipped
+
+
 def identify(
     recordings: Sequence[Recording],
     config: EnvConfig,
@@ -200,94 +280,40 @@ def identify(
 ) -> Identification:
     """Fits the fields ``fit`` (default DEFAULT_FIT, less those the nominal arm's model
     cannot vary) of the arm of ``config`` to ``recordings`` (module docstring)."""
-    from mujoco import sysid
     from scipy import stats
 
     began = time.perf_counter()
     mech = config.mechanism
     asked = list(DEFAULT_FIT if fit is None else fit)
-    for name in asked:
-        if name not in FIELDS:
-            raise invalid("fit", name, f"names from {list(FIELDS)}")
-    skipped: dict[str, str] = {}
-    names, box = [], {}
-    for name in asked:
-        if name in DELAYS:
-            continue
-        b = bounds(name, mech)
-        if isinstance(b, str):
-            if fit is not None:
-                raise invalid("fit", name, f"a field the nominal arm can vary: {b}")
-            skipped[name] = b
-        else:
-            names.append(name)
-            box[name] = b
+    names, box, skipped = _fields(asked, mech, fit is not None)
     fit_delay = any(n in DELAYS for n in asked)
-    threads = threads or os.cpu_count() or 1
-    n_sub = config.n_substeps
+    prob = _Problem(recordings, config, names, box, threads or os.cpu_count() or 1)
+    x0 = prob.x0
     nominal_steps = config.delay_steps + config.observation_delay_steps
 
-    scales = np.array([box[n][2] for n in names])
-
-    def arm(x: np.ndarray) -> Mechanism:
-        return mech.replace(**{n: float(v) for n, v in zip(names, x * scales, strict=True)})
-
-    x0 = np.ones(len(names))  # the nominal values, scaled
-    for i, n in enumerate(names):
-        x0[i] = float(getattr(mech, n)) / scales[i]
-
-    def replay_at(d: int, x: np.ndarray, stage: Stage, passes: int = 2) -> Replay:
-        pieces = Pieces(list(recordings), config.ctrl_dt, d, stage.piece_s, stage.spacing_s)
-        rep = Replay(pieces, mech, n_sub, threads)
-        rep.refine_starts(arm(x), passes)
-        return rep
-
-    def cost(rep: Replay, x: np.ndarray) -> float:
-        return float(np.sum(rep.residual([arm(x)]) ** 2))
-
-    rep: Replay
-
-    def residual_fn(x: np.ndarray, _params: Any, **_: Any):
-        cols = x.reshape(len(names), -1)
-        r = rep.residual([arm(cols[:, k]) for k in range(cols.shape[1])])
-        r = r.reshape(cols.shape[1], -1).T
-        return [r[:, 0] if x.ndim == 1 else r], None, None
-
-    def fitted(x: np.ndarray, stage: Stage) -> np.ndarray:
-        if not names:
-            return x
-        params = sysid.ParameterDict()
-        for i, n in enumerate(names):
-            lo, hi, s = box[n]
-            params.add(sysid.Parameter(n, x0[i], lo / s, hi / s))
-            params[n].value[:] = x[i]
-        opt, _ = sysid.optimize(
-            params, residual_fn, optimizer="mujoco", verbose=False, max_iters=stage.max_iters,
-            eps=1e-6, xtol=1e-4, x_scale="jac", output=io.StringIO(),
-        )  # fmt: skip
-        return opt.as_vector()
-
-    # The loop delay: a scan at the nominal values on a subset of the pieces, then a fit at
-    # the best delay and each neighbour (the lag, the cables' stretch and the delay trade
-    # off): the least fitted residual wins.
+    # The loop delay: a scan at the nominal values on a subset of the pieces, a fit at the
+    # best one, then each neighbour refitted from it (the lag, the cables' stretch and the
+    # delay trade off): the least fitted residual wins.
     max_d = round(MAX_DELAY_S / config.ctrl_dt) if fit_delay else nominal_steps
-    scan_stage, final = STAGES
+    subset, final = STAGES
     scan = range(max_d + 1) if fit_delay else [nominal_steps]
-    scanned = {k: cost(replay_at(k, x0, scan_stage, 1), x0) for k in scan}
-    best = min(scanned, key=scanned.get)
-    fits, costs = {}, {}
+    scanned = {}
+    for k in scan:
+        prob.pieces(k, x0, subset, 1)
+        scanned[k] = prob.cost(x0)
+    n_subset = len(prob.rep.pieces)
+    entries = prob.rep.residual([prob.arm(x0)]).size
+    fits: dict[int, np.ndarray] = {}
+    costs: dict[int, float] = {}
 
     def profile(k: int, start: np.ndarray, rounds: int) -> None:
-        nonlocal rep
-        rep = replay_at(k, start, scan_stage)
-        x_k = start
-        for _ in range(rounds):  # the starts follow the fit
-            x_k = fitted(x_k, scan_stage)
-            rep.refine_starts(arm(x_k), 1)
-        fits[k], costs[k] = x_k, cost(rep, x_k)
+        prob.pieces(k, start, subset)
+        fits[k] = prob.fit(start, subset, rounds)
+        costs[k] = prob.cost(fits[k])
 
+    best = min(scanned, key=scanned.get)
     profile(best, x0, ROUNDS)
-    while fit_delay:  # each neighbour from the best fit; move while one does better
+    while fit_delay:
         for k in (best - 1, best + 1):
             if k in scanned and k not in costs:
                 profile(k, fits[best], 1)
@@ -295,26 +321,22 @@ def identify(
         if better == best:
             break
         best = better
-    d = min(costs, key=costs.get)
-    P0 = len(rep.pieces)
-    before = math.sqrt(scanned[d] / (P0 * 2 * (rep.pieces.length - rep.pieces.settle)))
-    before *= ANGLE_UNIT
-    rep = replay_at(d, fits[d], final)  # every piece, from the subset's fit
-    x = fits[d]
-    for _ in range(ROUNDS):
-        x = fitted(x, final)
-        rep.refine_starts(arm(x), 1)  # the starts and directions at the fit
+    d = best
+    prob.pieces(d, fits[d], final)  # every piece, from the subset's fit
+    x = prob.fit(fits[d], final, ROUNDS)
 
-    # The Jacobian at the optimum (forward differences), and the robust covariance.
-    P = len(rep.pieces)
-    r = residual_fn(x, None)[0][0]
+    # The Jacobian at the fit (forward differences), and the robust covariance.
+    P = len(prob.rep.pieces)
+    r = prob.residual(x)[0][0]
     eps = 1e-6
-    cols = np.tile(x[:, None], (1, len(names))) + eps * np.eye(len(names))
-    J = (residual_fn(cols, None)[0][0] - r[:, None]) / eps if names else np.zeros((r.size, 0))
-    cov = cluster_covariance(J, r, P) if names else np.zeros((0, 0))
+    if names:
+        cols = np.tile(x[:, None], (1, len(names))) + eps * np.eye(len(names))
+        J = (prob.residual(cols)[0][0] - r[:, None]) / eps
+        cov = cluster_covariance(J, r, P)
+    else:
+        cov = np.zeros((0, 0))
     tq = float(stats.t.ppf(0.975, max(P - len(names), 1)))
-    estimates = []
-    values = {}
+    estimates, values = [], {}
     for i, n in enumerate(names):
         lo, hi, s = box[n]
         value, half = float(x[i] * s), float(tq * math.sqrt(max(cov[i, i], 0.0)) * s)
@@ -324,21 +346,18 @@ def identify(
         estimates.append(Estimate(n, float(getattr(mech, n)), value, half, ok, why))
         if ok:
             values[n] = value
-    total = costs[d]  # stage one's fitted costs at each tried delay
+    # Each neighbour's fitted residual against the best one's, per piece of the subset.
     delay_ok = fit_delay and all(
-        (costs[k] - total) / (total / P0) >= CHI2_95 for k in (d - 1, d + 1) if k in costs
-    )
+        (costs[k] - costs[d]) / (costs[d] / n_subset) >= CHI2_95
+        for k in (d - 1, d + 1) if k in costs
+    )  # fmt: skip
     loop = d * config.ctrl_dt
-    if fit_delay and delay_ok:
-        obs = min(config.observation_delay, loop)
-        values["observation_delay"], values["motor_delay"] = obs, round(loop - obs, 12)
     out = config.to_dict()
-    mech_dict = {**out["mechanism"], **{k: v for k, v in values.items() if k not in DELAYS}}
-    out["mechanism"] = mech_dict
-    if "motor_delay" in values:
-        mech_dict["motor_delay"] = values["motor_delay"]
-        out["observation_delay"] = values["observation_delay"]
-    after = math.sqrt(float(np.sum(r**2)) / r.size) * ANGLE_UNIT
+    out["mechanism"] = {**out["mechanism"], **values}
+    if delay_ok:
+        obs = min(config.observation_delay, loop)
+        out["mechanism"]["motor_delay"] = round(loop - obs, 12)
+        out["observation_delay"] = obs
     return Identification(
         estimates=estimates,
         loop_delay_s=loop,
@@ -346,9 +365,11 @@ def identify(
         config=out,
         skipped=skipped,
         pieces=P,
-        residual_rms_rad=(before, after),
+        residual_rms_rad=(
+            math.sqrt(scanned[d] / entries) * ANGLE_UNIT,
+            math.sqrt(float(np.sum(r**2)) / r.size) * ANGLE_UNIT,
+        ),
         seconds=time.perf_counter() - began,
-        sources=[r_.source for r_ in recordings],
-        extras={"replay": rep, "x": x, "x0": x0, "names": names, "scales": scales,
-                "cov": cov, "costs": costs, "scanned": scanned, "arm": arm},
-    )  # fmt: skip
+        sources=[rec.source for rec in recordings],
+        extras={"problem": prob, "x": x, "cov": cov, "costs": costs, "scanned": scanned},
+    )
