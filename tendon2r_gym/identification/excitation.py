@@ -141,7 +141,7 @@ def record(
         start = [math.degrees(b) for b in signal.bias_rad]
         overrides = {
             "reference": {"amp_deg": [0.0, 0.0], "bias_deg": start},
-            "mechanism": {**cfg.mechanism.to_dict(), "max_tendon_force": cfg.mechanism.max_tendon_force},
+            "mechanism": cfg.mechanism.to_dict(),  # the force limit resolved: the file's
             "pd_gains": {"bandwidth_hz": signal.bandwidth_hz, "max_delay_phase": None},
         }
     env = _env(config, duration, **overrides)

@@ -109,13 +109,22 @@ class Identification:
     estimates: list[Estimate]
     loop_delay_s: float
     delay_identified: bool
-    config: dict[str, Any]  # the identified arm's experiment file (EnvConfig keyword arguments)
+    #: What the identified arm changes in the nominal experiment file: ``mechanism`` fields
+    #: and ``observation_delay``.
+    changes: dict[str, Any]
     skipped: dict[str, str]  # asked-for fields the nominal arm's model cannot vary, and why
     pieces: int
     residual_rms_rad: tuple[float, float]  # before and after the fit (projected)
     seconds: float
     sources: list[str] = field(default_factory=list)
     extras: dict[str, Any] = field(default_factory=dict, repr=False)  # for the report
+
+    def experiment(self, nominal: str | os.PathLike) -> dict[str, Any]:
+        """Returns the identified arm's experiment file: the nominal one (a preset name or
+        file) with :attr:`changes`."""
+        from tendon2r_gym.presets import load_yaml, merge_env_kwargs, preset_path
+
+        return merge_env_kwargs(load_yaml(preset_path(nominal)), self.changes)
 
     def lines(self) -> list[str]:
         """The printed table."""
@@ -352,17 +361,16 @@ def identify(
         for k in (d - 1, d + 1) if k in costs
     )  # fmt: skip
     loop = d * config.ctrl_dt
-    out = config.to_dict()
-    out["mechanism"] = {**out["mechanism"], **values}
+    out: dict[str, Any] = {"mechanism": values}
     if delay_ok:
         obs = min(config.observation_delay, loop)
-        out["mechanism"]["motor_delay"] = round(loop - obs, 12)
+        values["motor_delay"] = round(loop - obs, 12)
         out["observation_delay"] = obs
     return Identification(
         estimates=estimates,
         loop_delay_s=loop,
         delay_identified=bool(delay_ok),
-        config=out,
+        changes=out,
         skipped=skipped,
         pieces=P,
         residual_rms_rad=(

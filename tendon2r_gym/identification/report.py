@@ -24,7 +24,7 @@ def save_experiment(ident: Identification, path: str | os.PathLike, nominal: str
         *ident.lines(),
     ]
     text = "".join(f"# {line}\n" for line in head)
-    text += yaml.safe_dump(ident.config, sort_keys=False, default_flow_style=None)
+    text += yaml.safe_dump(ident.experiment(nominal), sort_keys=False, default_flow_style=None)
     path.write_text(text)
     return path
 
