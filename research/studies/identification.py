@@ -215,8 +215,9 @@ def lines(result: dict[str, Any]) -> list[str]:
     for key, label in (("pd", "PD"), ("residual", "residual")):
         gaps = [r["gap_closed"][key] for r in rows if r["gap_closed"][key] is not None]
         if gaps:
-            out.append(f"\n{label}: median gap closed {np.median(gaps):.0%}, "
-                       f"{sum(g >= 0.8 for g in gaps)} of {len(gaps)} arms at 80% or more.")  # fmt: skip
+            at = sum(g >= 0.8 for g in gaps)
+            out.append(f"\n{label}: median gap closed {np.median(gaps):.0%}, {at} of "
+                       f"{len(gaps)} arms at 80% or more.")  # fmt: skip
     return out
 
 
