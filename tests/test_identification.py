@@ -1,0 +1,180 @@
+"""Identify your arm: the recording format and its errors, the simulator's recorder and the
+excitation, and the fit (tendon2r_gym.identification)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from tendon2r_gym.envs.env_config import EnvConfig
+from tendon2r_gym.identification import recording
+from tendon2r_gym.identification.excitation import MultiSine, record
+from tendon2r_gym.identification.identify import identify, load_recordings
+
+pytest.importorskip("mujoco.sysid.report")
+
+
+@pytest.fixture(scope="module")
+def arm() -> EnvConfig:
+    return EnvConfig.make("default")
+
+
+@pytest.fixture(scope="module")
+def rec(arm):
+    signal = MultiSine(amp_rad=(0.1, 0.08), bias_rad=(0.1, -0.2))
+    return record(arm, "pd", 1.5, seed=0, signal=signal)
+
+
+def _write(tmp_path, rec, edit=None):
+    path = rec.save(tmp_path / "r.csv")
+    if edit is not None:
+        lines = [line for line in path.read_text().splitlines() if not line.startswith("#")]
+        edit(lines)
+        path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _load(path, arm, **kw):
+    mech = arm.mechanism
+    return recording.load(
+        path, mech.n_tendons, arm.ctrl_dt, float(mech.max_tendon_force), mech.pull_only, **kw
+    )
+
+
+def test_a_recording_reads_back_bit_for_bit(tmp_path, arm, rec):
+    back = _load(_write(tmp_path, rec), arm)
+    assert np.array_equal(back.time, rec.time)
+    assert np.array_equal(back.command, rec.command)
+    assert np.array_equal(back.q, rec.q)
+
+
+def _set(row: int, column: str, value: str):
+    def edit(lines):
+        header = lines[0].split(",")
+        cells = lines[row].split(",")
+        cells[header.index(column)] = value
+        lines[row] = ",".join(cells)
+
+    return edit
+
+
+def _rename(old: str, new: str):
+    def edit(lines):
+        lines[0] = ",".join(new if h == old else h for h in lines[0].split(","))
+
+    return edit
+
+
+def _drop(column: str):
+    def edit(lines):
+        i = lines[0].split(",").index(column)
+        for k, line in enumerate(lines):
+            cells = line.split(",")
+            del cells[i]
+            lines[k] = ",".join(cells)
+
+    return edit
+
+
+@pytest.mark.parametrize(
+    "edit, column, row",
+    [
+        (_drop("q_B"), "q_B", None),  # missing
+        (_rename("q_B", "q_C"), "q_C", None),  # unknown
+        (_rename("q_B", "q_A"), "q_A", None),  # twice
+        (_set(3, "q_A", "nan"), "q_A", 3),
+        (_set(4, "command_2", "abc"), "command_2", 4),
+        (_set(5, "time", "0.0"), "time", 5),  # decreasing
+        (_set(6, "time", "0.0052"), "time", 6),  # not uniform
+        (_set(7, "command_1", "1e6"), "command_1", 7),  # beyond the force limit
+        (_set(8, "command_2", "-1e6"), "command_2", 8),
+    ],
+)
+def test_a_bad_recording_names_its_column_and_row(tmp_path, arm, rec, edit, column, row):
+    path = _write(tmp_path, rec, edit)
+    with pytest.raises(ValueError) as e:
+        _load(path, arm)
+    message = str(e.value)
+    assert str(path) in message and repr(column) in message
+    if row is not None:
+        assert f"row {row}" in message
+
+
+def test_pull_only_commands_may_not_push(tmp_path):
+    cfg = EnvConfig.make("pull_only")
+    rec = record(cfg, "pd", 0.05)
+    path = _write(tmp_path, rec, _set(2, "command_3", "-0.001"))
+    mech = cfg.mechanism
+    with pytest.raises(ValueError, match="row 2.*pull-only"):
+        recording.load(path, 3, cfg.ctrl_dt, float(mech.max_tendon_force), True)
+
+
+def test_a_partial_optional_block_and_a_short_recording_are_refused(tmp_path, arm, rec):
+    path = _write(tmp_path, rec, _rename("q_B", "q_B"))
+    text = path.read_text().splitlines()
+    text[0] += ",dq_A"
+    text[1:] = [line + ",0" for line in text[1:]]
+    path.write_text("\n".join(text) + "\n")
+    with pytest.raises(ValueError, match="'dq_B'"):
+        _load(path, arm)
+    short = _write(tmp_path, rec)
+    with pytest.raises(ValueError, match="needs at least"):
+        load_recordings([short], arm, n_fields=20)
+
+
+def test_the_recorder_is_deterministic_and_holds_the_commands_as_sent(arm):
+    noisy = EnvConfig.make("real_arm")
+    a, b = record(noisy, "pd", 0.2, seed=3), record(noisy, "pd", 0.2, seed=3)
+    c = record(noisy, "pd", 0.2, seed=4)
+    assert np.array_equal(a.q, b.q) and np.array_equal(a.command, b.command)
+    assert not np.array_equal(a.q, c.q)  # the sensors' noise follows the seed
+    force = float(noisy.mechanism.max_tendon_force)
+    assert a.command.min() >= 0.0 and a.command.max() <= force
+
+
+def test_the_multisine_starts_at_rest_and_its_speed_is_its_derivative():
+    s = MultiSine(amp_rad=(0.2, 0.1), bias_rad=(0.1, -0.3))
+    q0, dq0 = s.q(0.0)
+    assert np.allclose(q0, s.bias_rad) and np.allclose(dq0, 0.0)
+    h = 1e-6
+    for t in (0.2, 1.3, 2.9):
+        numeric = (s.q(t + h)[0] - s.q(t - h)[0]) / (2 * h)
+        assert np.allclose(s.q(t)[1], numeric, rtol=1e-5, atol=1e-6)
+
+
+def test_a_noise_free_ideal_arm_gives_back_its_nominal_values(arm, rec):
+    ident = identify([rec], arm, ["density_scale", "extra_joint_damping"], threads=1)
+    est = {e.field: e for e in ident.estimates}
+    assert abs(est["density_scale"].value - 1.0) <= 0.01
+    assert abs(est["extra_joint_damping"].value) <= 0.01 * 1e-5  # 1% of its scale
+
+
+def test_the_fit_finds_a_hidden_mass_and_damping_within_its_interval(arm):
+    true = EnvConfig.make("default", mechanism={"density_scale": 1.3, "extra_joint_damping": 4e-6})
+    signal = MultiSine(amp_rad=(0.1, 0.08), bias_rad=(0.1, -0.2))
+    rec = record(true, "pd", 1.5, seed=0, signal=signal)
+    ident = identify([rec], arm, ["density_scale", "extra_joint_damping"], threads=1)
+    for e in ident.estimates:
+        truth = getattr(true.mechanism, e.field)
+        assert e.identified and e.interval[0] <= truth <= e.interval[1], e
+        assert math.isclose(e.value, truth, rel_tol=0.1)
+    assert ident.changes["mechanism"]["density_scale"] == pytest.approx(1.3, rel=0.1)
+
+
+def test_the_fit_refuses_a_field_the_nominal_arm_cannot_vary(arm, rec):
+    with pytest.raises(ValueError, match="tendon_elasticity.*rigid"):
+        identify([rec], arm, ["tendon_elasticity"])
+
+
+def test_tendon2r_identify_writes_an_experiment_file_every_command_reads(tmp_path, arm, rec):
+    from tendon2r_gym.app.identify import identify_main
+
+    path = rec.save(tmp_path / "rec.csv")
+    out = tmp_path / "id" / "arm.yaml"
+    identify_main(["--recording", str(path), "--env-config", "default", "--out", str(out),
+                   "--fit", "density_scale", "--threads", "1"])  # fmt: skip
+    identified = EnvConfig.make(out)
+    assert identified.mechanism.density_scale == pytest.approx(1.0, rel=0.01)
+    assert out.with_suffix(".html").stat().st_size > 0
