@@ -581,13 +581,27 @@ def realism_section(root: Path) -> list[str]:
     ]
 
 
+def identification_section(root: Path) -> list[str]:
+    """Returns the identification study's section (research/results/identification.json),
+    if it ran."""
+    path = root / "research" / "results" / "identification.json"
+    if not path.is_file():
+        return []
+    from research.studies.identification import lines as identification_lines
+
+    title, *body = identification_lines(json.loads(path.read_text()))
+    body = ["#" + line if line.startswith("## ") else line for line in body]
+    return ["## " + title.lstrip("# "), *body]
+
+
 def results_page(root: Path = ROOT) -> str:
     """Returns docs/results.md."""
     reports = benchmark_reports(root)
     main = reports.pop("results/benchmark.json", None)
     lines = [
         header(
-            "results/benchmark.json, results/*/benchmark.json and research/results/realism.json"
+            "results/benchmark.json, results/*/benchmark.json, research/results/realism.json "
+            "and research/results/identification.json"
         ),
         "",
         "# Results",
@@ -605,6 +619,8 @@ def results_page(root: Path = ROOT) -> str:
         lines += bundled_section(main)
     if real := realism_section(root):
         lines += ["", *real]
+    if ident := identification_section(root):
+        lines += ["", *ident]
     if reports:
         lines += [
             "",

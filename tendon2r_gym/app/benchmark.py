@@ -92,9 +92,12 @@ def compare(
     return rows
 
 
-#: The generalists (registry group ``generalist``): trained across random arms, run zero-shot
-#: on a user's arm when it lies inside their training ranges.
-GENERALISTS = tuple(registry.names("generalist"))
+#: The models run zero-shot on a user's arm when it lies inside their training ranges: the
+#: generalists (registry group ``generalist``, trained across random arms) and the residuals
+#: trained across real cables, motors and sensors (group ``realism``).
+GENERALISTS = tuple(registry.names("generalist")) + tuple(registry.names("realism"))
+#: Held-out episodes tendon2r-tune-pd tunes PD on, for the own-arm benchmark's tuned PD row.
+TUNE_EPISODES = 2
 
 
 #: Fine-tuning a generalist on a user's arm: row label -> configs/ppo.yaml entry (its
@@ -116,18 +119,27 @@ def not_covered(bundle: str, env_kwargs: dict[str, Any]) -> str | None:
     return None
 
 
-def generalist_rows(name: str, env_kwargs: dict[str, Any], seeds: list[int]) -> list[dict]:
-    """Returns a row per shipped generalist bundle on this arm: zero-shot (no training on it),
-    or ``missing`` with the reason when the arm is outside its training ranges."""
+def generalist_rows(
+    name: str, env_kwargs: dict[str, Any], seeds: list[int], tuned: dict[str, Any] | None = None
+) -> list[dict]:
+    """Returns a row per shipped zero-shot bundle (GENERALISTS) on this arm: zero-shot (no
+    training on it), or ``missing`` with the reason when the arm is outside its training
+    ranges.  A residual trained on drawn PD gains runs with ``tuned`` (the arm's tuned
+    pd_gains), as tendon2r-tune-pd would give them to it."""
+    from tendon2r_gym.policies.model_env import trained_on_drawn_gains
+
     rows = []
     for bundle in (b for b in GENERALISTS if b in bundle_names()):
         label, model = f"{bundle} zero-shot", bundled_model(bundle)
-        reason = not_covered(bundle, env_kwargs)
+        on = env_kwargs
+        if tuned is not None and trained_on_drawn_gains(model):
+            on = {**env_kwargs, "pd_gains": tuned}
+        reason = not_covered(bundle, on)
         if reason is not None:
             rows.append({"env": name, "policy": label, "missing": reason})
             continue
-        tag = settings_on(model, env_kwargs)  # as compare: the settings it trained in
-        row = _row(name, label, "ppo", {**env_kwargs, **tag}, seeds, model, None)
+        tag = settings_on(model, on)  # as compare: the settings it trained in
+        row = _row(name, label, "ppo", {**on, **tag}, seeds, model, None)
         rows.append({**row, **tag})
         _print(rows[-1])
     return rows
@@ -307,6 +319,7 @@ def benchmark_own_arm(
     from tqdm.auto import tqdm
 
     from tendon2r_gym.envs.env_config import EnvConfig
+    from tendon2r_gym.evaluation.tuning import tune_pd
     from tendon2r_gym.training import Experiment, Hyperparams
 
     env_kwargs = {"preset": env_config}
@@ -341,7 +354,13 @@ def benchmark_own_arm(
         bar.set_postfix_str("evaluating")
         name = Path(env_config).stem
         rows = compare(name, env_kwargs, learned, list(range(episodes)), out / "plots", bar)
-        rows += generalist_rows(name, env_kwargs, list(range(episodes)))
+        # PD as tendon2r-tune-pd tunes it on this arm (a lagging arm needs lower gains)
+        tuned = tune_pd(env_kwargs, TUNE_EPISODES).gains.to_dict()
+        row = _row(name, "PD tuned", "pd", {**env_kwargs, "pd_gains": tuned},
+                   list(range(episodes)), None, None)  # fmt: skip
+        rows.append({**row, "pd_gains": tuned})
+        _print(rows[-1])
+        rows += generalist_rows(name, env_kwargs, list(range(episodes)), tuned)
         rows += [{"env": name, "policy": k, "missing": v} for k, v in uncovered.items()]
     result = {
         "command": command,

@@ -187,6 +187,7 @@ class BenchmarkArgs:
 
     tendon2r-benchmark                                   # bundled presets -> results/
     tendon2r-benchmark --env-config my_arm.yaml --train-steps 300000 --seeds 0 1 2 --out DIR
+    tendon2r-benchmark --env-config my_arm_identified.yaml --no-train --out DIR
     """
 
     env_config: Annotated[str | None, arg("your arm: train PPO on this file, then compare")] = None
@@ -197,6 +198,9 @@ class BenchmarkArgs:
     episodes: Annotated[int, arg("evaluation episodes per policy (seeds 0 ..)")] = 3
     out: Annotated[str, arg("folder for benchmark.md, benchmark.json and plots/")] = "results"
     run_dir: Annotated[str | None, arg("training runs (default runs/<env-config name>)")] = None
+    train: Annotated[
+        bool, arg("with --env-config: train PPO on the arm (--no-train: PD, CT, zero-shot rows)")
+    ] = True
 
 
 def benchmark_main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -219,6 +223,7 @@ def benchmark_main(argv: list[str] | None = None) -> dict[str, Any]:
         Path(args.out),
         Path(args.run_dir or f"runs/{Path(args.env_config).stem}"),
         command,
+        None if args.train else [],
     )
 
 

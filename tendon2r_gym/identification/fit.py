@@ -135,6 +135,7 @@ class Replay:
             q, dq = pieces._est[i]
             self._start.append((q[s], dq[s]))
         self.projection: np.ndarray | None = None  # (P, 2 length, 4) orthonormal
+        self._diverged: list[str] = []  # MuJoCo's warnings of diverged candidates
 
     def initial_states(
         self, model: mujoco.MjModel, mech: Mechanism, shift: np.ndarray | None = None
@@ -175,7 +176,14 @@ class Replay:
         ctrl = np.repeat(pieces.commands(mechs[0]), n_sub, axis=1)
         ctrl = np.tile(ctrl, (len(mechs), 1, 1))
         datas = [mujoco.MjData(models[0]) for _ in range(self.threads)]
-        state, _ = mj_rollout.rollout(models, datas, np.concatenate(states), ctrl)
+        # A candidate the integrator cannot integrate diverges: MuJoCo resets it (its angles
+        # then miss the recording widely) and warns, which would print once per rollout.
+        warned = mujoco.get_mju_user_warning()
+        mujoco.set_mju_user_warning(self._diverged.append)
+        try:
+            state, _ = mj_rollout.rollout(models, datas, np.concatenate(states), ctrl)
+        finally:
+            mujoco.set_mju_user_warning(warned)
         q = state[:, n_sub - 1 :: n_sub, 1:3]  # after each control step; time comes first
         return q.reshape(len(mechs), len(pieces), pieces.length, 2)
 
