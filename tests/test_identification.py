@@ -178,3 +178,24 @@ def test_tendon2r_identify_writes_an_experiment_file_every_command_reads(tmp_pat
     identified = EnvConfig.make(out)
     assert identified.mechanism.density_scale == pytest.approx(1.0, rel=0.01)
     assert out.with_suffix(".html").stat().st_size > 0
+
+
+def test_a_field_the_recording_cannot_show_is_flagged_and_keeps_its_nominal_value(arm, rec):
+    # The ideal arm has no friction: the fit ends on the bound 0, and no number is reported.
+    ident = identify([rec], arm, ["density_scale", "tendon_friction"], threads=1)
+    est = {e.field: e for e in ident.estimates}
+    assert est["density_scale"].identified and not est["tendon_friction"].identified
+    assert "tendon_friction" not in ident.changes["mechanism"]
+    assert any("not identifiable" in line for line in ident.lines())
+
+
+def test_several_recordings_of_one_arm_are_fitted_together(arm):
+    true = EnvConfig.make("default", mechanism={"density_scale": 0.8})
+    recs = [
+        record(true, "pd", 0.8, seed=s, signal=MultiSine(amp_rad=(0.1, 0.08), bias_rad=b))
+        for s, b in ((0, (0.1, -0.2)), (1, (-0.3, 0.4)))
+    ]
+    one = identify(recs[:1], arm, ["density_scale"], threads=1)
+    both = identify(recs, arm, ["density_scale"], threads=1)
+    assert both.pieces > one.pieces
+    assert both.estimates[0].value == pytest.approx(0.8, rel=0.01)
