@@ -10,7 +10,8 @@ spectrum with a low peak), its amplitude the largest (at most the file's) for wh
 every command within :data:`FORCE_MARGIN` of the force limit and the joints
 :data:`RANGE_MARGIN_DEG` inside their range on the nominal arm.  Low frequencies move the links'
 mass and damping; the high ones make the cables stretch and the motors lag; every reversal of a
-joint makes the cables' friction change sign.
+joint makes the cables' friction change sign.  To fit the force limit, the slow sines shrink
+first (down to MIN_SLOW of the reference's amplitudes), then the fast ones with them.
 """
 
 from __future__ import annotations
@@ -32,6 +33,9 @@ from tendon2r_gym.validation import invalid, number
 FORCE_MARGIN = 0.8
 #: The joints stay this far inside their range (deg) on the nominal arm.
 RANGE_MARGIN_DEG = 5.0
+#: The slow sines shrink alone (to fit the force limit) down to this fraction of the
+#: reference's amplitudes; below it, the fast ones shrink with them.
+MIN_SLOW = 0.25
 
 
 @dataclass(frozen=True)
@@ -47,7 +51,7 @@ class MultiSine:
     #: Small fast sines on top (Hz, and rad each): the arm follows them only partly, but PD's
     #: commands carry them, and the joints' response shows the motors' lag apart from their
     #: delay (which the slow sines alone cannot tell apart) and the cables' stretch.
-    dither_hz: tuple[float, ...] = (13.0, 21.0, 34.0, 55.0, 89.0)
+    dither_hz: tuple[float, ...] = (11.0, 17.0, 26.0, 40.0, 60.0)
     dither_rad: float = 0.003
     #: The bandwidth of the PD that tracks it (pd_gains.bandwidth_hz): soft, so that an arm
     #: lagging twice as long as the nominal one still tracks it without chatter, which would
@@ -211,8 +215,8 @@ def design(
     room = [min(b - lo, hi - b) - margin for b in bias]
     amp = [min(float(a), r) for a, r in zip(cfg.reference.amp_rad, room, strict=True)]
     force = float(mech.max_tendon_force)
-    dither = MultiSine.dither_rad
-    for _ in range(12):
+    dither, start = MultiSine.dither_rad, list(amp)
+    for _ in range(24):
         signal = MultiSine(amp_rad=tuple(amp), bias_rad=bias, dither_rad=dither)
         rec = record(nominal, "pd", duration, seed=0, signal=signal)
         peak = float(np.abs(rec.command).max()) / force
@@ -220,7 +224,10 @@ def design(
         if peak <= FORCE_MARGIN and over == 0.0:
             return signal, rec
         shrink = min(FORCE_MARGIN / peak, 0.9) if peak > FORCE_MARGIN else 0.9
-        amp, dither = [a * shrink for a in amp], dither * shrink
+        # The slow sines give way first: the fast ones tell the lag from the delay.
+        small = max(a / a0 for a, a0 in zip(amp, start, strict=True)) < MIN_SLOW
+        amp = [a * shrink for a in amp]
+        dither *= shrink if small or over > 0.0 else 1.0
     raise invalid(
         "reference",
         cfg.reference.to_dict(),

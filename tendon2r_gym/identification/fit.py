@@ -65,6 +65,8 @@ class Pieces:
     piece_s: float = PIECE_S
     #: Seconds between the pieces' starts (default: piece_s, back to back).
     spacing_s: float | None = None
+    #: The first piece's first row (default: the first whose commands are all recorded).
+    first: int | None = None
     starts: list[tuple[int, int]] = field(default_factory=list)  # (recording, first row)
     length: int = 0
     settle: int = 0
@@ -75,7 +77,7 @@ class Pieces:
         self._est = [start_estimates(r, self.ctrl_dt) for r in self.recordings]
         for i, rec in enumerate(self.recordings):
             T = len(rec.time)
-            first = self.delay + 1  # commands before the first row are unknown
+            first = self.delay + 1 if self.first is None else max(self.first, self.delay + 1)
             every = max(self.length, round((self.spacing_s or self.piece_s) / self.ctrl_dt))
             self.starts += [(i, s) for s in range(first, T - self.length, every)]
 

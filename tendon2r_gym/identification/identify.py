@@ -12,11 +12,11 @@ toolbox's box-constrained Gauss-Newton (``mujoco.sysid.optimize``, MuJoCo's own
   identified arm keeps its nominal value;
 - the delays: commands and angles show only the loop delay, ``motor_delay +
   observation_delay`` (a command held back d steps and a measurement d steps late move the
-  replay alike), found in whole control steps by the least residual.  It is identified if
-  each neighbouring delay leaves a residual larger by the 95% quantile of chi-square(1) per
-  piece.  The identified arm keeps the nominal ``observation_delay`` (or the whole loop delay
-  if less) and gives the rest to ``motor_delay``: the loop that PD tuning and the policies see
-  is the same.
+  replay alike), found in whole control steps by the least fitted residual.  It is
+  identified if each neighbouring delay, fitted too, leaves larger residuals on the pieces
+  (a one-sided paired t-test over them at 95%).  The identified arm keeps the nominal
+  ``observation_delay`` (or the whole loop delay if less) and gives the rest to
+  ``motor_delay``: the loop that PD tuning and the policies see is the same.
 """
 
 from __future__ import annotations
@@ -79,7 +79,6 @@ class Stage(NamedTuple):
 STAGES = (Stage(PIECE_S, 5 * PIECE_S, 4), Stage(PIECE_S, 2 * PIECE_S, 4))
 #: Rounds of each stage: a fit of max_iters, then the pieces' starts refined at it.
 ROUNDS = 3
-CHI2_95 = 3.841  # chi-square(1) 95% quantile
 
 
 @dataclass
@@ -212,6 +211,8 @@ class _Problem:
         self.scales = np.array([box[n][2] for n in names])
         self.x0 = np.array([float(getattr(self.mech, n)) for n in names]) / self.scales
         self.rep: Replay | None = None
+        #: The first row of a piece at any delay tried: every delay's pieces are the same.
+        self.first = round(MAX_DELAY_S / config.ctrl_dt) + 1
 
     def arm(self, x: np.ndarray) -> Mechanism:
         """The nominal arm with the fields at scaled values ``x``."""
@@ -222,13 +223,18 @@ class _Problem:
         """Sets and returns the pieces of ``stage`` at loop delay ``d``, their starts refined
         on the arm at ``x``."""
         cfg = self.config
-        pieces = Pieces(self.recordings, cfg.ctrl_dt, d, stage.piece_s, stage.spacing_s)
+        pieces = Pieces(self.recordings, cfg.ctrl_dt, d, stage.piece_s, stage.spacing_s,
+                        first=self.first)  # fmt: skip
         self.rep = Replay(pieces, self.mech, cfg.n_substeps, self.threads)
         self.rep.refine_starts(self.arm(x), passes)
         return self.rep
 
     def cost(self, x: np.ndarray) -> float:
-        return float(np.sum(self.rep.residual([self.arm(x)]) ** 2))
+        return float(np.sum(self.piece_costs(x)))
+
+    def piece_costs(self, x: np.ndarray) -> np.ndarray:
+        """Each piece's sum of squared residuals at ``x``."""
+        return np.sum(self.rep.residual([self.arm(x)])[0] ** 2, axis=-1)
 
     def residual(self, x: np.ndarray, _params: Any = None, **_: Any):
         """The toolbox's residual function: one column per column of ``x`` (batched finite
@@ -260,6 +266,20 @@ class _Problem:
             x = opt.as_vector()
             self.rep.refine_starts(self.arm(x), 1)
         return x
+
+
+def _worse(other: np.ndarray, best: np.ndarray) -> bool:
+    """Whether the pieces' fitted residuals at another delay (``other``, per piece) are
+    larger than at the best one: a one-sided paired t-test over the pieces at 95% (the
+    pieces are independent; the rows within one are not)."""
+    from scipy import stats
+
+    diff = other - best
+    n = diff.size
+    sd = float(np.std(diff, ddof=1)) if n > 1 else 0.0
+    if sd == 0.0:
+        return bool(diff.mean() > 0)
+    return float(diff.mean() / (sd / math.sqrt(n))) >= float(stats.t.ppf(0.95, n - 1))
 
 
 def _fields(asked: list[str], mech: Mechanism, explicit: bool):
@@ -310,15 +330,16 @@ def identify(
     for k in scan:
         prob.pieces(k, x0, subset, 1)
         scanned[k] = prob.cost(x0)
-    n_subset = len(prob.rep.pieces)
     entries = prob.rep.residual([prob.arm(x0)]).size
     fits: dict[int, np.ndarray] = {}
     costs: dict[int, float] = {}
+    per_piece: dict[int, np.ndarray] = {}
 
     def profile(k: int, start: np.ndarray, rounds: int) -> None:
         prob.pieces(k, start, subset)
         fits[k] = prob.fit(start, subset, rounds)
-        costs[k] = prob.cost(fits[k])
+        per_piece[k] = prob.piece_costs(fits[k])
+        costs[k] = float(per_piece[k].sum())
 
     best = min(scanned, key=scanned.get)
     profile(best, x0, ROUNDS)
@@ -357,9 +378,8 @@ def identify(
             values[n] = value
     # Each neighbour's fitted residual against the best one's, per piece of the subset.
     delay_ok = fit_delay and all(
-        (costs[k] - costs[d]) / (costs[d] / n_subset) >= CHI2_95
-        for k in (d - 1, d + 1) if k in costs
-    )  # fmt: skip
+        _worse(per_piece[k], per_piece[d]) for k in (d - 1, d + 1) if k in costs
+    )
     loop = d * config.ctrl_dt
     out: dict[str, Any] = {"mechanism": values}
     if delay_ok:
