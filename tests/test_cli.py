@@ -107,10 +107,13 @@ def test_benchmark_on_your_own_arm(tmp_path):
     # then each shipped generalist, zero-shot: this arm's R2 is outside the course ranges
     zero_shot = [r for r in result["rows"] if r["policy"].endswith("zero-shot")]
     assert [r["policy"] for r in zero_shot] == [f"{g} zero-shot" for g in GENERALISTS]
-    for row in zero_shot:  # the pull-only one has another observation (three commands)
+    for row in zero_shot:  # the pull-only ones have another observation (three commands)
         assert "R2 = 0.049 outside [0.011, 0.047]" in row["missing"] or (
-            "pull_only" in row["policy"] and "was trained for another env" in row["missing"]
+            ("pull_only" in row["policy"] or "real_arm" in row["policy"])
+            and "was trained for another env" in row["missing"]
         ), row
+    tuned = next(r for r in result["rows"] if r["policy"] == "PD tuned")  # tendon2r-tune-pd's
+    assert tuned["pd_gains"]["bandwidth_hz"] > 0 and "rms_deg" in tuned
     finetuned = [r for r in result["rows"] if r["policy"] in FINETUNED]
     assert [r["policy"] for r in finetuned] == list(FINETUNED)  # nothing to start from
     assert all("R2 = 0.049 outside [0.011, 0.047]" in r["missing"] for r in finetuned)
@@ -121,7 +124,16 @@ def test_benchmark_on_your_own_arm(tmp_path):
     assert (tmp_path / "runs" / "ppo_scratch" / "seed_0" / "run.json").is_file()
 
 
-def test_benchmark_fine_tunes_the_generalist_on_an_arm_it_covers(tmp_path):
+def _untuned(monkeypatch):
+    """PD's tuning (test_benchmark_on_your_own_arm runs it) as a stub: the package's gains."""
+    from tendon2r_gym.evaluation import tuning
+    from tendon2r_gym.task.gains import default_gains
+
+    stub = type("Scan", (), {"gains": default_gains()})
+    monkeypatch.setattr(tuning, "tune_pd", lambda *a, **k: stub)
+
+
+def test_benchmark_fine_tunes_the_generalist_on_an_arm_it_covers(tmp_path, monkeypatch):
     """Inside the generalist's ranges, the own-arm benchmark also fine-tunes it: a row with
     its steps and wall time, trained from the bundle's weights (its run's config says so, with
     the settings it took from its source).  Run again (after a crash, or for the report), it
@@ -129,6 +141,7 @@ def test_benchmark_fine_tunes_the_generalist_on_an_arm_it_covers(tmp_path):
     runs had other hyperparameters is refused, named."""
     args = ["--env-config", "default", "--train-steps", "256", "--seeds", "0", "--episodes", "1",
             "--out", str(tmp_path / "out"), "--run-dir", str(tmp_path / "runs")]  # fmt: skip
+    _untuned(monkeypatch)
     result = benchmark_main(args)
     (label,) = FINETUNED
     row = next(r for r in result["rows"] if r["policy"] == label)
