@@ -216,7 +216,10 @@ class _Problem:
 
     def arm(self, x: np.ndarray) -> Mechanism:
         """The nominal arm with the fields at scaled values ``x``."""
-        values = {n: float(v) for n, v in zip(self.names, x * self.scales, strict=True)}
+        values = {  # within the bounds: the optimizer's last bit may cross one
+            n: min(max(float(v), self.box[n][0]), self.box[n][1])
+            for n, v in zip(self.names, x * self.scales, strict=True)
+        }
         return self.mech.replace(**values)
 
     def pieces(self, d: int, x: np.ndarray, stage: Stage, passes: int = 2) -> Replay:
