@@ -372,7 +372,8 @@ def identify(
     estimates, values = [], {}
     for i, n in enumerate(names):
         lo, hi, s = box[n]
-        value, half = float(x[i] * s), float(tq * math.sqrt(max(cov[i, i], 0.0)) * s)
+        value = min(max(float(x[i] * s), lo), hi)
+        half = float(tq * math.sqrt(max(cov[i, i], 0.0)) * s)
         at_bound = min(value - lo, hi - value) <= 1e-3 * (hi - lo)
         ok = half <= IDENTIFIED_WITHIN * abs(value) and not at_bound
         why = "" if ok else ("at its bound" if at_bound else f"+-{half:.3g} {FIELDS[n][0]}")
