@@ -199,3 +199,23 @@ def test_several_recordings_of_one_arm_are_fitted_together(arm):
     both = identify(recs, arm, ["density_scale"], threads=1)
     assert both.pieces > one.pieces
     assert both.estimates[0].value == pytest.approx(0.8, rel=0.01)
+
+
+def test_tendon2r_excite_keeps_the_rehearsal_within_the_limits(tmp_path):
+    from tendon2r_gym.app.identify import excite_main, record_main
+    from tendon2r_gym.identification.excitation import FORCE_MARGIN, RANGE_MARGIN_DEG
+
+    excite_main(["--env-config", "default", "--out", str(tmp_path), "--duration", "1"])
+    cfg = EnvConfig.make("default")
+    mech = cfg.mechanism
+    rehearsal = _load(tmp_path / "rehearsal.csv", cfg)
+    assert np.abs(rehearsal.command).max() <= FORCE_MARGIN * mech.max_tendon_force
+    lo, hi = (math.radians(x) for x in mech.joint_range_deg)
+    margin = math.radians(RANGE_MARGIN_DEG)
+    assert rehearsal.q.min() >= lo + margin and rehearsal.q.max() <= hi - margin
+    plan = np.loadtxt(tmp_path / "plan.csv", delimiter=",", skiprows=1)
+    assert plan.shape == (len(rehearsal.time), 5)
+    out = record_main(["--env-config", "default", "--excitation", "default", "--duration", "1",
+                       "--out", str(tmp_path / "rec.csv")])  # fmt: skip
+    again = _load(out, cfg)  # the same arm, noise-free: the rehearsal itself
+    assert np.array_equal(again.command, rehearsal.command)
