@@ -129,7 +129,7 @@ def verdicts(rows: list[dict[str, Any]]) -> list[str]:
         if "pd" not in by:
             continue
         for label, r in by.items():
-            if label in baselines or "model" not in r:  # a baseline (PD tuned included)
+            if label in baselines or "train_steps" not in r:  # a baseline (PD tuned too)
                 continue
             pd = by["pd"]["rms_deg"]
             wins = beats(r["rms_deg"], pd)
