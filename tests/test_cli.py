@@ -8,7 +8,7 @@ import sys
 import pytest
 
 from tendon2r_gym.app.args import parse
-from tendon2r_gym.app.benchmark import FINETUNED, GENERALISTS, LEARNED, compare
+from tendon2r_gym.app.benchmark import FINETUNED, LEARNED, ZERO_SHOT, compare
 from tendon2r_gym.app.cli import EvaluateArgs, benchmark_main, evaluate_main
 from tendon2r_gym.evaluation import evaluator as evaluation
 from tendon2r_gym.evaluation.evaluator import BASELINE, PolicyEntry, names
@@ -106,7 +106,7 @@ def test_benchmark_on_your_own_arm(tmp_path):
     assert policies[: len(names(BASELINE)) + len(LEARNED)] == [*names(BASELINE), *LEARNED]
     # then each shipped generalist, zero-shot: this arm's R2 is outside the course ranges
     zero_shot = [r for r in result["rows"] if r["policy"].endswith("zero-shot")]
-    assert [r["policy"] for r in zero_shot] == [f"{g} zero-shot" for g in GENERALISTS]
+    assert [r["policy"] for r in zero_shot] == [f"{g} zero-shot" for g in ZERO_SHOT]
     for row in zero_shot:  # the pull-only ones have another observation (three commands)
         assert "R2 = 0.049 outside [0.011, 0.047]" in row["missing"] or (
             ("pull_only" in row["policy"] or "real_arm" in row["policy"])

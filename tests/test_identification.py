@@ -24,7 +24,7 @@ def arm() -> EnvConfig:
 @pytest.fixture(scope="module")
 def rec(arm):
     signal = MultiSine(amp_rad=(0.1, 0.08), bias_rad=(0.1, -0.2))
-    return record(arm, "pd", 1.5, seed=0, signal=signal)
+    return record(arm, "pd", 2.6, seed=0, signal=signal)
 
 
 def _write(tmp_path, rec, edit=None):
@@ -120,7 +120,7 @@ def test_a_partial_optional_block_and_a_short_recording_are_refused(tmp_path, ar
     with pytest.raises(ValueError, match="'dq_B'"):
         _load(path, arm)
     short = _write(tmp_path, rec)
-    with pytest.raises(ValueError, match="needs at least"):
+    with pytest.raises(ValueError, match=f"recording {short}: too short to fit 20 fields"):
         load_recordings([short], arm, n_fields=20)
 
 
@@ -154,7 +154,7 @@ def test_a_noise_free_ideal_arm_gives_back_its_nominal_values(arm, rec):
 def test_the_fit_finds_a_hidden_mass_and_damping_within_its_interval(arm):
     true = EnvConfig.make("default", mechanism={"density_scale": 1.3, "extra_joint_damping": 4e-6})
     signal = MultiSine(amp_rad=(0.1, 0.08), bias_rad=(0.1, -0.2))
-    rec = record(true, "pd", 1.5, seed=0, signal=signal)
+    rec = record(true, "pd", 2.6, seed=0, signal=signal)
     ident = identify([rec], arm, ["density_scale", "extra_joint_damping"], threads=1)
     for e in ident.estimates:
         truth = getattr(true.mechanism, e.field)
@@ -192,7 +192,7 @@ def test_a_field_the_recording_cannot_show_is_flagged_and_keeps_its_nominal_valu
 def test_several_recordings_of_one_arm_are_fitted_together(arm):
     true = EnvConfig.make("default", mechanism={"density_scale": 0.8})
     recs = [
-        record(true, "pd", 0.8, seed=s, signal=MultiSine(amp_rad=(0.1, 0.08), bias_rad=b))
+        record(true, "pd", 1.7, seed=s, signal=MultiSine(amp_rad=(0.1, 0.08), bias_rad=b))
         for s, b in ((0, (0.1, -0.2)), (1, (-0.3, 0.4)))
     ]
     one = identify(recs[:1], arm, ["density_scale"], threads=1)
@@ -219,3 +219,29 @@ def test_tendon2r_excite_keeps_the_rehearsal_within_the_limits(tmp_path):
                        "--out", str(tmp_path / "rec.csv")])  # fmt: skip
     again = _load(out, cfg)  # the same arm, noise-free: the rehearsal itself
     assert np.array_equal(again.command, rehearsal.command)
+
+
+def test_tendon2r_identify_fits_several_recordings_and_writes_their_report(tmp_path, arm):
+    from tendon2r_gym.app.identify import identify_main
+
+    true = EnvConfig.make("default", mechanism={"density_scale": 1.2})
+    paths = []
+    for s, b in ((0, (0.1, -0.2)), (1, (-0.3, 0.4))):
+        signal = MultiSine(amp_rad=(0.1, 0.08), bias_rad=b)
+        rec = record(true, "pd", 1.0, seed=s, signal=signal)
+        paths.append(str(rec.save(tmp_path / f"{s}.csv")))
+    out = tmp_path / "arm.yaml"
+    identify_main(["--recording", *paths, "--env-config", "default", "--out", str(out),
+                   "--fit", "density_scale", "--threads", "1"])  # fmt: skip
+    assert EnvConfig.make(out).mechanism.density_scale == pytest.approx(1.2, rel=0.01)
+    assert out.with_suffix(".html").stat().st_size > 0
+
+
+@pytest.mark.parametrize(
+    "fit, threads, match",
+    [(["density_scale", "density_scale"], None, "distinct"), (["mass"], None, "fit = 'mass'"),
+     (["density_scale"], 0, "threads = 0")],
+)  # fmt: skip
+def test_bad_fit_arguments_are_refused_by_name(arm, rec, fit, threads, match):
+    with pytest.raises(ValueError, match=match):
+        identify([rec], arm, fit, threads)

@@ -92,10 +92,12 @@ def compare(
     return rows
 
 
+#: The generalists (registry group ``generalist``): trained across random arms.
+GENERALISTS = tuple(registry.names("generalist"))
 #: The models run zero-shot on a user's arm when it lies inside their training ranges: the
-#: generalists (registry group ``generalist``, trained across random arms) and the residuals
-#: trained across real cables, motors and sensors (group ``realism``).
-GENERALISTS = tuple(registry.names("generalist")) + tuple(registry.names("realism"))
+#: generalists, and the residuals trained across real cables, motors and sensors (group
+#: ``realism``).
+ZERO_SHOT = GENERALISTS + tuple(registry.names("realism"))
 #: Held-out episodes tendon2r-tune-pd tunes PD on, for the own-arm benchmark's tuned PD row.
 TUNE_EPISODES = 2
 
@@ -122,14 +124,14 @@ def not_covered(bundle: str, env_kwargs: dict[str, Any]) -> str | None:
 def generalist_rows(
     name: str, env_kwargs: dict[str, Any], seeds: list[int], tuned: dict[str, Any] | None = None
 ) -> list[dict]:
-    """Returns a row per shipped zero-shot bundle (GENERALISTS) on this arm: zero-shot (no
+    """Returns a row per shipped zero-shot bundle (ZERO_SHOT) on this arm: zero-shot (no
     training on it), or ``missing`` with the reason when the arm is outside its training
     ranges.  A residual trained on drawn PD gains runs with ``tuned`` (the arm's tuned
     pd_gains), as tendon2r-tune-pd would give them to it."""
     from tendon2r_gym.policies.model_env import trained_on_drawn_gains
 
     rows = []
-    for bundle in (b for b in GENERALISTS if b in bundle_names()):
+    for bundle in (b for b in ZERO_SHOT if b in bundle_names()):
         label, model = f"{bundle} zero-shot", bundled_model(bundle)
         on = env_kwargs
         if tuned is not None and trained_on_drawn_gains(model):
@@ -313,9 +315,11 @@ def benchmark_own_arm(
     command: str,
     labels: Sequence[str] | None = None,
 ) -> dict[str, Any]:
-    """Trains both PPO variants on ``env_config`` (one run per seed), then compares PD, CT and
-    them on the same evaluation seeds -> out/benchmark.md, .json, plots/.  ``labels``: train
-    only these learned rows (of LEARNED and FINETUNED; None: every one)."""
+    """Trains both PPO variants on ``env_config`` (one run per seed), then compares PD, CT, PD
+    tuned on the arm (tendon2r-tune-pd's gains over TUNE_EPISODES held-out episodes), them
+    and the zero-shot bundles (ZERO_SHOT) on the same evaluation seeds -> out/benchmark.md,
+    .json, plots/.  ``labels``: train only these learned rows (of LEARNED and FINETUNED; None:
+    every one; empty: none, as ``--no-train``)."""
     from tqdm.auto import tqdm
 
     from tendon2r_gym.envs.env_config import EnvConfig
@@ -330,6 +334,9 @@ def benchmark_own_arm(
             raise invalid("labels", sorted(unknown), f"some of {list(entries)}")
         entries = {k: v for k, v in entries.items() if k in labels}
     cfgs = {k: Hyperparams.from_entry(e, env_config=env_config) for k, e in entries.items()}
+    # PD as tendon2r-tune-pd tunes it on this arm (a lagging arm needs lower gains): before
+    # any training, as every error
+    tuned = tune_pd(env_kwargs, TUNE_EPISODES).gains.to_dict()
     uncovered = {}
     for label in [k for k in FINETUNED if k in cfgs]:  # only where the generalist covers the arm
         source = cfgs[label].init_from
@@ -354,8 +361,6 @@ def benchmark_own_arm(
         bar.set_postfix_str("evaluating")
         name = Path(env_config).stem
         rows = compare(name, env_kwargs, learned, list(range(episodes)), out / "plots", bar)
-        # PD as tendon2r-tune-pd tunes it on this arm (a lagging arm needs lower gains)
-        tuned = tune_pd(env_kwargs, TUNE_EPISODES).gains.to_dict()
         row = _row(name, "PD tuned", "pd", {**env_kwargs, "pd_gains": tuned},
                    list(range(episodes)), None, None)  # fmt: skip
         rows.append({**row, "pd_gains": tuned})

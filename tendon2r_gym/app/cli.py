@@ -206,13 +206,15 @@ class BenchmarkArgs:
 def benchmark_main(argv: list[str] | None = None) -> dict[str, Any]:
     from tendon2r_gym.app.benchmark import benchmark_bundled, benchmark_own_arm
     from tendon2r_gym.policies.runs import command_line
-    from tendon2r_gym.validation import integer
+    from tendon2r_gym.validation import integer, invalid
 
     args = parse(BenchmarkArgs, argv)
     integer("--episodes", args.episodes, 1, 10**6)
     if args.train_steps is not None:
         integer("--train-steps", args.train_steps, 1, 10**10)
     command = command_line(argv, "tendon2r-benchmark")
+    if args.env_config is None and not args.train:
+        raise invalid("--no-train", True, "only with --env-config (the bundled one trains nothing)")
     if args.env_config is None:
         return benchmark_bundled(args.episodes, Path(args.out), command)
     return benchmark_own_arm(

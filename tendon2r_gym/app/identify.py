@@ -25,8 +25,8 @@ class ExciteArgs:
     tendon2r-excite --env-config my_arm.yaml --out runs/excite/
 
     Writes plan.csv (time, q_des_A, q_des_B, dq_des_A, dq_des_B: the reference to track, rad),
-    plan.yaml (its sines and the PD gains to track it with) and rehearsal.csv (the recording
-    of PD tracking it on the nominal arm: what your logger should produce).
+    plan.yaml (its sines and the bandwidth of the PD to track it with) and rehearsal.csv (the
+    recording of PD tracking it on the nominal arm: what your logger should produce).
     """
 
     env_config: Annotated[str, arg("preset name or experiment file: the nominal arm")]
@@ -120,6 +120,14 @@ class IdentifyArgs:
 
 
 def identify_main(argv: list[str] | None = None) -> Any:
+    try:
+        import scipy  # noqa: F401
+        from mujoco.sysid.report import builder  # noqa: F401
+    except ImportError as e:
+        raise ValueError(
+            f"tendon2r-identify needs MuJoCo's sysid toolbox ({e.name} is missing): "
+            'pip install "tendon2r_gym[identify]"'
+        ) from None
     from tendon2r_gym.envs.env_config import EnvConfig
     from tendon2r_gym.identification.identify import DEFAULT_FIT, identify, load_recordings
     from tendon2r_gym.identification.report import save_experiment, save_html

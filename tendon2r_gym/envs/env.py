@@ -422,7 +422,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
             self.drive.settle(self.data, q, qdot)
         else:
             self.set_state(q, qdot)
-        self._last_action = self.task.rest_command(self.arm)
+        self.sent_command = self._last_action = self.task.rest_command(self.arm)
         if self._delay is not None:
             self._delay.reset(slice(None))
         if self._sensing is not None:

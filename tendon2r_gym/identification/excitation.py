@@ -40,9 +40,10 @@ MIN_SLOW = 0.25
 
 @dataclass(frozen=True)
 class MultiSine:
-    """q_des(t) = bias + sum_k amp_j / sqrt(K) sin(2 pi f_k t + phi_jk) per joint j; phases are
-    Schroeder's, joint B's offset by half a period of each sine's index (so that the joints do
-    not move in step)."""
+    """q_des(t) = bias + sum_k amp_j / sqrt(K) sin(2 pi f_k t + phi_jk) over the K slow sines,
+    plus dither_rad sin(2 pi f t + phi) for each fast one, per joint j; the phases are
+    Schroeder's over all the sines, joint B's shifted by pi k / 2 for the k-th (so that the
+    joints do not move in step)."""
 
     amp_rad: tuple[float, float]
     bias_rad: tuple[float, float]
@@ -225,7 +226,8 @@ def design(
             return signal, rec
         shrink = min(FORCE_MARGIN / peak, 0.9) if peak > FORCE_MARGIN else 0.9
         # The slow sines give way first: the fast ones tell the lag from the delay.
-        small = max(a / a0 for a, a0 in zip(amp, start, strict=True)) < MIN_SLOW
+        small = max((a / a0 for a, a0 in zip(amp, start, strict=True) if a0 > 0), default=0.0)
+        small = small < MIN_SLOW
         amp = [a * shrink for a in amp]
         dither *= shrink if small or over > 0.0 else 1.0
     raise invalid(

@@ -14,10 +14,12 @@ and its first ``SETTLE_S`` are left out of the comparison, in which the cables' 
 fast modes forget their approximate start.
 
 The start's angles and speeds are still estimates: their errors grow along the piece, as a
-change of the parameters would.  The comparison removes them (variable projection): each
-piece's residual is projected off the four directions in which the angle trajectory moves with
-the start's (q, dq), computed by finite differences at the parameters the fit starts from.  A
-fit is then insensitive to the starting estimate, to first order.
+change of the parameters would.  Two steps remove them.  Each piece's start is refined by
+Gauss-Newton steps on its own residual (Replay.refine_starts), and the comparison is projected
+off the four directions in which the angle trajectory moves with the start's (q, dq) (variable
+projection), computed by finite differences.  Both are redone at each round's fit
+(tendon2r_gym.identification.identify): a fit is then insensitive to the starts, to first
+order.
 
 The residual is in units of ``ANGLE_UNIT`` rad, one entry per joint and compared row.
 """
@@ -167,7 +169,7 @@ class Replay:
 
     def angles(self, mechs: list[Mechanism], shifts: list[np.ndarray | None] | None = None):
         """Returns the predicted angles (len(mechs), P, length, 2) of every piece on each
-        candidate arm (nan where a rollout diverged)."""
+        candidate arm (a diverged rollout is reset by MuJoCo: its angles miss widely)."""
         pieces, n_sub = self.pieces, self.n_sub
         shifts = shifts or [None] * len(mechs)
         models, states = [], []
@@ -224,7 +226,7 @@ class Replay:
     def residual(self, mechs: list[Mechanism]) -> np.ndarray:
         """Returns the residual of each candidate (len(mechs), P, 2 length): predicted minus
         measured angles over each piece after its settling rows, in ANGLE_UNIT, projected off
-        the start directions.  A diverged candidate's entries are 1e6."""
+        the start directions (a non-finite entry is 1e6)."""
         q = self.angles(mechs)
         P = len(self.pieces)
         r = (q - self._measured[None]) / ANGLE_UNIT

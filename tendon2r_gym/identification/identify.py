@@ -42,7 +42,7 @@ from tendon2r_gym.identification.fit import (
 )
 from tendon2r_gym.identification.recording import Recording
 from tendon2r_gym.simulation.mechanism import Mechanism
-from tendon2r_gym.validation import invalid
+from tendon2r_gym.validation import integer, invalid
 
 #: The fields a fit can change: unit, and what a user cannot measure with a ruler.
 FIELDS: dict[str, tuple[str, str]] = {
@@ -77,6 +77,9 @@ class Stage(NamedTuple):
 
 
 STAGES = (Stage(PIECE_S, 5 * PIECE_S, 4), Stage(PIECE_S, 2 * PIECE_S, 4))
+#: Gauss-Newton stops when a step is below this fraction of the fields (scaled): the
+#: intervals are never narrower.
+XTOL = 1e-4
 #: Rounds of each stage: a fit of max_iters, then the pieces' starts refined at it.
 ROUNDS = 3
 
@@ -88,7 +91,7 @@ class Estimate:
     field: str
     nominal: float
     value: float
-    half_width: float  # of the 95% interval; inf if the data cannot bound it
+    half_width: float  # of the 95% interval
     identified: bool
     why: str = ""
 
@@ -190,14 +193,23 @@ def load_recordings(
         one(p, mech.n_tendons, config.ctrl_dt, float(mech.max_tendon_force), mech.pull_only)
         for p in paths
     ]
-    need = (n_fields + 2) * PIECE_S + MAX_DELAY_S
-    have = sum(r.duration for r in recs)
-    if have < need:
-        raise ValueError(
-            f"recording {', '.join(map(str, paths))}: {have:g} s in all; fitting {n_fields} "
-            f"fields needs at least {need:g} s (one {PIECE_S} s piece per field and two more)"
-        )
+    check_pieces(recs, config, n_fields, round(MAX_DELAY_S / config.ctrl_dt) + 1)
     return recs
+
+
+def check_pieces(recs: Sequence[Recording], config: EnvConfig, n_fields: int, first: int) -> None:
+    """Raises a ValueError naming the recordings if a stage of the fit would have fewer pieces
+    than the fitted fields and two more (their intervals would have no degrees of freedom)."""
+    for stage in STAGES:
+        pieces = Pieces(list(recs), config.ctrl_dt, 0, stage.piece_s, stage.spacing_s, first)
+        if len(pieces) < n_fields + 2:
+            need = first * config.ctrl_dt + (n_fields + 2) * stage.spacing_s
+            raise ValueError(
+                f"recording {', '.join(r.source for r in recs)}: too short to fit {n_fields} "
+                f"fields; they give {len(pieces)} pieces of {stage.piece_s} s every "
+                f"{stage.spacing_s} s, and the fit needs {n_fields + 2} (about {need:.3g} s of "
+                "recording; 10 s of tendon2r-excite's excitation is plenty)"
+            )
 
 
 class _Problem:
@@ -263,7 +275,7 @@ class _Problem:
                 params[n].value[:] = x[i]
             opt, _ = sysid.optimize(
                 params, self.residual, optimizer="mujoco", verbose=False,
-                max_iters=stage.max_iters, eps=1e-6, xtol=1e-4, x_scale="jac",
+                max_iters=stage.max_iters, eps=1e-6, xtol=XTOL, x_scale="jac",
                 output=io.StringIO(),
             )  # fmt: skip
             x = opt.as_vector()
@@ -288,6 +300,8 @@ def _worse(other: np.ndarray, best: np.ndarray) -> bool:
 def _fields(asked: list[str], mech: Mechanism, explicit: bool):
     """Returns (continuous fields, their bounds, skipped fields and why)."""
     names, box, skipped = [], {}, {}
+    if len(set(asked)) != len(asked):
+        raise invalid("fit", list(asked), f"distinct names from {list(FIELDS)}")
     for name in asked:
         if name not in FIELDS:
             raise invalid("fit", name, f"names from {list(FIELDS)}")
@@ -319,6 +333,8 @@ def identify(
     asked = list(DEFAULT_FIT if fit is None else fit)
     names, box, skipped = _fields(asked, mech, fit is not None)
     fit_delay = any(n in DELAYS for n in asked)
+    if threads is not None:
+        integer("threads", threads, 1, 1024)
     prob = _Problem(recordings, config, names, box, threads or os.cpu_count() or 1)
     x0 = prob.x0
     nominal_steps = config.delay_steps + config.observation_delay_steps
@@ -326,7 +342,10 @@ def identify(
     # The loop delay: a scan at the nominal values on a subset of the pieces, a fit at the
     # best one, then each neighbour refitted from it (the lag, the cables' stretch and the
     # delay trade off): the least fitted residual wins.
-    max_d = round(MAX_DELAY_S / config.ctrl_dt) if fit_delay else nominal_steps
+    max_d = max(round(MAX_DELAY_S / config.ctrl_dt), 2 * nominal_steps)
+    max_d = max_d if fit_delay else nominal_steps
+    prob.first = max(prob.first, max_d + 1)
+    check_pieces(recordings, config, len(names), prob.first)
     subset, final = STAGES
     scan = range(max_d + 1) if fit_delay else [nominal_steps]
     scanned = {}
@@ -357,6 +376,13 @@ def identify(
     d = best
     prob.pieces(d, fits[d], final)  # every piece, from the subset's fit
     x = prob.fit(fits[d], final, ROUNDS)
+    delay_ok = fit_delay and d < max_d and all(
+        _worse(per_piece[k], per_piece[d]) for k in (d - 1, d + 1) if k in costs
+    )
+    if fit_delay and not delay_ok and d != nominal_steps:  # the fields at the delay kept
+        d = nominal_steps
+        prob.pieces(d, x, final)
+        x = prob.fit(x, final, ROUNDS)
 
     # The Jacobian at the fit (forward differences), and the robust covariance.
     P = len(prob.rep.pieces)
@@ -374,6 +400,7 @@ def identify(
         lo, hi, s = box[n]
         value = min(max(float(x[i] * s), lo), hi)
         half = float(tq * math.sqrt(max(cov[i, i], 0.0)) * s)
+        half = max(half, XTOL * abs(value))  # no finer than the fit converges
         at_bound = min(value - lo, hi - value) <= 1e-3 * (hi - lo)
         ok = half <= IDENTIFIED_WITHIN * abs(value) and not at_bound
         why = "" if ok else ("at its bound" if at_bound else f"+-{half:.3g} {FIELDS[n][0]}")
@@ -381,9 +408,6 @@ def identify(
         if ok:
             values[n] = value
     # Each neighbour's fitted residual against the best one's, per piece of the subset.
-    delay_ok = fit_delay and all(
-        _worse(per_piece[k], per_piece[d]) for k in (d - 1, d + 1) if k in costs
-    )
     loop = d * config.ctrl_dt
     out: dict[str, Any] = {"mechanism": values}
     if delay_ok:

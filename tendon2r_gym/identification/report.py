@@ -42,9 +42,9 @@ def _params(ident: Identification, which: str):
 
 
 def save_html(ident: Identification, path: str | os.PathLike) -> Path:
-    """Writes the toolbox's report: the parameters (nominal and identified), their 95%
-    intervals and correlations, and each joint's angle over the pieces as measured,
-    replayed on the nominal arm and on the identified one."""
+    """Writes the toolbox's report: the parameters (nominal and fitted: a flagged field's
+    fitted value too, for diagnosis), their 95% intervals and correlations, and each joint's
+    angle over the pieces as measured, replayed on the nominal arm and on the fitted one."""
     from mujoco.sysid import TimeSeries
     from mujoco.sysid.report.builder import ReportBuilder
     from mujoco.sysid.report.sections.covariance import Covariance
@@ -69,7 +69,7 @@ def save_html(ident: Identification, path: str | os.PathLike) -> Path:
                 anchor="distribution",
             )
         )  # fmt: skip
-        scales = np.array([e.value / x[i] if x[i] else 1.0 for i, e in enumerate(ident.estimates)])
+        scales = prob.scales
         rb.add_section(
             Covariance(
                 title="Covariance and correlation", anchor="covariance",
@@ -80,10 +80,13 @@ def save_html(ident: Identification, path: str | os.PathLike) -> Path:
     measured = rep._measured.reshape(-1, 2)
     fit_q = rep.angles([prob.arm(x)])[0].reshape(-1, 2)
     nom_q = rep.angles([prob.arm(prob.x0)])[0].reshape(-1, 2)
-    t = np.concatenate(
-        [rec_t[s + 1 : s + 1 + rep.pieces.length] for rec_t, s in
-         ((prob.recordings[i].time, s) for i, s in rep.pieces.starts)]
-    )  # fmt: skip
+    # One time axis: each recording after the last one's end (their clocks may restart).
+    offsets = np.cumsum([0.0] + [r.time[-1] - r.time[0] + 1.0 for r in prob.recordings])
+    t = np.concatenate([
+        prob.recordings[i].time[s + 1 : s + 1 + rep.pieces.length]
+        - prob.recordings[i].time[0] + offsets[i]
+        for i, s in rep.pieces.starts
+    ])  # fmt: skip
     mapping = {"q_A": ("q_A", [0]), "q_B": ("q_B", [1])}
     series = {
         "measured": TimeSeries(t, measured, mapping),
