@@ -42,6 +42,8 @@ from tendon2r_gym.identification.fit import (
 )
 from tendon2r_gym.identification.recording import Recording
 from tendon2r_gym.simulation.mechanism import Mechanism
+from tendon2r_gym.simulation.model import build_model
+from tendon2r_gym.simulation.stability import check_stability
 from tendon2r_gym.validation import integer, invalid
 
 #: The fields a fit can change: unit, and what a user cannot measure with a ruler.
@@ -223,6 +225,7 @@ class _Problem:
         self.scales = np.array([box[n][2] for n in names])
         self.x0 = np.array([float(getattr(self.mech, n)) for n in names]) / self.scales
         self.rep: Replay | None = None
+        self.nominal_model = build_model(self.mech.ideal())  # what the stability check reads
         #: The first row of a piece at any delay tried: every delay's pieces are the same.
         self.first = round(MAX_DELAY_S / config.ctrl_dt) + 1
 
@@ -253,11 +256,24 @@ class _Problem:
 
     def residual(self, x: np.ndarray, _params: Any = None, **_: Any):
         """The toolbox's residual function: one column per column of ``x`` (batched finite
-        differences)."""
+        differences).  An arm the env would refuse (its integrator cannot integrate it:
+        tendon2r_gym.simulation.stability) gets a residual of 1e6 everywhere."""
         cols = x.reshape(len(self.names), -1)
-        r = self.rep.residual([self.arm(cols[:, k]) for k in range(cols.shape[1])])
+        arms = [self.arm(cols[:, k]) for k in range(cols.shape[1])]
+        ok = [self.stable(a) for a in arms]
+        r = np.full((len(arms), len(self.rep.pieces), 2 * self.rep.pieces.length), 1e6)
+        if any(ok):
+            r[np.array(ok)] = self.rep.residual([a for a, g in zip(arms, ok, strict=True) if g])
         r = r.reshape(cols.shape[1], -1).T
         return [r[:, 0] if x.ndim == 1 else r], None, None
+
+    def stable(self, mech: Mechanism) -> bool:
+        """Whether the env accepts ``mech``: its integrator can integrate it."""
+        try:
+            check_stability(self.nominal_model, mech)
+        except ValueError:
+            return False
+        return True
 
     def fit(self, x: np.ndarray, stage: Stage, rounds: int) -> np.ndarray:
         """Returns the fit from ``x`` on the current pieces: ``rounds`` times a Gauss-Newton
