@@ -112,11 +112,7 @@ def test_pull_only_commands_may_not_push(tmp_path):
 
 
 def test_a_partial_optional_block_and_a_short_recording_are_refused(tmp_path, arm, rec):
-    path = _write(tmp_path, rec, _rename("q_B", "q_B"))
-    text = path.read_text().splitlines()
-    text[0] += ",dq_A"
-    text[1:] = [line + ",0" for line in text[1:]]
-    path.write_text("\n".join(text) + "\n")
+    path = _write(tmp_path, rec, _drop("dq_B"))
     with pytest.raises(ValueError, match="'dq_B'"):
         _load(path, arm)
     short = _write(tmp_path, rec)
@@ -245,3 +241,13 @@ def test_tendon2r_identify_fits_several_recordings_and_writes_their_report(tmp_p
 def test_bad_fit_arguments_are_refused_by_name(arm, rec, fit, threads, match):
     with pytest.raises(ValueError, match=match):
         identify([rec], arm, fit, threads)
+
+
+def test_the_fit_estimates_the_sensors_noise(arm):
+    noisy = EnvConfig.make("default", observation_noise=[2e-4, 0.03])
+    signal = MultiSine(amp_rad=(0.1, 0.08), bias_rad=(0.1, -0.2))
+    rec = record(noisy, "pd", 2.6, seed=0, signal=signal)
+    ident = identify([rec], arm, ["density_scale"], threads=1)
+    angle, speed = ident.noise
+    assert angle == pytest.approx(2e-4, rel=0.1) and speed == pytest.approx(0.03, rel=0.1)
+    assert ident.changes["observation_noise"] == [angle, speed]

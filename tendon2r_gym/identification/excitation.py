@@ -135,8 +135,8 @@ def record(
     """Runs ``policy`` (a name of tendon2r-evaluate's policies, with ``model`` for a learned
     one, or an object with ``predict``) for ``duration`` s on the arm of ``config`` from
     ``reset(seed=seed)``, tracking ``signal`` if given (else the config's reference), and
-    returns the recording: each row the measurement the policy saw and the command it sent
-    (N); with ``tensions``, the true cable tensions too."""
+    returns the recording: each row the measurement the policy saw (angles and speeds) and
+    the command it sent (N); with ``tensions``, the true cable tensions too."""
     from tendon2r_gym.evaluation.evaluator import make_policy
 
     number("duration", duration, 0.0, 3600.0, lo_open=True)
@@ -188,6 +188,7 @@ def record(
             command=np.clip(np.array(rows["command"]), *_command_range(mech)),
             q=np.array(rows["q"]),
             tension=np.array(rows["tension"]) if tensions else None,
+            dq=np.array(rows["dq"]),
             source="simulator",
             notes=notes,
         )

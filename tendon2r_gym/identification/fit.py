@@ -97,12 +97,11 @@ class Pieces:
             out.append((sent / force - offset) / gain)
         return np.array(out)
 
-    def measured(self) -> np.ndarray:
-        """Returns the measured angles each piece is compared with (P, length, 2): rows
-        first + 1 .. first + length."""
-        return np.array(
-            [self.recordings[i].q[s + 1 : s + 1 + self.length] for i, s in self.starts]
-        )
+    def measured(self, speeds: bool = False) -> np.ndarray:
+        """Returns the measured angles (or with ``speeds`` the measured speeds) each piece is
+        compared with (P, length, 2): rows first + 1 .. first + length."""
+        cols = [r.dq if speeds else r.q for r in self.recordings]
+        return np.array([cols[i][s + 1 : s + 1 + self.length] for i, s in self.starts])
 
     def lag_states(self, mech: Mechanism, n_sub: int) -> np.ndarray:
         """Returns each piece's motor lag states at its first row (P, n_tendons): the applied
@@ -167,7 +166,12 @@ class Replay:
             mujoco.mj_getState(model, data, out[p], _STATE)
         return out
 
-    def angles(self, mechs: list[Mechanism], shifts: list[np.ndarray | None] | None = None):
+    def angles(
+        self,
+        mechs: list[Mechanism],
+        shifts: list[np.ndarray | None] | None = None,
+        speeds: bool = False,
+    ) -> np.ndarray:
         """Returns the predicted angles (len(mechs), P, length, 2) of every piece on each
         candidate arm (a diverged rollout is reset by MuJoCo: its angles miss widely)."""
         pieces, n_sub = self.pieces, self.n_sub
@@ -188,8 +192,24 @@ class Replay:
             state, _ = mj_rollout.rollout(models, datas, np.concatenate(states), ctrl)
         finally:
             mujoco.set_mju_user_warning(warned)
-        q = state[:, n_sub - 1 :: n_sub, 1:3]  # after each control step; time comes first
+        # After each control step; time comes first, then qpos, then qvel.
+        first = 1 + models[0].nq if speeds else 1
+        q = state[:, n_sub - 1 :: n_sub, first : first + 2]
         return q.reshape(len(mechs), len(pieces), pieces.length, 2)
+
+    def noise(self, mech: Mechanism) -> tuple[float, float | None]:
+        """Returns the sensors' noise std on ``mech`` (the fit): of the angles from the
+        residual (its entries after the settling rows, less the four start directions per
+        piece), and of the speeds from the measured speeds' difference with the replay's
+        (None without measured speeds)."""
+        pieces = self.pieces
+        r = self.residual([mech])[0]
+        dof = len(pieces) * (2 * (pieces.length - pieces.settle) - 4)
+        angle = math.sqrt(float(np.sum(r**2)) / max(dof, 1)) * ANGLE_UNIT
+        if any(rec.dq is None for rec in pieces.recordings):
+            return angle, None
+        diff = self.angles([mech], speeds=True)[0] - pieces.measured(speeds=True)
+        return angle, float(np.sqrt(np.mean(diff[:, pieces.settle :] ** 2)))
 
     def set_projection(self, mech: Mechanism) -> tuple[np.ndarray, np.ndarray]:
         """Computes each piece's start directions at ``mech`` (module docstring); returns the

@@ -117,6 +117,9 @@ class Identification:
     #: and ``observation_delay``.
     changes: dict[str, Any]
     skipped: dict[str, str]  # asked-for fields the nominal arm's model cannot vary, and why
+    #: The sensors' noise std (rad, rad/s) at the fit: of the angles from the residual, of
+    #: the speeds from the measured ones (None if the recordings hold none).
+    noise: tuple[float, float | None]
     pieces: int
     residual_rms_rad: tuple[float, float]  # before and after the fit (projected)
     seconds: float
@@ -140,6 +143,9 @@ class Identification:
             else:
                 shown, ci = f"{'-':>11}", f"not identifiable ({e.why})"
             out.append(f"{e.field:<20} {e.nominal:11.4g} {shown} {ci:>27}  {e.unit}")
+        angle, speed = self.noise
+        shown = "not recorded" if speed is None else f"{speed:.3g} rad/s"
+        out.append(f"{'sensor noise':<20} {'':>11} {angle:11.3g} rad (angles); speeds: {shown}")
         status = "identified" if self.delay_identified else "not identifiable"
         out.append(
             f"{'loop delay':<20} {'':>11} {self.loop_delay_s * 1e3:11.4g} {status:>27}  ms "
@@ -425,7 +431,10 @@ def identify(
             values[n] = value
     # Each neighbour's fitted residual against the best one's, per piece of the subset.
     loop = d * config.ctrl_dt
+    noise = prob.rep.noise(prob.arm(x))
     out: dict[str, Any] = {"mechanism": values}
+    out["observation_noise"] = [noise[0], config.observation_noise[1] if noise[1] is None
+                                else noise[1]]  # fmt: skip
     if delay_ok:
         obs = min(config.observation_delay, loop)
         values["motor_delay"] = round(loop - obs, 12)
@@ -436,6 +445,7 @@ def identify(
         delay_identified=bool(delay_ok),
         changes=out,
         skipped=skipped,
+        noise=noise,
         pieces=P,
         residual_rms_rad=(
             math.sqrt(scanned[d] / entries) * ANGLE_UNIT,
