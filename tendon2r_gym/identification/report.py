@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from tendon2r_gym.identification.identify import Identification
+from tendon2r_gym.identification.result import Identification
 
 
 def save_experiment(ident: Identification, path: str | os.PathLike, nominal: str) -> Path:
