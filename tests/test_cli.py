@@ -94,7 +94,8 @@ def test_benchmark_on_bundled_models(tmp_path, monkeypatch):
     assert all(len(r["reproducible_to"]) == 2 for r in result["rows"])
 
 
-def test_benchmark_on_your_own_arm(tmp_path):
+def test_benchmark_on_your_own_arm(tmp_path, monkeypatch):
+    _untuned(monkeypatch)  # tendon2r-tune-pd itself: tests/test_tuning.py
     arm = tmp_path / "my_arm.yaml"
     arm.write_text(ARM)
     out = tmp_path / "out"
