@@ -129,8 +129,8 @@ class Replay:
     """Rolls the pieces out on candidate arms (one MjModel per candidate, each over every
     piece, in one threaded ``mujoco.rollout`` call)."""
 
-    def __init__(self, pieces: Pieces, nominal: Mechanism, n_sub: int, threads: int) -> None:
-        self.pieces, self.nominal, self.n_sub = pieces, nominal, n_sub
+    def __init__(self, pieces: Pieces, n_sub: int, threads: int) -> None:
+        self.pieces, self.n_sub = pieces, n_sub
         self.threads = threads
         self._measured = pieces.measured()
         self._start = []
@@ -138,7 +138,6 @@ class Replay:
             q, dq = pieces._est[i]
             self._start.append((q[s], dq[s]))
         self.projection: np.ndarray | None = None  # (P, 2 length, 4) orthonormal
-        self._diverged: list[str] = []  # MuJoCo's warnings of diverged candidates
 
     def initial_states(
         self, model: mujoco.MjModel, mech: Mechanism, shift: np.ndarray | None = None
@@ -187,7 +186,7 @@ class Replay:
         # A candidate the integrator cannot integrate diverges: MuJoCo resets it (its angles
         # then miss the recording widely) and warns, which would print once per rollout.
         warned = mujoco.get_mju_user_warning()
-        mujoco.set_mju_user_warning(self._diverged.append)
+        mujoco.set_mju_user_warning(lambda _message: None)
         try:
             state, _ = mj_rollout.rollout(models, datas, np.concatenate(states), ctrl)
         finally:

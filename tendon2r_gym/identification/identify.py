@@ -163,7 +163,7 @@ class _Problem:
         cfg = self.config
         pieces = Pieces(self.recordings, cfg.ctrl_dt, d, stage.piece_s, stage.spacing_s,
                         first=self.first)  # fmt: skip
-        self.rep = Replay(pieces, self.mech, cfg.n_substeps, self.threads)
+        self.rep = Replay(pieces, cfg.n_substeps, self.threads)
         self.rep.refine_starts(self.arm(x), passes)
         return self.rep
 
