@@ -251,3 +251,28 @@ def test_the_fit_estimates_the_sensors_noise(arm):
     angle, speed = ident.noise
     assert angle == pytest.approx(2e-4, rel=0.1) and speed == pytest.approx(0.03, rel=0.1)
     assert ident.changes["observation_noise"] == [angle, speed]
+
+
+def test_a_poor_fit_does_not_inflate_the_noise_estimate(arm):
+    # The fit may not vary the mass that the true arm changes: its replay misses smoothly,
+    # and the noise estimate still holds only the sensors' noise.
+    noisy = EnvConfig.make("default", observation_noise=[1e-4, 0.02],
+                           mechanism={"density_scale": 1.5})  # fmt: skip
+    signal = MultiSine(amp_rad=(0.1, 0.08), bias_rad=(0.1, -0.2))
+    rec = record(noisy, "pd", 2.6, seed=0, signal=signal)
+    ident = identify([rec], arm, ["extra_joint_damping"], threads=1)
+    assert ident.residual_rms_rad[1] > 2e-4  # the fit is poor
+    assert ident.noise[0] == pytest.approx(1e-4, rel=0.1)
+    # The speeds' replay keeps some of the wrong mass's response to PD's noisy commands.
+    assert ident.noise[1] == pytest.approx(0.02, rel=0.3)
+
+
+def test_the_loop_delay_is_found_and_split_evenly(arm):
+    true = EnvConfig.make("default", mechanism={"motor_delay": 0.002}, observation_delay=0.001)
+    signal = MultiSine(amp_rad=(0.1, 0.08), bias_rad=(0.1, -0.2))
+    rec = record(true, "pd", 2.6, seed=0, signal=signal)
+    ident = identify([rec], arm, ["density_scale", "motor_delay", "observation_delay"], threads=1)
+    assert ident.delay_identified and ident.loop_delay_s == pytest.approx(0.003)
+    assert ident.delay_range_s == pytest.approx((0.003, 0.003))
+    assert ident.changes["observation_delay"] == pytest.approx(0.001)
+    assert ident.changes["mechanism"]["motor_delay"] == pytest.approx(0.002)

@@ -12,11 +12,14 @@ toolbox's box-constrained Gauss-Newton (``mujoco.sysid.optimize``, MuJoCo's own
   identified arm keeps its nominal value;
 - the delays: commands and angles show only the loop delay, ``motor_delay +
   observation_delay`` (a command held back d steps and a measurement d steps late move the
-  replay alike), found in whole control steps by the least fitted residual.  It is
-  identified if each neighbouring delay, fitted too, leaves larger residuals on the pieces
-  (a one-sided paired t-test over them at 95%).  The identified arm keeps the nominal
-  ``observation_delay`` (or the whole loop delay if less) and gives the rest to
-  ``motor_delay``: the loop that PD tuning and the policies see is the same.
+  replay alike), found in whole control steps by the least fitted residual (each delay's fit
+  starts from the nominal values or another delay's fit, whichever fits it better: the fields
+  absorb a wrong delay, and a fit started there may stay in its basin).  A neighbouring
+  delay, fitted too, is told apart if it leaves larger residuals on the pieces (a one-sided
+  paired t-test over them at 95%); the delay is identified if every neighbour is.  The fields
+  are fitted at the best delay either way, and their intervals hold their fits at each delay
+  not told apart.  The identified arm splits the loop delay evenly (``motor_delay`` takes an
+  odd step): the loop that PD tuning and the policies see is the same.
 """
 
 from __future__ import annotations
@@ -276,8 +279,8 @@ def identify(
     nominal_steps = config.delay_steps + config.observation_delay_steps
 
     # The loop delay: a scan at the nominal values on a subset of the pieces, a fit at the
-    # best one, then each neighbour refitted from it (the lag, the cables' stretch and the
-    # delay trade off): the least fitted residual wins.
+    # best one, the scan again at that fit, then a walk to the least fitted residual (the
+    # lag, the cables' stretch and the delay trade off: each delay is fitted).
     max_d = max(round(MAX_DELAY_S / config.ctrl_dt), 2 * nominal_steps)
     max_d = max_d if fit_delay else nominal_steps
     prob.first = max(prob.first, max_d + 1)
@@ -289,36 +292,61 @@ def identify(
         prob.pieces(k, x0, subset, 1)
         scanned[k] = prob.cost(x0)
     entries = prob.rep.residual([prob.arm(x0)]).size
+    at_nominal = dict(scanned)
     fits: dict[int, np.ndarray] = {}
     costs: dict[int, float] = {}
     per_piece: dict[int, np.ndarray] = {}
 
-    def profile(k: int, start: np.ndarray, rounds: int) -> None:
+    def profile(k: int) -> None:
+        # From the nominal values or a fit at another delay, whichever fits delay k best
+        # before the fit (each may lead it astray: its fields absorb a wrong delay).
+        starts = [x0, *fits.values()]
+        before = []
+        for start in starts:
+            prob.pieces(k, start, subset, 1)
+            before.append(prob.cost(start))
+        start = starts[int(np.argmin(before))]
         prob.pieces(k, start, subset)
-        fits[k] = prob.fit(start, subset, rounds)
+        fits[k] = prob.fit(start, subset, ROUNDS)
         per_piece[k] = prob.piece_costs(fits[k])
         costs[k] = float(per_piece[k].sum())
 
     best = min(scanned, key=scanned.get)
-    profile(best, x0, ROUNDS)
-    while fit_delay:
+    profile(best)
+    if fit_delay:  # the scan again at that fit: the nominal values may mislead it
+        for k in scan:
+            prob.pieces(k, fits[best], subset, 1)
+            scanned[k] = prob.cost(fits[best])
+        if (best := min(scanned, key=scanned.get)) not in costs:
+            profile(best)
+    while fit_delay:  # walk downhill to the least fitted residual
         for k in (best - 1, best + 1):
             if k in scanned and k not in costs:
-                profile(k, fits[best], 1)
+                profile(k)
         better = min(costs, key=costs.get)
         if better == best:
             break
         best = better
+    # The delays not told apart from the best: grown while a neighbour is not worse.
+    told = {best}
+    grow = fit_delay
+    while grow:
+        grow = False
+        for k in sorted(told):
+            for n in (k - 1, k + 1):
+                if n in scanned and n not in told:
+                    if n not in costs:
+                        profile(n)
+                    if not _worse(per_piece[n], per_piece[best]):
+                        told.add(n)
+                        grow = True
     d = best
     prob.pieces(d, fits[d], final)  # every piece, from the subset's fit
     x = prob.fit(fits[d], final, ROUNDS)
-    delay_ok = fit_delay and d < max_d and all(
-        _worse(per_piece[k], per_piece[d]) for k in (d - 1, d + 1) if k in costs
-    )
-    if fit_delay and not delay_ok and d != nominal_steps:  # the fields at the delay kept
-        d = nominal_steps
-        prob.pieces(d, x, final)
-        x = prob.fit(x, final, ROUNDS)
+    delay_ok = fit_delay and told == {d} and d < max_d
+    # A field's fit at each delay not told apart widens its interval (the delay is a
+    # nuisance the fields are conditional on).
+    spread = np.max([np.abs(fits[k] - fits[d]) for k in told], axis=0) if names else x
 
     # The Jacobian at the fit (forward differences), and the robust covariance.
     P = len(prob.rep.pieces)
@@ -336,7 +364,7 @@ def identify(
         lo, hi, s = box[n]
         value = min(max(float(x[i] * s), lo), hi)
         half = float(tq * math.sqrt(max(cov[i, i], 0.0)) * s)
-        half = max(half, XTOL * abs(value))  # no finer than the fit converges
+        half = max(half, XTOL * abs(value)) + float(spread[i] * s)  # no finer than the fit
         at_bound = min(value - lo, hi - value) <= 1e-3 * (hi - lo)
         ok = half <= IDENTIFIED_WITHIN * abs(value) and not at_bound
         why = "" if ok else ("at its bound" if at_bound else f"+-{half:.3g} {FIELDS[n][0]}")
@@ -349,20 +377,21 @@ def identify(
     out: dict[str, Any] = {"mechanism": values}
     out["observation_noise"] = [noise[0], config.observation_noise[1] if noise[1] is None
                                 else noise[1]]  # fmt: skip
-    if delay_ok:
-        obs = min(config.observation_delay, loop)
+    if fit_delay:  # the best one, even if others are not told apart: the fields fit it
+        obs = round(d // 2 * config.ctrl_dt, 12)  # only the sum shows: split evenly
         values["motor_delay"] = round(loop - obs, 12)
         out["observation_delay"] = obs
     return Identification(
         estimates=estimates,
         loop_delay_s=loop,
         delay_identified=bool(delay_ok),
+        delay_range_s=(min(told) * config.ctrl_dt, max(told) * config.ctrl_dt),
         changes=out,
         skipped=skipped,
         noise=noise,
         pieces=P,
         residual_rms_rad=(
-            math.sqrt(scanned[d] / entries) * ANGLE_UNIT,
+            math.sqrt(at_nominal[d] / entries) * ANGLE_UNIT,
             math.sqrt(float(np.sum(r**2)) / r.size) * ANGLE_UNIT,
         ),
         seconds=time.perf_counter() - began,

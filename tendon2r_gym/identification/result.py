@@ -49,7 +49,7 @@ class Identification:
     changes to the nominal experiment file."""
 
     estimates: list[Estimate]
-    loop_delay_s: float
+    loop_delay_s: float  # the best-fitting one, which the fields are fitted at
     delay_identified: bool
     #: What the identified arm changes in the nominal experiment file: ``mechanism`` fields
     #: and ``observation_delay``.
@@ -62,6 +62,8 @@ class Identification:
     residual_rms_rad: tuple[float, float]  # before and after the fit (projected)
     seconds: float
     sources: list[str] = field(default_factory=list)
+    #: The loop delays (s) not told apart from the best one, (least, most).
+    delay_range_s: tuple[float, float] = (0.0, 0.0)
     extras: dict[str, Any] = field(default_factory=dict, repr=False)  # for the report
 
     def experiment(self, nominal: str | os.PathLike) -> dict[str, Any]:
@@ -84,7 +86,8 @@ class Identification:
         angle, speed = self.noise
         shown = "not recorded" if speed is None else f"{speed:.3g} rad/s"
         out.append(f"{'sensor noise':<20} {'':>11} {angle:11.3g} rad (angles); speeds: {shown}")
-        status = "identified" if self.delay_identified else "not identifiable"
+        lo, hi = (v * 1e3 for v in self.delay_range_s)
+        status = "identified" if self.delay_identified else f"not told from {lo:g}-{hi:g} ms"
         out.append(
             f"{'loop delay':<20} {'':>11} {self.loop_delay_s * 1e3:11.4g} {status:>27}  ms "
             "(motor_delay + observation_delay: only their sum shows)"

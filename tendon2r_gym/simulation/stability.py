@@ -34,6 +34,7 @@ at values thousands of times larger.
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from typing import NamedTuple
 
 import mujoco
@@ -65,38 +66,54 @@ LIMITS: dict[str, Limits] = {
 }
 
 
-def rates(model: mujoco.MjModel, mech: Mechanism, grid: int = 7) -> dict[str, float]:
-    """Returns, over a grid of the joint range, the largest rate (1/s) that each of
-    joint_damping, tendon_damping, tendon_stiffness, tendon_elasticity and motor_tau alone
-    gives (``model``: the nominal model, build_model(mech.ideal()))."""
+#: The joint-range maxima of the arm's mobilities by nominal arm (mobility_maxima), kept for
+#: the last few arms: a fit or a training checks many arms of one geometry.
+_MAXIMA: OrderedDict[tuple[Mechanism, int], tuple[float, float]] = OrderedDict()
+_MAXIMA_KEPT = 64
+
+
+def mobility_maxima(model: mujoco.MjModel, mech: Mechanism, grid: int = 7) -> tuple[float, float]:
+    """Returns, over a grid of the joint range, the largest eigenvalue of J M^-1 J^T (the
+    tendons' mobility) and of M^-1 (the joints'), at density_scale 1: only the nominal arm's
+    geometry sets them (``model``: build_model(mech.ideal()))."""
+    key = (mech.ideal(), grid)
+    if key in _MAXIMA:
+        _MAXIMA.move_to_end(key)
+        return _MAXIMA[key]
     data = mujoco.MjData(model)
     arms = MomentArms(model, data)
     M = np.zeros((model.nv, model.nv))
-    out = dict.fromkeys(
-        ("joint_damping", "tendon_damping", "tendon_stiffness", "tendon_elasticity"), 0.0
-    )
-    out["motor_tau"] = 1.0 / mech.motor_tau if mech.motor_tau > 0 else 0.0
-    spool = 1.0 / mech.motor_mass if mech.elastic else 0.0  # the spool's mobility
+    tendon = joint = 0.0
     lo, hi = mech.joint_range_rad
     for q1 in np.linspace(lo, hi, grid):
         for q2 in np.linspace(lo, hi, grid):
             data.qpos[:] = (q1, q2)
             mujoco.mj_fwdPosition(model, data)
             mujoco.mj_fullM(model, data, M)
-            Minv = np.linalg.inv(M) / mech.density_scale
+            Minv = np.linalg.inv(M)
             J = arms.dense()
-            tendon = float(np.max(np.abs(np.linalg.eigvals(Minv @ J.T @ J))))
-            joint = float(np.max(np.abs(np.linalg.eigvals(Minv))))
-            out["joint_damping"] = max(out["joint_damping"], mech.true_joint_damping * joint)
-            out["tendon_damping"] = max(
-                out["tendon_damping"], mech.tendon_damping * (spool + tendon)
-            )
-            out["tendon_stiffness"] = max(
-                out["tendon_stiffness"], math.sqrt(mech.tendon_stiffness * tendon)
-            )
-            cable = math.sqrt(mech.tendon_elasticity * (spool + tendon))
-            out["tendon_elasticity"] = max(out["tendon_elasticity"], cable)
-    return out
+            tendon = max(tendon, float(np.max(np.abs(np.linalg.eigvals(Minv @ J.T @ J)))))
+            joint = max(joint, float(np.max(np.abs(np.linalg.eigvals(Minv)))))
+    _MAXIMA[key] = tendon, joint
+    if len(_MAXIMA) > _MAXIMA_KEPT:
+        _MAXIMA.popitem(last=False)
+    return tendon, joint
+
+
+def rates(model: mujoco.MjModel, mech: Mechanism, grid: int = 7) -> dict[str, float]:
+    """Returns, over a grid of the joint range, the largest rate (1/s) that each of
+    joint_damping, tendon_damping, tendon_stiffness, tendon_elasticity and motor_tau alone
+    gives (``model``: the nominal model, build_model(mech.ideal())).  Each grows with its
+    field and with a mobility, so each is largest where the mobility is (mobility_maxima)."""
+    tendon, joint = (m / mech.density_scale for m in mobility_maxima(model, mech, grid))
+    spool = 1.0 / mech.motor_mass if mech.elastic else 0.0  # the spool's mobility
+    return {
+        "joint_damping": mech.true_joint_damping * joint,
+        "tendon_damping": mech.tendon_damping * (spool + tendon),
+        "tendon_stiffness": math.sqrt(mech.tendon_stiffness * tendon),
+        "tendon_elasticity": math.sqrt(mech.tendon_elasticity * (spool + tendon)),
+        "motor_tau": 1.0 / mech.motor_tau if mech.motor_tau > 0 else 0.0,
+    }
 
 
 def check_stability(model: mujoco.MjModel, mech: Mechanism) -> None:
