@@ -115,9 +115,9 @@ def test_a_partial_optional_block_and_a_short_recording_are_refused(tmp_path, ar
     path = _write(tmp_path, rec, _drop("dq_B"))
     with pytest.raises(ValueError, match="'dq_B'"):
         _load(path, arm)
-    short = _write(tmp_path, rec)
-    with pytest.raises(ValueError, match=f"recording {short}: too short to fit 20 fields"):
-        load_recordings([short], arm, n_fields=20)
+    short = _write(tmp_path, rec, lambda lines: lines.__delitem__(slice(800, None)))  # 0.8 s
+    with pytest.raises(ValueError, match=f"recording {short}: too short to fit 1 field;"):
+        identify(load_recordings([short], arm), arm, ["density_scale"])
 
 
 def test_the_recorder_is_deterministic_and_holds_the_commands_as_sent(arm):

@@ -129,13 +129,12 @@ def identify_main(argv: list[str] | None = None) -> Any:
             'pip install "tendon2r_gym[identify]"'
         ) from None
     from tendon2r_gym.envs.env_config import EnvConfig
-    from tendon2r_gym.identification.identify import DEFAULT_FIT, identify, load_recordings
+    from tendon2r_gym.identification.identify import identify, load_recordings
     from tendon2r_gym.identification.report import save_experiment, save_html
 
     args = parse(IdentifyArgs, argv)
     config = EnvConfig.make(args.env_config)
-    n_fields = len(args.fit or DEFAULT_FIT)
-    recs = load_recordings(args.recording, config, n_fields)
+    recs = load_recordings(args.recording, config)
     ident = identify(recs, config, args.fit, args.threads)
     print("\n".join(ident.lines()))
     out = save_experiment(ident, args.out, args.env_config)

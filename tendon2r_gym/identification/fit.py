@@ -72,6 +72,7 @@ class Pieces:
     starts: list[tuple[int, int]] = field(default_factory=list)  # (recording, first row)
     length: int = 0
     settle: int = 0
+    _normalized: tuple[tuple, list[np.ndarray]] | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         self.length = max(2, round(self.piece_s / self.ctrl_dt))
@@ -86,16 +87,21 @@ class Pieces:
     def __len__(self) -> int:
         return len(self.starts)
 
+    def normalized(self, mech: Mechanism) -> list[np.ndarray]:
+        """Returns each recording's commands as the motors' normalized commands on ``mech``
+        (they depend only on its force limit and command map, which no fit changes: kept)."""
+        key = (mech.command_map, float(mech.max_tendon_force))
+        if self._normalized is None or self._normalized[0] != key:
+            (gain, offset), force = key
+            self._normalized = key, [(r.command / force - offset) / gain for r in self.recordings]
+        return self._normalized[1]
+
     def commands(self, mech: Mechanism) -> np.ndarray:
         """Returns the normalized commands each piece's motors apply (P, length, n_tendons):
         the commands sent ``delay`` rows before."""
-        gain, offset = mech.command_map
-        force = float(mech.max_tendon_force)
-        out = []
-        for i, s in self.starts:
-            sent = self.recordings[i].command[s - self.delay : s - self.delay + self.length]
-            out.append((sent / force - offset) / gain)
-        return np.array(out)
+        u = self.normalized(mech)
+        return np.array([u[i][s - self.delay : s - self.delay + self.length]
+                         for i, s in self.starts])  # fmt: skip
 
     def measured(self, speeds: bool = False) -> np.ndarray:
         """Returns the measured angles (or with ``speeds`` the measured speeds) each piece is
@@ -106,8 +112,6 @@ class Pieces:
     def lag_states(self, mech: Mechanism, n_sub: int) -> np.ndarray:
         """Returns each piece's motor lag states at its first row (P, n_tendons): the applied
         commands before it through the candidate's lag, from the first command."""
-        gain, offset = mech.command_map
-        force = float(mech.max_tendon_force)
         h = mech.sim_dt / mech.motor_tau
         step = 1.0 - math.exp(-h) if mech.integrator != "RK4" else 1.0 - (
             1 - h + h * h / 2 - h**3 / 6 + h**4 / 24
@@ -116,8 +120,7 @@ class Pieces:
         M = max(1, round(30 * mech.motor_tau / self.ctrl_dt))  # older rows weigh < e^-30
         weights = (1.0 - keep) * keep ** np.arange(M - 1, -1, -1)
         out = []
-        for i, rec in enumerate(self.recordings):
-            u = (rec.command / force - offset) / gain
+        for i, u in enumerate(self.normalized(mech)):
             padded = np.concatenate([np.repeat(u[:1], M, axis=0), u])  # at rest before
             rows = [s - self.delay for j, s in self.starts if j == i]
             windows = np.stack([padded[r : r + M] for r in rows])  # the M rows before each

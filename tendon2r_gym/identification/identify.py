@@ -107,19 +107,13 @@ def bounds(name: str, mech: Mechanism) -> tuple[float, float, float] | str:
     raise invalid("fit", name, f"names from {list(FIELDS)}")
 
 
-def load_recordings(
-    paths: Sequence[str | os.PathLike], config: EnvConfig, n_fields: int
-) -> list[Recording]:
-    """Reads and checks each recording against the arm of ``config``; together they must
-    hold at least one piece per fitted field and two more."""
+def load_recordings(paths: Sequence[str | os.PathLike], config: EnvConfig) -> list[Recording]:
+    """Reads and checks each recording against the arm of ``config`` (identify checks that
+    together they are long enough)."""
     mech = config.mechanism
-    one = recording.load  # each file on its own first: the error names it
-    recs = [
-        one(p, mech.n_tendons, config.ctrl_dt, float(mech.max_tendon_force), mech.pull_only)
-        for p in paths
-    ]
-    check_pieces(recs, config, n_fields, round(MAX_DELAY_S / config.ctrl_dt) + 1)
-    return recs
+    force = float(mech.max_tendon_force)
+    return [recording.load(p, mech.n_tendons, config.ctrl_dt, force, mech.pull_only)
+            for p in paths]  # fmt: skip
 
 
 def check_pieces(recs: Sequence[Recording], config: EnvConfig, n_fields: int, first: int) -> None:
@@ -131,9 +125,9 @@ def check_pieces(recs: Sequence[Recording], config: EnvConfig, n_fields: int, fi
             need = first * config.ctrl_dt + (n_fields + 2) * stage.spacing_s
             raise ValueError(
                 f"recording {', '.join(r.source for r in recs)}: too short to fit {n_fields} "
-                f"fields; they give {len(pieces)} pieces of {stage.piece_s} s every "
-                f"{stage.spacing_s} s, and the fit needs {n_fields + 2} (about {need:.3g} s of "
-                "recording; 10 s of tendon2r-excite's excitation is plenty)"
+                f"field{'s' * (n_fields != 1)}; they give {len(pieces)} pieces of "
+                f"{stage.piece_s} s every {stage.spacing_s} s, and the fit needs {n_fields + 2} "
+                f"(about {need:.3g} s of recording; 10 s of tendon2r-excite's excitation is plenty)"
             )
 
 
