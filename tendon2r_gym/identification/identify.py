@@ -8,8 +8,8 @@ toolbox's box-constrained Gauss-Newton (``mujoco.sysid.optimize``, MuJoCo's own
 - each field's 95% interval is the cluster-robust one (one cluster per piece:
   fit.cluster_covariance), t-distributed with (pieces - fields) degrees of freedom;
 - a field is *identified* if that interval is within ``IDENTIFIED_WITHIN`` of its value and the
-  value is off its bounds; otherwise it is flagged, no number is reported for it, and the
-  identified arm keeps its nominal value;
+  value is off its bounds and off the integrator's limit (EDGE_STEP); otherwise it is
+  flagged, no number is reported for it, and the identified arm keeps its nominal value;
 - the delays: commands and angles show only the loop delay, ``motor_delay +
   observation_delay`` (a command held back d steps and a measurement d steps late move the
   replay alike), found in whole control steps by the least fitted residual (each delay's fit
@@ -74,6 +74,10 @@ STAGES = (Stage(PIECE_S, 5 * PIECE_S, 4), Stage(PIECE_S, 2 * PIECE_S, 4))
 #: Gauss-Newton stops when a step is below this fraction of the fields (scaled): the
 #: intervals are never narrower.
 XTOL = 1e-4
+#: A fit this close (scaled) to an arm the integrator cannot integrate (the env refuses it:
+#: tendon2r_gym.simulation.stability) is held there by that limit, not by the recording: the
+#: fields that cross it within this step are flagged, as at a bound.
+EDGE_STEP = 1e-3
 #: Rounds of each stage: a fit of max_iters, then the pieces' starts refined at it.
 ROUNDS = 3
 
@@ -186,11 +190,20 @@ class _Problem:
 
     def stable(self, mech: Mechanism) -> bool:
         """Whether the env accepts ``mech``: its integrator can integrate it."""
+        return self.limiting(mech) is None
+
+    def limiting(self, mech: Mechanism) -> str | None:
+        """The field that keeps the integrator from integrating ``mech`` (None if it can)."""
         try:
             check_stability(self.nominal_model, mech)
-        except ValueError:
-            return False
-        return True
+        except ValueError as e:
+            return str(e).split(" = ", 1)[0].removeprefix("Mechanism.")
+        return None
+
+    def at_limit(self, x: np.ndarray, i: int) -> bool:
+        """Whether field ``i`` of the fit ``x`` is at the integrator's limit (EDGE_STEP)."""
+        step = EDGE_STEP * np.eye(len(x))[i]
+        return not (self.stable(self.arm(x - step)) and self.stable(self.arm(x + step)))
 
     def fit(self, x: np.ndarray, stage: Stage, rounds: int) -> np.ndarray:
         """Returns the fit from ``x`` on the current pieces: ``rounds`` times a Gauss-Newton
@@ -337,6 +350,23 @@ def identify(
     d = best
     prob.pieces(d, fits[d], final)  # every piece, from the subset's fit
     x = prob.fit(fits[d], final, ROUNDS)
+    # A fit held at the integrator's limit may be stuck there (the optimizer cannot slide
+    # along it): it is fitted again with the limiting fields (those check_stability names)
+    # from their nominal values, and the better fit is kept.
+    step = EDGE_STEP * np.eye(len(names))
+    limiting = {prob.limiting(prob.arm(x + sign * step[i]))
+                for i in range(len(names)) for sign in (-1, 1)} - {None}  # fmt: skip
+    pinned = [i for i, n in enumerate(names) if n in limiting]
+    if pinned:
+        held = prob.cost(x)
+        retry = x.copy()
+        retry[pinned] = x0[pinned]
+        prob.pieces(d, retry, final)
+        y = prob.fit(retry, final, ROUNDS)
+        if prob.cost(y) < held:
+            x = y
+        else:
+            prob.pieces(d, x, final)
     delay_ok = fit_delay and told == {d} and d < max_d
     # A field's fit at each delay not told apart widens its interval (the delay is a
     # nuisance the fields are conditional on).
@@ -360,8 +390,11 @@ def identify(
         half = float(tq * math.sqrt(max(cov[i, i], 0.0)) * s)
         half = max(half, XTOL * abs(value)) + float(spread[i] * s)  # no finer than the fit
         at_bound = min(value - lo, hi - value) <= 1e-3 * (hi - lo)
-        ok = half <= IDENTIFIED_WITHIN * abs(value) and not at_bound
-        why = "" if ok else ("at its bound" if at_bound else f"+-{half:.3g} {FIELDS[n][0]}")
+        at_limit = prob.at_limit(x, i)
+        ok = half <= IDENTIFIED_WITHIN * abs(value) and not (at_bound or at_limit)
+        why = ("" if ok else "at its bound" if at_bound
+               else "at the integrator's limit" if at_limit
+               else f"+-{half:.3g} {FIELDS[n][0]}")  # fmt: skip
         estimates.append(Estimate(n, float(getattr(mech, n)), value, half, ok, why))
         if ok:
             values[n] = value
