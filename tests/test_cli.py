@@ -95,7 +95,7 @@ def test_benchmark_on_bundled_models(tmp_path, monkeypatch):
 
 
 def test_benchmark_on_your_own_arm(tmp_path, monkeypatch):
-    _untuned(monkeypatch)  # tendon2r-tune-pd itself: tests/test_tuning.py
+    _untuned(monkeypatch)
     arm = tmp_path / "my_arm.yaml"
     arm.write_text(ARM)
     out = tmp_path / "out"
@@ -126,12 +126,15 @@ def test_benchmark_on_your_own_arm(tmp_path, monkeypatch):
 
 
 def _untuned(monkeypatch):
-    """PD's tuning (test_benchmark_on_your_own_arm runs it) as a stub: the package's gains."""
-    from tendon2r_gym.evaluation import tuning
+    """PD's tuning (tendon2r-tune-pd's own tests: tests/test_tuning.py) as a stub, the
+    package's gains; and one jittered rerun per row instead of REPRO_RUNS (the tolerance's
+    machinery, in less time: test_benchmark_on_bundled_models)."""
+    from tendon2r_gym.evaluation import evaluator, tuning
     from tendon2r_gym.task.gains import default_gains
 
     stub = type("Scan", (), {"gains": default_gains()})
     monkeypatch.setattr(tuning, "tune_pd", lambda *a, **k: stub)
+    monkeypatch.setattr(evaluator, "REPRO_RUNS", 1)
 
 
 def test_benchmark_fine_tunes_the_generalist_on_an_arm_it_covers(tmp_path, monkeypatch):

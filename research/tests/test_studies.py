@@ -598,3 +598,17 @@ def test_transient_study_end_to_end(tmp_path):
     assert arm["tension_x_pd"] > 0 and arm["tension_rate_x_pd"] > 0
     text = (tmp_path / "transient.md").read_text()
     assert out["command"] in text and "| sweep_course_2 | " in text
+
+
+def test_envelope_survey_counts_every_draw_and_reports_from_its_json(tmp_path):
+    from research.studies import envelope
+
+    result = envelope.main(["--draws", "12", "--out", str(tmp_path)])
+    for s in result["surveys"]:  # each draw is valid or refused by a named field
+        assert s["valid"] + sum(s["refused"].values()) == 12
+    real = next(s for s in result["surveys"] if s["kind"] == "real")
+    for key, n in real["stable"].items():
+        assert n + sum(real["unstable"][key].values()) == real["valid"]
+    md = (tmp_path / "envelope.md").read_text()
+    assert md == "\n".join(envelope.lines(result)) + "\n"
+    assert envelope.main(["--draws", "12", "--out", str(tmp_path), "--only-report"]) == result
