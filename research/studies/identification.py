@@ -95,11 +95,28 @@ def closed_loop(true_kw: dict[str, Any], beliefs: dict[str, dict[str, Any]],
     return out
 
 
+#: A gap (nominal choice - true choice) within this fraction of the true choice's error is no
+#: gap: the nominal choice is already as good, and a ratio of two small differences says
+#: nothing.  The identified choice then passes if it is within the same fraction.
+NO_GAP = 0.05
+
+
 def gap_closed(cl: dict[str, Any], key: str) -> float | None:
+    """Returns (nominal - identified) / (nominal - true) of the worst joint's RMS error, or
+    None if a choice is missing or there is no gap (NO_GAP)."""
     if any(key not in cl[b] for b in ("nominal", "identified", "true")):
         return None
     nom, idf, tru = (_worst(cl[b][key]) for b in ("nominal", "identified", "true"))
-    return None if abs(nom - tru) < 1e-12 else (nom - idf) / (nom - tru)
+    return None if abs(nom - tru) <= NO_GAP * tru else (nom - idf) / (nom - tru)
+
+
+def no_gap(cl: dict[str, Any], key: str) -> bool | None:
+    """Returns, on an arm without a gap (NO_GAP), whether the identified choice is within
+    NO_GAP of the true one too (None if there is a gap or a choice is missing)."""
+    if any(key not in cl[b] for b in ("nominal", "identified", "true")):
+        return None
+    nom, idf, tru = (_worst(cl[b][key]) for b in ("nominal", "identified", "true"))
+    return abs(idf - tru) <= NO_GAP * tru if abs(nom - tru) <= NO_GAP * tru else None
 
 
 def ideal_check(threads: int | None) -> dict[str, Any]:
@@ -238,30 +255,43 @@ def lines(result: dict[str, Any]) -> list[str]:
         "## Closed loop on the true arm",
         "",
         "Worst joint's RMS error (deg), with the choice made on the nominal, the identified "
-        "and the true arm; gap closed = (nominal - identified) / (nominal - true).",
+        "and the true arm; gap closed = (nominal - identified) / (nominal - true). An arm "
+        f"whose nominal choice is within {NO_GAP:.0%} of the true one has no gap to close.",
         "",
         "| arm | PD nominal | PD identified | PD true | PD gap closed | residual nominal | "
         "residual identified | residual true | residual gap closed |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
-        cl, g = r["closed_loop"], r["gap_closed"]
+        cl = r["closed_loop"]
+        g = {k: gap_closed(cl, f"{k}_rms_deg") for k in ("pd", "residual")}
+        none = {k: no_gap(cl, f"{k}_rms_deg") for k in ("pd", "residual")}
         pd = [_worst(cl[b]["pd_rms_deg"]) for b in ("nominal", "identified", "true")]
         res = [_worst(cl[b]["residual_rms_deg"]) if "residual_rms_deg" in cl[b] else math.nan
                for b in ("nominal", "identified", "true")]  # fmt: skip
-        gp = "n/a" if g["pd"] is None else f"{g['pd']:.0%}"
-        gr = "n/a" if g["residual"] is None else f"{g['residual']:.0%}"
+        gp, gr = (f"{g[k]:.0%}" if g[k] is not None else
+                  "n/a" if none[k] is None else
+                  f"no gap, identified {'within' if none[k] else 'beyond'} {NO_GAP:.0%}"
+                  for k in ("pd", "residual"))  # fmt: skip
         missing = [f"{b}: {cl[b]['residual_missing']}" for b in cl if "residual_missing" in cl[b]]
         if missing:
             gr += " (residual refused the arm: " + "; ".join(missing) + ")"
         out.append(f"| {r['arm']} | " + " | ".join(f"{v:.3g}" for v in pd) + f" | {gp} | "
                    + " | ".join(f"{v:.3g}" for v in res) + f" | {gr} |")  # fmt: skip
     for key, label in (("pd", "PD"), ("residual", "residual")):
-        gaps = [r["gap_closed"][key] for r in rows if r["gap_closed"][key] is not None]
+        cls = [r["closed_loop"] for r in rows]
+        gaps = [g for cl in cls if (g := gap_closed(cl, f"{key}_rms_deg")) is not None]
+        flat = [f for cl in cls if (f := no_gap(cl, f"{key}_rms_deg")) is not None]
+        line = f"\n{label}: "
         if gaps:
             at = sum(g >= 0.8 for g in gaps)
-            out.append(f"\n{label}: median gap closed {np.median(gaps):.0%}, {at} of "
-                       f"{len(gaps)} arms at 80% or more.")  # fmt: skip
+            line += (f"median gap closed {np.median(gaps):.0%}, {at} of {len(gaps)} arms with a "
+                     "gap at 80% or more")  # fmt: skip
+        if flat:
+            line += (f"{'; ' if gaps else ''}{len(flat)} arms without a gap (within "
+                     f"{NO_GAP:.0%}), the identified choice within {NO_GAP:.0%} of the true one "
+                     f"on {sum(flat)}")  # fmt: skip
+        out.append(line + ".")
     return out
 
 
