@@ -612,3 +612,19 @@ def test_envelope_survey_counts_every_draw_and_reports_from_its_json(tmp_path):
     md = (tmp_path / "envelope.md").read_text()
     assert md == "\n".join(envelope.lines(result)) + "\n"
     assert envelope.main(["--draws", "12", "--out", str(tmp_path), "--only-report"]) == result
+
+
+def test_identification_gap_is_none_without_a_gap_and_a_ratio_with_one():
+    from research.studies.identification import NO_GAP, gap_closed, no_gap
+
+    def cl(nominal, identified, true):
+        return {b: {"pd_rms_deg": [v, 0.0]} for b, v in
+                (("nominal", nominal), ("identified", identified), ("true", true))}  # fmt: skip
+
+    assert gap_closed(cl(0.4, 0.15, 0.1), "pd_rms_deg") == pytest.approx(0.25 / 0.3)
+    assert no_gap(cl(0.4, 0.15, 0.1), "pd_rms_deg") is None
+    flat = 0.1 * (1 + NO_GAP / 2)  # the nominal choice as good as the true one
+    assert gap_closed(cl(flat, 0.1, 0.1), "pd_rms_deg") is None
+    assert no_gap(cl(flat, 0.1, 0.1), "pd_rms_deg") is True
+    assert no_gap(cl(flat, 0.2, 0.1), "pd_rms_deg") is False
+    assert gap_closed(cl(0.4, 0.15, 0.1), "residual_rms_deg") is None  # no residual row
