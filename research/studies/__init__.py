@@ -8,7 +8,7 @@ repository's root.
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -31,3 +31,14 @@ def save_json(out: Path, name: str, result: dict[str, Any]) -> None:
     """Creates ``out`` and writes ``result`` to ``out/<name>.json``."""
     out.mkdir(parents=True, exist_ok=True)
     (out / f"{name}.json").write_text(json.dumps(result, indent=1))
+
+
+def computed_or_read(out: Path, name: str, only_report: bool,
+                     compute: Callable[[], dict[str, Any]]) -> dict[str, Any]:  # fmt: skip
+    """Returns ``compute()`` saved to ``out/<name>.json``, or with ``only_report`` that file
+    as it was saved (a study's ``--only-report``: its page rewritten from its results)."""
+    if only_report:
+        return json.loads((out / f"{name}.json").read_text())
+    result = compute()
+    save_json(out, name, result)
+    return result

@@ -24,7 +24,6 @@ narrows what a policy trains on.
 
 from __future__ import annotations
 
-import json
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,6 +31,7 @@ from typing import Annotated, Any
 
 import numpy as np
 
+from research.studies import computed_or_read
 from tendon2r_gym.app.args import arg, parse
 from tendon2r_gym.task.arms import GEOMETRY, ArmRanges
 
@@ -165,17 +165,12 @@ class Args:
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     args = parse(Args, argv)
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    if args.only_report:
-        result = json.loads((out / "envelope.json").read_text())
-    else:
-        result = {
-            "draws": args.draws, "seed": SEED,
-            "envelope": {k: list(getattr(ENVELOPE, k)) for k in
-                         (*GEOMETRY, "amp_deg", "bias_deg", "freq_hz")},
-            "surveys": [survey(kind, args.draws) for kind in NOMINALS],
-        }  # fmt: skip
-        (out / "envelope.json").write_text(json.dumps(result, indent=1) + "\n")
+    result = computed_or_read(out, "envelope", args.only_report, lambda: {
+        "draws": args.draws, "seed": SEED,
+        "envelope": {k: list(getattr(ENVELOPE, k)) for k in
+                     (*GEOMETRY, "amp_deg", "bias_deg", "freq_hz")},
+        "surveys": [survey(kind, args.draws) for kind in NOMINALS],
+    })  # fmt: skip
     (out / "envelope.md").write_text("\n".join(lines(result)) + "\n")
     return result
 
