@@ -6,7 +6,9 @@ toolbox's box-constrained Gauss-Newton (``mujoco.sysid.optimize``, MuJoCo's own
 ``minimize.least_squares``), and judges each result:
 
 - each field's 95% interval is the cluster-robust one (one cluster per piece:
-  fit.cluster_covariance), t-distributed with (pieces - fields) degrees of freedom;
+  fit.cluster_covariance), t-distributed with (pieces - fields) degrees of freedom, and
+  simultaneous: the fields' intervals hold their true values together with 95% probability
+  (Bonferroni: each at 1 - 0.05 / fields), since a user reads them together;
 - a field is *identified* if that interval is within ``IDENTIFIED_WITHIN`` of its value and the
   value is off its bounds and off the integrator's limit (EDGE_STEP); otherwise it is
   flagged, no number is reported for it, and the identified arm keeps its nominal value;
@@ -382,7 +384,7 @@ def identify(
         cov = cluster_covariance(J, r, P)
     else:
         cov = np.zeros((0, 0))
-    tq = float(stats.t.ppf(0.975, max(P - len(names), 1)))
+    tq = float(stats.t.ppf(1 - 0.025 / max(len(names), 1), max(P - len(names), 1)))
     estimates, values = [], {}
     for i, n in enumerate(names):
         lo, hi, s = box[n]

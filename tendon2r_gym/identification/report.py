@@ -64,7 +64,7 @@ def save_html(ident: Identification, path: str | os.PathLike) -> Path:
         half = np.array([e.half_width for e in ident.estimates])
         rb.add_section(
             ParameterDistribution(
-                title="Parameter distribution (95% intervals, cluster-robust)",
+                title="Parameter distribution (95% simultaneous intervals, cluster-robust)",
                 opt_params=fitted, initial_params=nominal, confidence_intervals=half,
                 anchor="distribution",
             )
