@@ -266,36 +266,23 @@ def _fields(asked: list[str], mech: Mechanism, explicit: bool):
     return names, box, skipped
 
 
-def identify(
-    recordings: Sequence[Recording],
-    config: EnvConfig,
-    fit: Sequence[str] | None = None,
-    threads: int | None = None,
-) -> Identification:
-    """Fits the fields ``fit`` (default DEFAULT_FIT, less those the nominal arm's model
-    cannot vary) of the arm of ``config`` to ``recordings`` (module docstring)."""
-    from scipy import stats
+class _Delays(NamedTuple):
+    """What the loop delay's search found (_search_delay)."""
 
-    began = time.perf_counter()
-    mech = config.mechanism
-    asked = list(DEFAULT_FIT if fit is None else fit)
-    names, box, skipped = _fields(asked, mech, fit is not None)
-    fit_delay = any(n in DELAYS for n in asked)
-    if threads is not None:
-        integer("threads", threads, 1, 1024)
-    prob = _Problem(recordings, config, names, box, threads or os.cpu_count() or 1)
-    x0 = prob.x0
-    nominal_steps = config.delay_steps + config.observation_delay_steps
+    best: int  # the delay (control steps) of the least fitted residual
+    told: set[int]  # the delays not told apart from it (it included)
+    fits: dict[int, np.ndarray]  # each fitted delay's fit on the subset's pieces
+    costs: dict[int, float]  # and its cost
+    at_nominal: dict[int, float]  # each delay's cost at the nominal values
+    entries: int  # the subset's residual entries
 
-    # The loop delay: a scan at the nominal values on a subset of the pieces, a fit at the
-    # best one, the scan again at that fit, then a walk to the least fitted residual (the
-    # lag, the cables' stretch and the delay trade off: each delay is fitted).
-    max_d = max(round(MAX_DELAY_S / config.ctrl_dt), 2 * nominal_steps)
-    max_d = max_d if fit_delay else nominal_steps
-    prob.first = max(prob.first, max_d + 1)
-    check_pieces(recordings, config, len(names), prob.first)
-    subset, final = STAGES
-    scan = range(max_d + 1) if fit_delay else [nominal_steps]
+
+def _search_delay(prob: _Problem, scan: range) -> _Delays:
+    """Finds the loop delay among ``scan`` on the subset's pieces: a scan at the nominal values,
+    a fit at the best delay, the scan again at that fit, then a walk to the least fitted
+    residual (the lag, the cables' stretch and the delay trade off: each delay is fitted),
+    and the delays around it that the pieces do not tell apart from it (_worse)."""
+    subset, x0 = STAGES[0], prob.x0
     scanned = {}
     for k in scan:
         prob.pieces(k, x0, subset, 1)
@@ -320,15 +307,16 @@ def identify(
         per_piece[k] = prob.piece_costs(fits[k])
         costs[k] = float(per_piece[k].sum())
 
+    several = len(scan) > 1
     best = min(scanned, key=scanned.get)
     profile(best)
-    if fit_delay:  # the scan again at that fit: the nominal values may mislead it
+    if several:  # the scan again at that fit: the nominal values may mislead it
         for k in scan:
             prob.pieces(k, fits[best], subset, 1)
             scanned[k] = prob.cost(fits[best])
         if (best := min(scanned, key=scanned.get)) not in costs:
             profile(best)
-    while fit_delay:  # walk downhill to the least fitted residual
+    while several:  # walk downhill to the least fitted residual
         for k in (best - 1, best + 1):
             if k in scanned and k not in costs:
                 profile(k)
@@ -336,9 +324,8 @@ def identify(
         if better == best:
             break
         best = better
-    # The delays not told apart from the best: grown while a neighbour is not worse.
-    told = {best}
-    grow = fit_delay
+    told = {best}  # grown while a neighbour is not worse
+    grow = several
     while grow:
         grow = False
         for k in sorted(told):
@@ -349,7 +336,38 @@ def identify(
                     if not _worse(per_piece[n], per_piece[best]):
                         told.add(n)
                         grow = True
-    d = best
+    return _Delays(best, told, fits, costs, at_nominal, entries)
+
+
+def identify(
+    recordings: Sequence[Recording],
+    config: EnvConfig,
+    fit: Sequence[str] | None = None,
+    threads: int | None = None,
+) -> Identification:
+    """Fits the fields ``fit`` (default DEFAULT_FIT, less those the nominal arm's model
+    cannot vary) of the arm of ``config`` to ``recordings`` (module docstring)."""
+    from scipy import stats
+
+    began = time.perf_counter()
+    mech = config.mechanism
+    asked = list(DEFAULT_FIT if fit is None else fit)
+    names, box, skipped = _fields(asked, mech, fit is not None)
+    fit_delay = any(n in DELAYS for n in asked)
+    if threads is not None:
+        integer("threads", threads, 1, 1024)
+    prob = _Problem(recordings, config, names, box, threads or os.cpu_count() or 1)
+    x0 = prob.x0
+    nominal_steps = config.delay_steps + config.observation_delay_steps
+
+    max_d = max(round(MAX_DELAY_S / config.ctrl_dt), 2 * nominal_steps)
+    max_d = max_d if fit_delay else nominal_steps
+    prob.first = max(prob.first, max_d + 1)
+    check_pieces(recordings, config, len(names), prob.first)
+    final = STAGES[1]
+    scan = range(max_d + 1) if fit_delay else range(nominal_steps, nominal_steps + 1)
+    delays = _search_delay(prob, scan)
+    d, told, fits = delays.best, delays.told, delays.fits
     prob.pieces(d, fits[d], final)  # every piece, from the subset's fit
     x = prob.fit(fits[d], final, ROUNDS)
     # A fit held at the integrator's limit may be stuck there (the optimizer cannot slide
@@ -372,7 +390,7 @@ def identify(
     delay_ok = fit_delay and told == {d} and d < max_d
     # A field's fit at each delay not told apart widens its interval (the delay is a
     # nuisance the fields are conditional on).
-    spread = np.max([np.abs(fits[k] - fits[d]) for k in told], axis=0) if names else x
+    spread = np.max([np.abs(fits[k] - fits[d]) for k in told], axis=0)
 
     # The Jacobian at the fit (forward differences), and the robust covariance.
     P = len(prob.rep.pieces)
@@ -400,7 +418,6 @@ def identify(
         estimates.append(Estimate(n, float(getattr(mech, n)), value, half, ok, why))
         if ok:
             values[n] = value
-    # Each neighbour's fitted residual against the best one's, per piece of the subset.
     loop = d * config.ctrl_dt
     noise = prob.rep.noise(prob.arm(x))
     out: dict[str, Any] = {"mechanism": values}
@@ -420,10 +437,10 @@ def identify(
         noise=noise,
         pieces=P,
         residual_rms_rad=(
-            math.sqrt(at_nominal[d] / entries) * ANGLE_UNIT,
+            math.sqrt(delays.at_nominal[d] / delays.entries) * ANGLE_UNIT,
             math.sqrt(float(np.sum(r**2)) / r.size) * ANGLE_UNIT,
         ),
         seconds=time.perf_counter() - began,
         sources=[rec.source for rec in recordings],
-        extras={"problem": prob, "x": x, "cov": cov, "costs": costs, "scanned": scanned},
+        extras={"problem": prob, "x": x, "cov": cov, "costs": delays.costs},
     )
