@@ -5,10 +5,12 @@ do its intervals hold them, and what does the fit buy in closed loop?
 
 The nominal arm is the ``real_arm`` preset.  Each of ARMS true arms draws its hidden values
 (every PERTURBATIONS field but the motor's mass, which a datasheet gives: the rotor's inertia)
-from ``np.random.default_rng(SEED)``.  Each one plays tendon2r-excite's excitation of the
-nominal arm for DURATION s (the recording seeded by its index), and tendon2r-identify fits the
-default fields to it.  Reported per arm: each field's relative error, whether its 95%
-interval holds the truth, whether it was flagged; the loop delay found; the fit's seconds.
+from ``np.random.default_rng(SEED)``, drawn again if the env refuses the arm (its integrator
+could not integrate it), as a training's draw would be.  Each one plays tendon2r-excite's
+excitation of the nominal arm for DURATION s (the recording seeded by its index), and
+tendon2r-identify fits the default fields to it.  Reported per arm: each field's relative
+error, whether its 95% interval holds the truth, whether it was flagged; the loop delay
+found; the fit's seconds.
 
 In closed loop, on the true arm (EPISODES held-out episodes of its reference):
 
@@ -44,20 +46,25 @@ def true_arms(n: int = ARMS, seed: int = SEED) -> list[dict[str, Any]]:
     nominal = EnvConfig.make(NOMINAL)
     rng = np.random.default_rng(seed)
     dt = nominal.ctrl_dt
-    arms = []
-    for _ in range(n):
+    arms: list[dict[str, Any]] = []
+    while len(arms) < n:
         drawn = {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in PERTURBATIONS.items()}
         for k in ("motor_delay", "observation_delay"):
             drawn[k] = round(drawn[k] / dt) * dt
         drawn.pop("motor_mass")
         mech = {k: v for k, v in drawn.items() if k in nominal.mechanism.to_dict()}
-        arms.append({
+        arm = {
             "preset": NOMINAL,
             "mechanism": mech,
             "observation_noise": [drawn["observation_noise_angle"],
                                   drawn["observation_noise_speed"]],
             "observation_delay": drawn["observation_delay"],
-        })  # fmt: skip
+        }  # fmt: skip
+        try:  # drawn again if the env refuses it, as a training's draw would be
+            EnvConfig.make(**arm)
+        except ValueError:
+            continue
+        arms.append(arm)
     return arms
 
 
@@ -139,7 +146,8 @@ def ideal_check(threads: int | None) -> dict[str, Any]:
     }  # fmt: skip
 
 
-def study(n: int, threads: int | None, partial: Path | None = None) -> dict[str, Any]:
+def study(n: int, threads: int | None, partial: Path | None = None,
+          resume: bool = False) -> dict[str, Any]:  # fmt: skip
     from tendon2r_gym.envs.env_config import EnvConfig
     from tendon2r_gym.evaluation.tuning import tune_pd
     from tendon2r_gym.identification.excitation import design, record
@@ -149,8 +157,10 @@ def study(n: int, threads: int | None, partial: Path | None = None) -> dict[str,
     signal, _ = design(nominal, DURATION)
     nominal_kw = {"preset": NOMINAL}
     tuned_nominal = tune_pd(nominal_kw, 2).gains.to_dict()
-    rows = []
+    rows = json.loads(partial.read_text()) if resume and partial and partial.is_file() else []
     for i, kw in enumerate(true_arms(n)):
+        if i < len(rows):  # done before a crash or Ctrl-C
+            continue
         truth_cfg = EnvConfig.make(**kw)
         rec = record(truth_cfg, "pd", DURATION, seed=i, signal=signal)
         rec.source = f"true arm {i}"
@@ -306,6 +316,9 @@ class Args:
     from_partial: Annotated[
         bool, arg("write the .json and .md from the arms done so far (identification.partial.json)")
     ] = False
+    resume: Annotated[
+        bool, arg("continue after the arms done so far (identification.partial.json)")
+    ] = False
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -321,7 +334,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                   "rows": rows}  # fmt: skip
         (out / "identification.json").write_text(json.dumps(result, indent=1) + "\n")
     else:
-        result = study(args.arms, args.threads, out / "identification.partial.json")
+        result = study(args.arms, args.threads, out / "identification.partial.json", args.resume)
         (out / "identification.json").write_text(json.dumps(result, indent=1) + "\n")
     (out / "identification.md").write_text("\n".join(lines(result)) + "\n")
     return result
