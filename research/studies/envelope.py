@@ -149,7 +149,7 @@ def lines(result: dict[str, Any]) -> list[str]:
         integrator, dt = key.split()
         refused = ", ".join(f"{k}: {v}" for k, v in real["unstable"][key].items()) or "none"
         out.append(f"| {integrator} | {dt} | {n} of {real['valid']} "
-                   f"({n / max(real['valid'], 1):.0%}) | {refused} |")  # fmt: skip
+                   f"({n / max(real['valid'], 1):.1%}) | {refused} |")  # fmt: skip
     return out
 
 
