@@ -117,6 +117,17 @@ def gap_closed(cl: dict[str, Any], key: str) -> float | None:
     return None if abs(nom - tru) <= NO_GAP * tru else (nom - idf) / (nom - tru)
 
 
+def closes(cl: dict[str, Any], key: str) -> bool:
+    """Whether the identified choice closes at least 80% of a gap (gap_closed) and ends no
+    further from the true choice than the nominal one: a ratio past 100% may be an overshoot
+    beyond the true choice, better or worse."""
+    g = gap_closed(cl, key)
+    if g is None:
+        return False
+    nom, idf, tru = (_worst(cl[b][key]) for b in ("nominal", "identified", "true"))
+    return g >= 0.8 and abs(idf - tru) <= abs(nom - tru)
+
+
 def no_gap(cl: dict[str, Any], key: str) -> bool | None:
     """Returns, on an arm without a gap (NO_GAP), whether the identified choice is within
     NO_GAP of the true one too (None if there is a gap or a choice is missing)."""
@@ -294,9 +305,10 @@ def lines(result: dict[str, Any]) -> list[str]:
         flat = [f for cl in cls if (f := no_gap(cl, f"{key}_rms_deg")) is not None]
         line = f"\n{label}: "
         if gaps:
-            at = sum(g >= 0.8 for g in gaps)
+            at = sum(closes(cl, f"{key}_rms_deg") for cl in cls)
             line += (f"median gap closed {np.median(gaps):.0%}, {at} of {len(gaps)} arms with a "
-                     "gap at 80% or more")  # fmt: skip
+                     "gap at 80% or more and no further from the true choice than the nominal "
+                     "one (past 100%, the identified choice may overshoot)")  # fmt: skip
         if flat:
             line += (f"{'; ' if gaps else ''}{len(flat)} arms without a gap (within "
                      f"{NO_GAP:.0%}), the identified choice within {NO_GAP:.0%} of the true one "

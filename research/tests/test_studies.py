@@ -615,7 +615,7 @@ def test_envelope_survey_counts_every_draw_and_reports_from_its_json(tmp_path):
 
 
 def test_identification_gap_is_none_without_a_gap_and_a_ratio_with_one():
-    from research.studies.identification import NO_GAP, gap_closed, no_gap
+    from research.studies.identification import NO_GAP, closes, gap_closed, no_gap
 
     def cl(nominal, identified, true):
         return {b: {"pd_rms_deg": [v, 0.0]} for b, v in
@@ -628,3 +628,6 @@ def test_identification_gap_is_none_without_a_gap_and_a_ratio_with_one():
     assert no_gap(cl(flat, 0.1, 0.1), "pd_rms_deg") is True
     assert no_gap(cl(flat, 0.2, 0.1), "pd_rms_deg") is False
     assert gap_closed(cl(0.4, 0.15, 0.1), "residual_rms_deg") is None  # no residual row
+    assert closes(cl(0.4, 0.15, 0.1), "pd_rms_deg")
+    assert closes(cl(0.4, 0.05, 0.1), "pd_rms_deg")  # past the true choice, and nearer to it
+    assert not closes(cl(0.34, 0.70, 0.46), "pd_rms_deg")  # 305%: further than the nominal
