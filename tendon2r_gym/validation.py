@@ -20,6 +20,12 @@ def invalid(field: str, value: Any, allowed: str) -> ValueError:
     return ValueError(f"{field} = {value!r} is invalid; allowed: {allowed}")
 
 
+def invalid_field(error: ValueError) -> str:
+    """Returns the field that an :func:`invalid` error names, without its class prefix
+    (``Mechanism.tendon_damping``: ``tendon_damping``)."""
+    return str(error).split(" = ", 1)[0].rsplit(".", 1)[-1]
+
+
 def is_number(value: Any) -> bool:
     """Returns whether ``value`` is a real number (numpy scalars included, bools excluded)."""
     return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))

@@ -177,3 +177,13 @@ def test_the_flags_observe_replaced_are_read_from_older_files(tmp_path):
     flags = observation.as_flags(record)
     assert "observe" not in flags and flags["observe_force_limit"] and not flags["observe_arm"]
     assert EnvConfig.from_kwargs(flags) == EnvConfig.from_kwargs(record)
+
+
+def test_invalid_field_reads_the_field_an_error_names():
+    from tendon2r_gym.simulation.mechanism import Mechanism
+    from tendon2r_gym.validation import invalid, invalid_field
+
+    with pytest.raises(ValueError) as e:
+        Mechanism(R1=-1.0)
+    assert invalid_field(e.value) == "R1"
+    assert invalid_field(invalid("fit", "x", "names")) == "fit"

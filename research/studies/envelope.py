@@ -34,6 +34,7 @@ import numpy as np
 from research.studies import computed_or_read
 from tendon2r_gym.app.args import arg, parse
 from tendon2r_gym.task.arms import GEOMETRY, ArmRanges
+from tendon2r_gym.validation import invalid_field
 
 ENVELOPE = ArmRanges(
     R1=(0.008, 0.06), R2=(0.008, 0.06), a=(0.025, 0.12), b=(0.025, 0.12), c=(0.025, 0.12),
@@ -44,10 +45,6 @@ NOMINALS = {"ideal": "generalist", "real": "real_arm"}
 SETTINGS = (("RK4", 1e-3), ("RK4", 5e-4), ("RK4", 2.5e-4), ("implicitfast", 1e-3),
             ("implicitfast", 5e-4))  # fmt: skip
 OUT = Path("research/results")
-
-
-def _field(error: ValueError) -> str:
-    return str(error).split(" = ", 1)[0].removeprefix("Mechanism.")
 
 
 def survey(kind: str, draws: int = DRAWS, seed: int = SEED) -> dict[str, Any]:
@@ -79,7 +76,7 @@ def survey(kind: str, draws: int = DRAWS, seed: int = SEED) -> dict[str, Any]:
         try:
             mech = base.replace(**geometry)
         except ValueError as e:
-            refused[_field(e)] += 1
+            refused[invalid_field(e)] += 1
             continue
         try:
             fitted = ref.fit_to_workspace(mech, warn=False)
@@ -98,7 +95,7 @@ def survey(kind: str, draws: int = DRAWS, seed: int = SEED) -> dict[str, Any]:
                 check_stability(build_model(real.ideal()), real)
                 stable[key] += 1
             except ValueError as e:
-                unstable[key][_field(e)] += 1
+                unstable[key][invalid_field(e)] += 1
     out: dict[str, Any] = {
         "kind": kind, "nominal": NOMINALS[kind], "draws": draws, "valid": valid,
         "refused": dict(refused.most_common()),

@@ -49,7 +49,7 @@ from tendon2r_gym.identification.result import FIELDS, Estimate, Identification
 from tendon2r_gym.simulation.mechanism import Mechanism
 from tendon2r_gym.simulation.model import build_model
 from tendon2r_gym.simulation.stability import check_stability
-from tendon2r_gym.validation import integer, invalid
+from tendon2r_gym.validation import integer, invalid, invalid_field
 
 #: The delays: whole control steps, identified as their sum.
 DELAYS = ("motor_delay", "observation_delay")
@@ -199,7 +199,7 @@ class _Problem:
         try:
             check_stability(self.nominal_model, mech)
         except ValueError as e:
-            return str(e).split(" = ", 1)[0].removeprefix("Mechanism.")
+            return invalid_field(e)
         return None
 
     def at_limit(self, x: np.ndarray, i: int) -> bool:
