@@ -26,3 +26,22 @@ MECHANISMS = {
 @pytest.fixture(params=sorted(MECHANISMS))
 def mech(request) -> Mechanism:
     return MECHANISMS[request.param]
+
+
+#: Seconds per episode under :func:`short_episodes`.
+SHORT_EPISODE_S = 0.2
+
+
+@pytest.fixture
+def short_episodes(monkeypatch):
+    """Every vector env (evaluation rollouts, training, studies) runs SHORT_EPISODE_S episodes
+    instead of its config's: for the tests of a command's end-to-end plumbing (files, rows,
+    pages), whose properties do not depend on how long an episode is.  A model still loads
+    against its full env contract; only the rollouts are shorter."""
+    from tendon2r_gym.envs import vector_env
+
+    class Short(vector_env.Tendon2RVectorEnv):
+        def __init__(self, num_envs, *args, **kwargs):
+            super().__init__(num_envs, *args, **{**kwargs, "episode_duration": SHORT_EPISODE_S})
+
+    monkeypatch.setattr(vector_env, "Tendon2RVectorEnv", Short)

@@ -71,7 +71,7 @@ def test_a_bad_argument_is_a_one_line_error_with_exit_code_2():
     assert proc.stderr.strip().startswith("error: --episodes = 0 is invalid")
 
 
-def test_benchmark_on_bundled_models(tmp_path, monkeypatch):
+def test_benchmark_on_bundled_models(tmp_path, monkeypatch, short_episodes):
     """Every bundled model loads and runs, and the page is the report of the JSON record (one
     jittered rerun per figure instead of REPRO_RUNS: the tolerance's machinery, in less time)."""
     from tendon2r_gym.app import report
@@ -137,7 +137,9 @@ def _untuned(monkeypatch):
     monkeypatch.setattr(evaluator, "REPRO_RUNS", 1)
 
 
-def test_benchmark_fine_tunes_the_generalist_on_an_arm_it_covers(tmp_path, monkeypatch):
+def test_benchmark_fine_tunes_the_generalist_on_an_arm_it_covers(
+    tmp_path, monkeypatch, short_episodes
+):
     """Inside the generalist's ranges, the own-arm benchmark also fine-tunes it: a row with
     its steps and wall time, trained from the bundle's weights (its run's config says so, with
     the settings it took from its source).  Run again (after a crash, or for the report), it

@@ -151,7 +151,7 @@ class Args:
         default_factory=lambda: [0, 1, 2]
     )
     rows: Annotated[list[Row], arg("the study's rows")] = field(default_factory=lambda: list(ROWS))
-    jobs: Annotated[int, arg("runs in parallel (one per core)")] = 2
+    jobs: Annotated[int, arg("runs in parallel (one per core; 1: in this process)")] = 2
     out: Annotated[str, arg("folder for learnability.md and .json")] = "research/results"
     run_dir: Annotated[str | None, arg("keep the runs here (default: a temp dir)")] = None
     render: Annotated[str | None, arg("only re-render the tables of this JSON")] = None
@@ -173,12 +173,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as tmp:
         root = args.run_dir or tmp
         jobs = [(r, s) for r in args.rows for s in args.seeds]
-        # spawn: a forked child of a process that already loaded torch can hang in OpenMP.
-        with ProcessPoolExecutor(
-            args.jobs, mp_context=multiprocessing.get_context("spawn")
-        ) as pool:
-            futures = [pool.submit(_run, r, s, args.steps, root) for r, s in jobs]
-            runs = [f.result() for f in futures]
+        if args.jobs == 1:  # in this process
+            runs = [_run(r, s, args.steps, root) for r, s in jobs]
+        else:
+            # spawn: a forked child of a process that already loaded torch can hang in OpenMP.
+            with ProcessPoolExecutor(
+                args.jobs, mp_context=multiprocessing.get_context("spawn")
+            ) as pool:
+                futures = [pool.submit(_run, r, s, args.steps, root) for r, s in jobs]
+                runs = [f.result() for f in futures]
     result = summarize(runs, args.rows, args.seeds, args.steps, command)
     base = row_config(args.rows[0], args.steps)
     result["pd_tension_rate_N_per_s"] = pd_tension_rate(base.env_kwargs, list(base.eval_seeds))

@@ -75,7 +75,7 @@ def test_real_arm_preset_and_perturbed_arms():
     assert max(metrics["rms_deg"]) < 1.0  # stable (the ideal arm: 0.09 deg)
 
 
-def test_the_study_runs_every_policy_on_its_arms(tmp_path, monkeypatch):
+def test_the_study_runs_every_policy_on_its_arms(tmp_path, monkeypatch, short_episodes):
     """On one perturbed arm (each arm tunes PD, the bulk of the study's time; one jittered
     rerun per figure), every policy runs and gets its row and reproducibility."""
     from tendon2r_gym.evaluation import evaluator

@@ -9,7 +9,7 @@ import yaml
 from research.studies import zoo_defaults
 
 
-def test_zoo_defaults_end_to_end(tmp_path):
+def test_zoo_defaults_end_to_end(tmp_path, short_episodes):
     out, runs = tmp_path / "out", tmp_path / "runs"
     result = zoo_defaults.main(
         ["--steps", "256", "--seeds", "0", "--out", str(out), "--run-dir", str(runs)]
