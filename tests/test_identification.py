@@ -181,8 +181,23 @@ def test_a_field_the_recording_cannot_show_is_flagged_and_keeps_its_nominal_valu
     ident = identify([rec], arm, ["density_scale", "tendon_friction"], threads=1)
     est = {e.field: e for e in ident.estimates}
     assert est["density_scale"].identified and not est["tendon_friction"].identified
-    assert "tendon_friction" not in ident.changes["mechanism"]
+    assert "tendon_friction" not in ident.changes["mechanism"] and not est["tendon_friction"].used
     assert any("not identifiable" in line for line in ident.lines())
+
+
+def test_a_field_too_uncertain_to_identify_that_rules_its_nominal_value_out_is_taken(arm):
+    # Noisy angles: the mass scale's interval is too wide to identify it, yet it excludes the
+    # nominal 1, so the identified arm takes the fit, and says so.
+    true = EnvConfig.make("default", mechanism={"density_scale": 1.5},
+                          observation_noise=[0.05, 0.0])  # fmt: skip
+    signal = MultiSine(amp_rad=(0.1, 0.08), bias_rad=(0.1, -0.2))
+    ident = identify([record(true, "pd", 2.6, seed=0, signal=signal)], arm, ["density_scale"],
+                     threads=1)  # fmt: skip
+    (e,) = ident.estimates
+    assert not e.identified and e.used and not e.interval[0] <= 1.0 <= e.interval[1], e
+    assert e.interval[0] <= 1.5 <= e.interval[1]
+    assert ident.changes["mechanism"]["density_scale"] == e.value
+    assert any("nominal out" in line for line in ident.lines())
 
 
 def test_several_recordings_of_one_arm_are_fitted_together(arm):

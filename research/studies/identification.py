@@ -150,7 +150,8 @@ def ideal_check(threads: int | None) -> dict[str, Any]:
     ident = identify([record(arm, "pd", DURATION, 0, signal)], arm, None, threads)
     return {
         "fields": {e.field: {"nominal": e.nominal, "value": e.value, "half_width": e.half_width,
-                             "identified": e.identified} for e in ident.estimates},
+                             "identified": e.identified, "used": e.used}
+                   for e in ident.estimates},
         "skipped": ident.skipped,
         "loop_delay_ms": ident.loop_delay_s * 1e3,
         "seconds": ident.seconds,
@@ -181,7 +182,7 @@ def study(n: int, threads: int | None, partial: Path | None = None,
             true = float(getattr(truth_cfg.mechanism, e.field))
             fields[e.field] = {
                 "true": true, "nominal": e.nominal, "value": e.value, "half_width": e.half_width,
-                "identified": e.identified,
+                "identified": e.identified, "used": e.used,
                 "rel_error": (e.value - true) / true if true else math.inf,
                 "covered": bool(e.interval[0] <= true <= e.interval[1]),
             }  # fmt: skip

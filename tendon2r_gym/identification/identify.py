@@ -11,7 +11,8 @@ toolbox's box-constrained Gauss-Newton (``mujoco.sysid.optimize``, MuJoCo's own
   (Bonferroni: each at 1 - 0.05 / fields), since a user reads them together;
 - a field is *identified* if that interval is within ``IDENTIFIED_WITHIN`` of its value and the
   value is off its bounds and off the integrator's limit (EDGE_STEP); otherwise it is
-  flagged, no number is reported for it, and the identified arm keeps its nominal value;
+  flagged, and the identified arm keeps its nominal value unless the interval excludes it
+  (then the fit is the better guess, and the arm takes it);
 - the delays: commands and angles show only the loop delay, ``motor_delay +
   observation_delay`` (a command held back d steps and a measurement d steps late move the
   replay alike), found in whole control steps by the least fitted residual (each delay's fit
@@ -395,10 +396,9 @@ def identify(
     # The Jacobian at the fit (forward differences), and the robust covariance.
     P = len(prob.rep.pieces)
     r = prob.residual(x)[0][0]
-    eps = 1e-6
     if names:
-        cols = np.tile(x[:, None], (1, len(names))) + eps * np.eye(len(names))
-        J = (prob.residual(cols)[0][0] - r[:, None]) / eps
+        cols = np.tile(x[:, None], (1, len(names))) + 1e-6 * np.eye(len(names))
+        J = (prob.residual(cols)[0][0] - r[:, None]) / 1e-6
         cov = cluster_covariance(J, r, P)
     else:
         cov = np.zeros((0, 0))
@@ -415,8 +415,12 @@ def identify(
         why = ("" if ok else "at its bound" if at_bound
                else "at the integrator's limit" if at_limit
                else f"+-{half:.3g} {FIELDS[n][0]}")  # fmt: skip
-        estimates.append(Estimate(n, float(getattr(mech, n)), value, half, ok, why))
-        if ok:
+        nominal = float(getattr(mech, n))
+        # Too wide to identify, yet the recording rules the nominal value out: the fit is
+        # the better guess, and the identified arm takes it.
+        used = ok or not (at_bound or at_limit) and abs(nominal - value) > half
+        estimates.append(Estimate(n, nominal, value, half, ok, why, used))
+        if used:
             values[n] = value
     loop = d * config.ctrl_dt
     noise = prob.rep.noise(prob.arm(x))

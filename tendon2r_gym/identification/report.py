@@ -20,7 +20,7 @@ def save_experiment(ident: Identification, path: str | os.PathLike, nominal: str
     head = [
         f"Identified by tendon2r-identify from {', '.join(ident.sources)} on the nominal arm "
         f"{nominal}.",
-        "Fields not identified keep their nominal values.",
+        "Fields not identified keep their nominal values, unless the recording rules them out.",
         *ident.lines(),
     ]
     text = "".join(f"# {line}\n" for line in head)

@@ -32,7 +32,10 @@ class Estimate:
     value: float
     half_width: float  # of the 95% interval
     identified: bool
-    why: str = ""
+    why: str = ""  # why it is not identified
+    #: The identified arm takes the value: identified, or its interval excludes the nominal
+    #: value (then the fit is the better guess, though too uncertain to identify the field).
+    used: bool = False
 
     @property
     def unit(self) -> str:
@@ -77,11 +80,13 @@ class Identification:
         """The printed table."""
         out = [f"{'field':<20} {'nominal':>11} {'identified':>11} {'95% interval':>27}  unit"]
         for e in self.estimates:
-            if e.identified:
-                lo, hi = e.interval
-                shown, ci = f"{e.value:11.4g}", f"[{lo:.4g}, {hi:.4g}]"
-            else:
-                shown, ci = f"{'-':>11}", f"not identifiable ({e.why})"
+            lo, hi = e.interval
+            shown, ci = f"{e.value:11.4g}", f"[{lo:.4g}, {hi:.4g}]"
+            if not e.identified:
+                shown = f"{'-':>11}"
+                ci = f"not identifiable ({e.why})"
+                if e.used:  # too wide, yet it rules the nominal value out
+                    shown, ci = f"{e.value:11.4g}", f"[{lo:.4g}, {hi:.4g}] too wide, nominal out"
             out.append(f"{e.field:<20} {e.nominal:11.4g} {shown} {ci:>27}  {e.unit}")
         angle, speed = self.noise
         shown = "not recorded" if speed is None else f"{speed:.3g} rad/s"
