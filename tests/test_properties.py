@@ -19,7 +19,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import yaml
-from hypothesis import HealthCheck, event, given, settings
+from hypothesis import HealthCheck, event, example, given, settings
 from hypothesis import strategies as st
 
 import tendon2r_gym  # noqa: F401  (registers Tendon2R-v0)
@@ -127,6 +127,8 @@ near_valid = st.one_of(
 
 
 @given(kwargs=near_valid)
+@example(kwargs={"mechanism": {"sim_dt": 4.243547665183028e-245}})  # once 1e245 substeps
+@example(kwargs={"mechanism": {"sim_dt": 1e-6}, "ctrl_dt": 0.002})
 def test_any_number_in_a_valid_config_works_or_names_a_field(kwargs):
     test_any_keyword_set_works_or_names_a_field.hypothesis.inner_test(kwargs)
 

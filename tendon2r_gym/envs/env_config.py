@@ -60,6 +60,8 @@ AUTO_FLOOR = {"amp_deg": (10.0, 10.0), "freq_hz": (1.0, 1.0)}
 #: turns into tendon tensions with PD's distribution
 #: (tendon2r_gym.simulation.actuation.TorqueToTension).
 ACTION_MODES = ("tension", "joint_torque")
+#: The most physics steps per control step (ctrl_dt / sim_dt).
+MAX_SUBSTEPS = 1000
 
 
 @dataclass(frozen=True)
@@ -167,6 +169,9 @@ class EnvConfig:
         sim_dt = self.mechanism.sim_dt
         set_("ctrl_dt", number("ctrl_dt", self.ctrl_dt, sim_dt, 0.1))
         n_sub = round(self.ctrl_dt / sim_dt)
+        if n_sub > MAX_SUBSTEPS:
+            allowed = f"at most {MAX_SUBSTEPS} physics steps of sim_dt = {sim_dt} s"
+            raise invalid("ctrl_dt", self.ctrl_dt, allowed)
         # Relative 1e-6: a float32 ctrl_dt (np.float32(0.002)) is still a multiple.
         if abs(n_sub * sim_dt - self.ctrl_dt) > 1e-6 * self.ctrl_dt:
             raise invalid("ctrl_dt", self.ctrl_dt, f"an integer multiple of sim_dt = {sim_dt} s")

@@ -29,6 +29,9 @@ from tendon2r_gym.simulation.routing import Sides
 from tendon2r_gym.validation import boolean, check_keys, invalid, is_number, mapping, number
 
 INTEGRATORS = ("Euler", "RK4", "implicit", "implicitfast")
+#: The smallest physics time step (s): a microsecond, a thousand steps per millisecond.
+MIN_SIM_DT = 1e-6
+
 #: Upper bounds of the size and mass fields: a desk-top arm (the course's links are 0.03 to
 #: 0.095 m, its pulleys 0.011 to 0.047 m), with a wide margin; a 1 km link diverges at once.
 LIMITS = {
@@ -138,7 +141,7 @@ class Mechanism:
                 "0 when tendon_elasticity > 0 (a series-elastic cable carries its own spring; "
                 "tendon_stiffness is a spring in parallel with it)",
             )
-        set_("sim_dt", number("Mechanism.sim_dt", self.sim_dt, 0.0, 0.01, lo_open=True))
+        set_("sim_dt", number("Mechanism.sim_dt", self.sim_dt, MIN_SIM_DT, 0.01))
         r1, r2 = self.R1 / 2, self.R2 / 2
         if r1 >= self.a:
             raise _fail("R1", self.R1, f"R1/2 < a = {self.a} (pulley 1 must clear the wall)")
