@@ -60,8 +60,7 @@ AUTO_FLOOR = {"amp_deg": (10.0, 10.0), "freq_hz": (1.0, 1.0)}
 #: turns into tendon tensions with PD's distribution
 #: (tendon2r_gym.simulation.actuation.TorqueToTension).
 ACTION_MODES = ("tension", "joint_torque")
-#: The most physics steps per control step (ctrl_dt / sim_dt).
-MAX_SUBSTEPS = 1000
+MAX_SUBSTEPS = 1000  # physics steps per control step (ctrl_dt / sim_dt), at most
 
 
 @dataclass(frozen=True)
@@ -71,16 +70,14 @@ class EnvConfig:
     mechanism: Mechanism
     reference: Reference
     reference_ranges: ReferenceRanges | None = None
-    #: Draw a new arm at every reset (tendon2r_gym.task.arms.MechanismRanges; "course": the
-    #: course's geometry), and its reference: each pair valid, with its own ``auto`` force
-    #: limit, as one user's experiment file (draw_arm).
+    #: Draw a new arm at every reset (tendon2r_gym.task.arms.MechanismRanges) and its reference,
+    #: each pair valid with its own ``auto`` force limit, as one experiment file (draw_arm).
     mechanism_ranges: MechanismRanges | None = None
-    #: The optional observation entries (tendon2r_gym.task.observation.OBSERVABLE, kept in
-    #: that order): ``error_rate``, the tracking error's rate, log-scaled (``error_rate_log``,
-    #: after last_action); ``feedforward``, the reference's acceleration as the normalized joint
-    #: torques that give it, rate_to_action (ctrl_dt ddq_des); ``force_limit``, ln of the force
-    #: limit max_tendon_force (``force_limit_log``): a normalized action's scale, which
-    #: ``auto`` sizes per arm; ``arm``, the drawn fields, normalized over mechanism_ranges.
+    #: The optional observation entries (tendon2r_gym.task.observation.OBSERVABLE, in that
+    #: order): ``error_rate``, the tracking error's rate, log-scaled (``error_rate_log``);
+    #: ``feedforward``, the reference's acceleration as the normalized joint torques that give
+    #: it; ``force_limit``, ln of max_tendon_force (``force_limit_log``), a normalized action's
+    #: scale; ``arm``, the drawn fields, normalized over mechanism_ranges.
     observe: tuple[str, ...] = ()
     #: The ranges the ``arm`` slice covers and is normalized over, if not mechanism_ranges:
     #: a policy trained on random arms that observes ``arm`` sees one fixed arm as it saw the
@@ -167,11 +164,9 @@ class EnvConfig:
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
         set_("fit_to_workspace", boolean("fit_to_workspace", self.fit_to_workspace))
         sim_dt = self.mechanism.sim_dt
-        set_("ctrl_dt", number("ctrl_dt", self.ctrl_dt, sim_dt, 0.1))
+        # at most MAX_SUBSTEPS physics steps per control step
+        set_("ctrl_dt", number("ctrl_dt", self.ctrl_dt, sim_dt, min(0.1, MAX_SUBSTEPS * sim_dt)))
         n_sub = round(self.ctrl_dt / sim_dt)
-        if n_sub > MAX_SUBSTEPS:
-            allowed = f"at most {MAX_SUBSTEPS} physics steps of sim_dt = {sim_dt} s"
-            raise invalid("ctrl_dt", self.ctrl_dt, allowed)
         # Relative 1e-6: a float32 ctrl_dt (np.float32(0.002)) is still a multiple.
         if abs(n_sub * sim_dt - self.ctrl_dt) > 1e-6 * self.ctrl_dt:
             raise invalid("ctrl_dt", self.ctrl_dt, f"an integer multiple of sim_dt = {sim_dt} s")
