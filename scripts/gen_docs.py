@@ -594,14 +594,26 @@ def identification_section(root: Path) -> list[str]:
     return ["## " + title.lstrip("# "), *body]
 
 
+def envelope_section(root: Path) -> list[str]:
+    """Returns the envelope survey's section (research/results/envelope.json), if it ran."""
+    path = root / "research" / "results" / "envelope.json"
+    if not path.is_file():
+        return []
+    from research.studies.envelope import lines as envelope_lines
+
+    title, *body = envelope_lines(json.loads(path.read_text()))
+    body = ["#" + line if line.startswith("## ") else line for line in body]
+    return ["## " + title.lstrip("# "), *body]
+
+
 def results_page(root: Path = ROOT) -> str:
     """Returns docs/results.md."""
     reports = benchmark_reports(root)
     main = reports.pop("results/benchmark.json", None)
     lines = [
         header(
-            "results/benchmark.json, results/*/benchmark.json, research/results/realism.json "
-            "and research/results/identification.json"
+            "results/benchmark.json, results/*/benchmark.json, research/results/realism.json, "
+            "research/results/identification.json and research/results/envelope.json"
         ),
         "",
         "# Results",
@@ -621,6 +633,8 @@ def results_page(root: Path = ROOT) -> str:
         lines += ["", *real]
     if ident := identification_section(root):
         lines += ["", *ident]
+    if envelope := envelope_section(root):
+        lines += ["", *envelope]
     if reports:
         lines += [
             "",

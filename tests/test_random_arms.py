@@ -1,6 +1,8 @@
 """Random arms (``mechanism_ranges``): each reset draws a valid arm and its reference; the
 episode is the one an experiment file of that arm gives; PD and CT follow the arm."""
 
+import dataclasses
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -10,7 +12,15 @@ from tendon2r_gym.policies.baselines import ComputedTorquePolicy, PDPolicy
 from tendon2r_gym.policies.model_env import check_model_env
 from tendon2r_gym.simulation.mechanism import Mechanism
 from tendon2r_gym.task import observation
-from tendon2r_gym.task.arms import COURSE, GEOMETRY, MechanismRanges
+from tendon2r_gym.task.arms import (
+    COURSE,
+    ENVELOPE,
+    GEOMETRY,
+    NAMED_RANGES,
+    ArmRanges,
+    MechanismRanges,
+    reference_ranges,
+)
 from tendon2r_gym.task.reference import Reference
 
 CABLES = {"tendon_elasticity": [2000.0, 6000.0], "motor_tau": [0.001, 0.004]}
@@ -84,10 +94,24 @@ def test_one_arm_observed_over_given_ranges():
     assert np.array_equal(vobs[0], env.reset(seed=0)[0])
 
 
-def test_course_ranges_are_the_course_geometry():
-    ranges = MechanismRanges.from_value("course")
+@pytest.mark.parametrize("name", sorted(NAMED_RANGES))
+def test_named_ranges_are_their_arm_ranges(name):
+    """``course`` and ``envelope`` give their ArmRanges' geometry to mechanism_ranges and
+    their amplitudes, frequencies and biases (both joints) to reference_ranges."""
+    arm = NAMED_RANGES[name]
+    ranges = MechanismRanges.from_value(name)
     assert ranges.names == GEOMETRY
-    assert ranges.to_dict() == {k: list(getattr(COURSE, k)) for k in GEOMETRY}
+    assert ranges.to_dict() == {k: list(getattr(arm, k)) for k in GEOMETRY}
+    ref = reference_ranges(name)
+    for k in ("amp_deg", "freq_hz", "bias_deg"):
+        assert getattr(ref, k) == (getattr(arm, k),) * 2
+
+
+def test_the_envelope_holds_the_course():
+    """The generalists' envelope is wider than the course on every range."""
+    for f in dataclasses.fields(ArmRanges):
+        (lo, hi), (clo, chi) = getattr(ENVELOPE, f.name), getattr(COURSE, f.name)
+        assert lo <= clo and chi <= hi, f.name
 
 
 def test_each_reset_draws_a_valid_arm_inside_the_ranges_same_seed_same_arm():
@@ -174,11 +198,15 @@ def test_generalist_loads_on_arms_inside_its_ranges_only():
     }
     inside = gym.make("Tendon2R-v0", mechanism={"c": 0.09, "R1": 0.02})
     check_model_env(recorded, inside, "generalist")
-    outside = gym.make("Tendon2R-v0", mechanism={"c": 0.12})
-    with pytest.raises(ValueError, match=r"c = 0.12 outside \[0.03, 0.095\]"):
+    # how the arm is integrated is not the arm
+    simulated = {"c": 0.09, "sim_dt": 5e-4, "integrator": "Euler"}
+    other_step = gym.make("Tendon2R-v0", mechanism=simulated)
+    check_model_env(recorded, other_step, "generalist")
+    outside = gym.make("Tendon2R-v0", mechanism={"c": 0.13})
+    with pytest.raises(ValueError, match=r"c = 0.13 outside \[0.025, 0.12\]"):
         check_model_env(recorded, outside, "generalist")
-    too_fast = gym.make("Tendon2R-v0", reference={"freq_hz": [4.5, 1.0]})
-    with pytest.raises(ValueError, match=r"reference.freq_hz of joint A = 4.5 outside"):
+    too_fast = gym.make("Tendon2R-v0", reference={"freq_hz": [5.5, 1.0]})
+    with pytest.raises(ValueError, match=r"reference.freq_hz of joint A = 5.5 outside"):
         check_model_env(recorded, too_fast, "generalist")
     other_routing = gym.make("Tendon2R-v0", preset="pull_only")
     with pytest.raises(ValueError, match="trained for another env"):

@@ -4,7 +4,7 @@ cables, motors and sensors.
 
     python -m research.studies.envelope   # research/results/envelope.md and .json
 
-ENVELOPE is the envelope that "One policy for every real arm" asks the generalists to cover
+ENVELOPE (tendon2r_gym.task.arms) is the envelope that the generalists cover
 (pulley diameters 0.008-0.06 m, links 0.025-0.12 m, amplitudes up to 60 deg, frequencies
 0.3-5 Hz, biases within 50 deg).  DRAWS arms are drawn uniformly from it (seed SEED), on two
 nominal arms:
@@ -33,13 +33,9 @@ import numpy as np
 
 from research.studies import computed_or_read
 from tendon2r_gym.app.args import arg, parse
-from tendon2r_gym.task.arms import GEOMETRY, ArmRanges
+from tendon2r_gym.task.arms import ENVELOPE, GEOMETRY
 from tendon2r_gym.validation import invalid_field
 
-ENVELOPE = ArmRanges(
-    R1=(0.008, 0.06), R2=(0.008, 0.06), a=(0.025, 0.12), b=(0.025, 0.12), c=(0.025, 0.12),
-    amp_deg=(0.0, 60.0), bias_deg=(-50.0, 50.0), freq_hz=(0.3, 5.0),
-)  # fmt: skip
 DRAWS, SEED = 1000, 2029
 NOMINALS = {"ideal": "generalist", "real": "real_arm"}
 SETTINGS = (("RK4", 1e-3), ("RK4", 5e-4), ("RK4", 2.5e-4), ("implicitfast", 1e-3),

@@ -636,3 +636,22 @@ def test_identification_gap_is_none_without_a_gap_and_a_ratio_with_one():
     assert closes(cl(0.4, 0.15, 0.1), "pd_rms_deg")
     assert closes(cl(0.4, 0.05, 0.1), "pd_rms_deg")  # past the true choice, and nearer to it
     assert not closes(cl(0.34, 0.70, 0.46), "pd_rms_deg")  # 305%: further than the nominal
+
+
+def test_envelope_generalists_study_runs_each_bundle_on_its_arms(tmp_path, short_episodes):
+    """Each kind of arm gets PD tuned on it, the package's PD and each of its bundles that is
+    bundled (or the error that refused the arm, with paths relative to the repository); the
+    page is the report of the JSON."""
+    from research.studies import envelope_generalists as study
+
+    argv = ["--arms", "1", "--one-geometry", "1", "--episodes", "1", "--out", str(tmp_path)]
+    result = study.main(argv)
+    assert set(result["arms"]) == {"ideal_0", "ideal_0_pull_only", "real_0", "one_geometry_0"}
+    for arm in result["arms"].values():
+        rows = arm["rows"]
+        assert rows["pd_tuned"]["bandwidth_hz"] > 0 and len(rows["pd"]["rms_deg"]) == 2
+        assert set(rows) == {"pd", "pd_tuned", *(b for b in arm["bundles"] if b in bundle_names())}
+    assert str(study.ROOT) not in json.dumps(result["arms"])
+    md = (tmp_path / "envelope_generalists.md").read_text()
+    assert md == "\n".join(study.lines(result)) + "\n"
+    assert study.main([*argv, "--only-report"]) == result

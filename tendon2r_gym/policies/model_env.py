@@ -35,6 +35,10 @@ MODEL_SETTINGS = (
 )
 
 
+#: Mechanism fields that say how the arm is simulated, not what it is: a generalist runs on an
+#: arm integrated with another integrator or step (one its cables need, or the user's).
+SIMULATION = ("integrator", "sim_dt")
+
 #: Env config fields a trained model depends on: what it observes, what its actions mean and
 #: what it must track.
 MODEL_ENV_FIELDS = (
@@ -102,9 +106,9 @@ def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
     cables, motors and sensors, as it would on hardware.  A model trained on random arms (a
     generalist) runs on one arm inside its ranges: its undrawn fields must match, its drawn
     fields and its reference lie inside the training ranges, else the ValueError names the
-    first field out, its value and the range.  A model that observed its arm sees it on an
-    env that does not (PPOPolicy appends :func:`arm_features`), or on one that observes it
-    over the same ranges."""
+    first field out, its value and the range; its integrator and step (SIMULATION) may
+    differ.  A model that observed its arm sees it on an env that does not (PPOPolicy appends
+    :func:`arm_features`), or on one that observes it over the same ranges."""
     config = env.unwrapped.config
     theirs = {"observation": recorded.get("observation"), **recorded_settings(recorded)}
     ours = {"observation": config.observation.layout(), **config_settings(config)}
@@ -119,7 +123,8 @@ def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
     arm_ranges = MechanismRanges.from_value(arms) if arms else None
     ranges = recorded.get("reference_ranges")
     if arm_ranges is not None and config.mechanism_ranges is None:  # a generalist on one arm
-        drawn = {*arm_ranges.names, "max_tendon_force"}  # auto: sized per arm
+        # auto: sized per arm; and how the arm is integrated is not the arm
+        drawn = {*arm_ranges.names, "max_tendon_force", *SIMULATION}
         undrawn = lambda m: {k: v for k, v in m.ideal().to_dict().items() if k not in drawn}  # noqa: E731
         theirs["mechanism"], ours["mechanism"] = undrawn(mech), undrawn(config.mechanism)
         _compare(theirs, ours, where)

@@ -66,6 +66,15 @@ class ArmRanges:
 
 
 COURSE = ArmRanges()
+#: The envelope of arms that users bring, wider than any course: what the generalists train on
+#: and accept (research/results/envelope.md surveys it).
+ENVELOPE = ArmRanges(
+    R1=(0.008, 0.06), R2=(0.008, 0.06), a=(0.025, 0.12), b=(0.025, 0.12), c=(0.025, 0.12),
+    amp_deg=(0.0, 60.0), bias_deg=(-50.0, 50.0), freq_hz=(0.3, 5.0),
+)  # fmt: skip
+#: The named ArmRanges that ``mechanism_ranges`` (their geometry) and ``reference_ranges``
+#: (their amplitudes, frequencies and biases) read.
+NAMED_RANGES = {"course": COURSE, "envelope": ENVELOPE}
 #: Draws tried before giving up (about 1 in 3 course draws is a valid arm).
 MAX_TRIES = 1000
 
@@ -147,8 +156,6 @@ DELAYS = ("motor_delay", "observation_delay")
 #: Fields whose zero and non-zero values compile to models of different layouts (spools,
 #: friction tendons, actuator states): their range must not straddle 0.
 LAYOUT_FIELDS = ("tendon_elasticity", "tendon_friction", "motor_tau")
-#: ``mechanism_ranges: course``: the course's geometry (ArmRanges' defaults).
-COURSE_NAME = "course"
 #: ``mechanism_ranges: real_arm``: the cables, motors and sensors of the real-arm study's
 #: perturbed arms (tendon2r_gym.simulation.realism.PERTURBATIONS).
 REAL_ARM_NAME = "real_arm"
@@ -177,8 +184,8 @@ class MechanismRanges:
     """Uniform ranges [lo, hi] of DRAWABLE fields (Mechanism fields: RANDOMIZABLE; sensors:
     SENSING; PD's gains: CONTROLLER), drawn independently in this order at every reset; every
     other field keeps the nominal arm's value.  From YAML: a mapping ``{field: [lo, hi]}``,
-    ``course`` (the course's geometry, R1 R2 a b c) or ``real_arm`` (cables, motors and
-    sensors: tendon2r_gym.simulation.realism.PERTURBATIONS).
+    ``course`` or ``envelope`` (NAMED_RANGES' geometry, R1 R2 a b c) or ``real_arm`` (cables,
+    motors and sensors: tendon2r_gym.simulation.realism.PERTURBATIONS).
 
     ``pd_tuned_phase: [lo, hi]`` (``tuned_phase``, with ``pd_bandwidth_hz`` drawn) ties PD's
     bandwidth to the drawn arm, as ``tendon2r-tune-pd`` would tune it there: the bandwidth
@@ -230,9 +237,9 @@ class MechanismRanges:
 
     @classmethod
     def from_value(cls, value: Any) -> MechanismRanges:
-        """Reads ``course``, ``real_arm``, a mapping ``{field: [lo, hi]}``, or a list of these
-        merged in order (a later range of a field replaces an earlier one), e.g. ``[real_arm,
-        {pd_bandwidth_hz: [12, 47]}]``."""
+        """Reads ``course``, ``envelope``, ``real_arm``, a mapping ``{field: [lo, hi]}``, or a
+        list of these merged in order (a later range of a field replaces an earlier one), e.g.
+        ``[real_arm, {pd_bandwidth_hz: [12, 47]}]``."""
         if isinstance(value, np.ndarray):  # an array of names is a list of them
             value = value.tolist()
         if isinstance(value, list | tuple) and not isinstance(value, str):
@@ -247,8 +254,8 @@ class MechanismRanges:
                 merged.update(ranges.ranges)
                 phase = ranges.tuned_phase or phase
             return cls(tuple(merged.items()), phase)
-        if value == COURSE_NAME:
-            return cls(tuple((k, getattr(COURSE, k)) for k in GEOMETRY))
+        if isinstance(value, str) and value in NAMED_RANGES:
+            return cls(tuple((k, getattr(NAMED_RANGES[value], k)) for k in GEOMETRY))
         if value == REAL_ARM_NAME:
             from tendon2r_gym.simulation.realism import PERTURBATIONS
 
@@ -312,12 +319,12 @@ class MechanismRanges:
 
 
 def reference_ranges(value: Any) -> ReferenceRanges:
-    """Reads ``reference_ranges``: ``course`` (the course's amplitudes, frequencies and biases
-    of ArmRanges, both joints, any phase) or a mapping of ReferenceRanges fields."""
-    if isinstance(value, str) and value == COURSE_NAME:
+    """Reads ``reference_ranges``: ``course`` or ``envelope`` (the amplitudes, frequencies and
+    biases of NAMED_RANGES' ArmRanges, both joints, any phase) or a mapping of ReferenceRanges
+    fields."""
+    if isinstance(value, str) and value in NAMED_RANGES:
+        arm = NAMED_RANGES[value]
         return ReferenceRanges(
-            amp_deg=(COURSE.amp_deg,) * 2,
-            freq_hz=(COURSE.freq_hz,) * 2,
-            bias_deg=(COURSE.bias_deg,) * 2,
+            amp_deg=(arm.amp_deg,) * 2, freq_hz=(arm.freq_hz,) * 2, bias_deg=(arm.bias_deg,) * 2
         )
     return ReferenceRanges.from_dict(mapping("reference_ranges", value))
