@@ -206,6 +206,9 @@ class Args:
     )
     out: Annotated[str, arg("folder of envelope_generalists.md and .json")] = str(OUT)
     only_report: Annotated[bool, arg("rewrite the .md from the .json")] = False
+    resume: Annotated[
+        bool, arg("keep the arms an earlier run finished (envelope_generalists.partial.json)")
+    ] = False
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -215,21 +218,29 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     command = command_line(argv, "python -m research.studies.envelope_generalists")
     seeds = list(range(args.episodes))
 
+    out = Path(args.out)
+    partial = out / "envelope_generalists.partial.json"
+
     def compute() -> dict[str, Any]:
         draws = {"ideal": lambda: ideal_arms(args.arms, SEED),
                  "real": lambda: real_arms(args.arms, SEED),
                  "one_geometry": lambda: one_geometry_arms(args.one_geometry, SEED)}  # fmt: skip
+        done = json.loads(partial.read_text()) if args.resume and partial.is_file() else {}
         arms: dict[str, Any] = {}
         for kind in args.kinds:
             for name, arm in draws[kind]().items():
+                if name in done and done[name]["kwargs"] == json.loads(json.dumps(arm["kwargs"])):
+                    arms[name] = done[name]  # done by an earlier run of the same arms
+                    continue
                 arm["rows"] = evaluate_arm(arm["kwargs"], arm["bundles"], seeds)
                 arms[name] = arm
                 shown = {b: r.get("rms_deg", "refused") for b, r in arm["rows"].items()}
                 print(name, json.dumps(shown), flush=True)
+                out.mkdir(parents=True, exist_ok=True)  # a crash or Ctrl-C keeps these
+                partial.write_text(json.dumps({**done, **arms}, indent=1) + "\n")
         return {"command": command, "seed": SEED, "seeds": seeds, "arms": arms,
                 "summary": summarize(arms)}  # fmt: skip
 
-    out = Path(args.out)
     result = computed_or_read(out, "envelope_generalists", args.only_report, compute)
     (out / "envelope_generalists.md").write_text("\n".join(lines(result)) + "\n")
     return result

@@ -638,7 +638,9 @@ def test_identification_gap_is_none_without_a_gap_and_a_ratio_with_one():
     assert not closes(cl(0.34, 0.70, 0.46), "pd_rms_deg")  # 305%: further than the nominal
 
 
-def test_envelope_generalists_study_runs_each_bundle_on_its_arms(tmp_path, short_episodes):
+def test_envelope_generalists_study_runs_each_bundle_on_its_arms(
+    tmp_path, monkeypatch, short_episodes
+):
     """Each kind of arm gets PD tuned on it, the package's PD and each of its bundles that is
     bundled (or the error that refused the arm, with paths relative to the repository); the
     page is the report of the JSON."""
@@ -655,3 +657,6 @@ def test_envelope_generalists_study_runs_each_bundle_on_its_arms(tmp_path, short
     md = (tmp_path / "envelope_generalists.md").read_text()
     assert md == "\n".join(study.lines(result)) + "\n"
     assert study.main([*argv, "--only-report"]) == result
+    # --resume keeps the arms a run finished (its partial file), computing none again
+    monkeypatch.setattr(study, "evaluate_arm", lambda *a: pytest.fail("recomputed an arm"))
+    assert study.main([*argv, "--resume"])["arms"] == json.loads(json.dumps(result["arms"]))
