@@ -696,9 +696,24 @@ def readme_block(root: Path = ROOT) -> str:
     return "\n".join([README_BEGIN, *body, "", f"_{source}_", README_END])
 
 
-def with_readme_block(readme: str, block: str) -> str:
-    """Returns README's text with its headline block replaced."""
-    a, b = readme.index(README_BEGIN), readme.index(README_END) + len(README_END)
+#: README's table of the shipped models (their roles in tendon2r_gym/data/shipped.yaml).
+MODELS_BEGIN, MODELS_END = "<!-- models:begin -->", "<!-- models:end -->"
+
+
+def readme_models_block() -> str:
+    """Returns README's table of the shipped models, one row per line of the registry."""
+    rows = [[f"`{name}`", line.role] for name, line in registry.shipped().items()]
+    return "\n".join([MODELS_BEGIN, *table(["model", "what it is"], rows), MODELS_END])
+
+
+def with_readme_block(
+    readme: str, block: str, begin: str = README_BEGIN, end: str = README_END
+) -> str:
+    """Returns README's text with the block between ``begin`` and ``end`` replaced (unchanged
+    if it has no such block)."""
+    if begin not in readme:
+        return readme
+    a, b = readme.index(begin), readme.index(end) + len(end)
     return readme[:a] + block + readme[b:]
 
 
@@ -718,6 +733,7 @@ def main(argv: list[str] | None = None) -> int:
     pages = generate(args.root)
     readme = args.root / "README.md"
     text = with_readme_block(readme.read_text(), readme_block(args.root))
+    text = with_readme_block(text, readme_models_block(), MODELS_BEGIN, MODELS_END)
     reports = report_pages(args.root)
     if args.check:
         out = [docs / n for n in stale(pages, docs)]
