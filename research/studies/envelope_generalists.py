@@ -9,9 +9,9 @@ the envs' own seeded generators):
   ``draw_arms``, with the generalist preset's rigid cables.  The ideal generalists run on
   them, and the pull-only generalist on the same geometries with its preset's cables
   (``ideal_<i>_pull_only``).
-- ``real_<i>``: ``--arms`` arms drawn as ``generalist_real``'s env draws them (the envelope, and
-  the cables, motors, sensors and model errors of the realism ranges), on the real_arm
-  preset's pull-only cables.
+- ``real_<i>``: ``--arms`` arms drawn as the ``generalist_real`` entry's env draws them
+  (research/configs/ablations.yaml: the envelope, and the cables, motors, sensors and model
+  errors of the realism ranges), on the real_arm preset's pull-only cables.
 - ``one_geometry_<i>``: ``--one-geometry`` arms of the real_arm preset's geometry and reference
   with the realism ranges drawn (research.studies.realism.perturbed_arms, another seed): the
   arms where the one-geometry realism residual (the ``real_arm`` bundle) applies, beside
@@ -65,7 +65,9 @@ def real_arms(n: int, seed: int) -> dict[str, dict[str, Any]]:
     from tendon2r_gym.envs.env_config import EnvConfig
     from tendon2r_gym.training import Hyperparams
 
-    kwargs = Hyperparams.from_entry(REAL).env_kwargs
+    kwargs = Hyperparams.from_entry(
+        REAL, ROOT / "research" / "configs" / "ablations.yaml"
+    ).env_kwargs
     env = EnvConfig.make(**kwargs)
     rng = np.random.default_rng(seed)
     out = {}
@@ -130,8 +132,10 @@ def summarize(arms: dict[str, Any]) -> dict[str, Any]:
         for bundle, row in arm["rows"].items():
             if bundle in ("pd", "pd_tuned"):
                 continue
-            s = out.setdefault(f"{bundle} on {kind}", {"bundle": bundle, "kind": kind,
-                                                       "arms": 0, "refused": 0, "rows": []})
+            s = out.setdefault(
+                f"{bundle} on {kind}",
+                {"bundle": bundle, "kind": kind, "arms": 0, "refused": 0, "rows": []},
+            )
             s["arms"] += 1
             if "error" in row:
                 s["refused"] += 1
