@@ -581,27 +581,16 @@ def realism_section(root: Path) -> list[str]:
     ]
 
 
-def identification_section(root: Path) -> list[str]:
-    """Returns the identification study's section (research/results/identification.json),
-    if it ran."""
-    path = root / "research" / "results" / "identification.json"
+def study_section(root: Path, name: str) -> list[str]:
+    """Returns a study's section of the results page, from research/results/<name>.json by
+    the study's own ``lines`` (research.studies.<name>), if it ran."""
+    import importlib
+
+    path = root / "research" / "results" / f"{name}.json"
     if not path.is_file():
         return []
-    from research.studies.identification import lines as identification_lines
-
-    title, *body = identification_lines(json.loads(path.read_text()))
-    body = ["#" + line if line.startswith("## ") else line for line in body]
-    return ["## " + title.lstrip("# "), *body]
-
-
-def envelope_section(root: Path) -> list[str]:
-    """Returns the envelope survey's section (research/results/envelope.json), if it ran."""
-    path = root / "research" / "results" / "envelope.json"
-    if not path.is_file():
-        return []
-    from research.studies.envelope import lines as envelope_lines
-
-    title, *body = envelope_lines(json.loads(path.read_text()))
+    lines = importlib.import_module(f"research.studies.{name}").lines
+    title, *body = lines(json.loads(path.read_text()))
     body = ["#" + line if line.startswith("## ") else line for line in body]
     return ["## " + title.lstrip("# "), *body]
 
@@ -613,7 +602,8 @@ def results_page(root: Path = ROOT) -> str:
     lines = [
         header(
             "results/benchmark.json, results/*/benchmark.json, research/results/realism.json, "
-            "research/results/identification.json and research/results/envelope.json"
+            "research/results/identification.json, research/results/envelope.json and "
+            "research/results/envelope_generalists.json"
         ),
         "",
         "# Results",
@@ -631,10 +621,9 @@ def results_page(root: Path = ROOT) -> str:
         lines += bundled_section(main)
     if real := realism_section(root):
         lines += ["", *real]
-    if ident := identification_section(root):
-        lines += ["", *ident]
-    if envelope := envelope_section(root):
-        lines += ["", *envelope]
+    for name in ("identification", "envelope", "envelope_generalists"):
+        if section := study_section(root, name):
+            lines += ["", *section]
     if reports:
         lines += [
             "",
