@@ -4,9 +4,11 @@ your own arm."""
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
+import tendon2r_gym
 from tendon2r_gym.app.args import parse
 from tendon2r_gym.app.benchmark import FINETUNED, LEARNED, ZERO_SHOT, compare
 from tendon2r_gym.app.cli import EvaluateArgs, benchmark_main, evaluate_main
@@ -108,6 +110,8 @@ def test_benchmark_on_your_own_arm(tmp_path, monkeypatch):
     # then each shipped generalist, zero-shot: this arm's R2 is outside the envelope
     zero_shot = [r for r in result["rows"] if r["policy"].endswith("zero-shot")]
     assert [r["policy"] for r in zero_shot] == [f"{g} zero-shot" for g in ZERO_SHOT]
+    package = str(Path(tendon2r_gym.__file__).resolve().parent)
+    assert not [r for r in result["rows"] if package in r.get("missing", "")], "a machine's path"
     for row in zero_shot:  # the pull-only ones have another observation (three commands)
         assert "R2 = 0.065 outside [0.008, 0.06]" in row["missing"] or (
             ("pull_only" in row["policy"] or "real_arm" in row["policy"])
