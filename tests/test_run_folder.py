@@ -338,8 +338,8 @@ ON = {
 
 
 def _recorded_off() -> dict:
-    """The removed options as the shipped generalist's run recorded them: each off."""
-    run = RunFolder(stem_of(bundled_model("generalist")).parent)
+    """The removed options as a shipped run (the pull-only generalist's) recorded them: each off."""
+    run = RunFolder(stem_of(bundled_model("generalist_pull_only")).parent)
     raw = yaml.safe_load(run.file("config.yaml").read_text())
     return {key: raw[key] for key in REMOVED if key in raw}
 

@@ -374,7 +374,7 @@ def test_fine_tuning_starts_from_a_generalists_weights_on_an_arm_inside_its_rang
     assert 0 < steps < source_steps["timesteps"], steps
     far = tmp_path / "far.yaml"
     far.write_text(arm.read_text().replace("c: 0.09", "c: 0.2"))
-    with pytest.raises(ValueError, match=r"c = 0.2 outside \[0.03, 0.095\]"):
+    with pytest.raises(ValueError, match=r"c = 0.2 outside \[0.025, 0.12\]"):
         _train(config, tmp_path / "far", "--env-config", str(far), "--init-from", str(source))
     assert not (tmp_path / "far").exists(), "a refused start writes nothing"
 
@@ -594,7 +594,7 @@ def test_a_model_that_observed_its_arm_runs_on_one_fixed_arm(tmp_path, force_lim
         assert arm["observe"] == ["force_limit"]  # the model's, without its arm slice
     env = gym.make("Tendon2R-v0", **arm)
     policy = PPOPolicy.load(best, env)
-    expected = MechanismRanges.from_value("course").features(env.unwrapped.config)
+    expected = MechanismRanges.from_value("envelope").features(env.unwrapped.config)
     np.testing.assert_array_equal(policy.arm, expected)
     obs, _ = env.reset(seed=0)
     limit = np.log(env.unwrapped.config.mechanism.max_tendon_force)
@@ -608,7 +608,7 @@ def test_a_model_that_observed_its_arm_runs_on_one_fixed_arm(tmp_path, force_lim
     metrics, _ = evaluate("ppo", arm, [0], best)
     assert np.all(np.isfinite(metrics["rms_deg"]))
     far = {**arm, "mechanism": {**arm["mechanism"], "c": 0.2}}
-    with pytest.raises(ValueError, match=r"c = 0.2 outside \[0.03, 0.095\]"):
+    with pytest.raises(ValueError, match=r"c = 0.2 outside \[0.025, 0.12\]"):
         PPOPolicy.load(best, gym.make("Tendon2R-v0", **far))
 
 
@@ -687,13 +687,13 @@ def test_fine_tuning_a_generalist_that_observed_its_arm(tmp_path):
     _train(config, tmp_path / "tuned", "--init-from", str(source))
     run = RunFolder(tmp_path / "tuned" / "seed_0")
     kwargs = run.read_json("run.json")["env_kwargs"]
-    course = MechanismRanges.from_value("course")
+    envelope = MechanismRanges.from_value("envelope")
     assert kwargs["action_mode"] == "joint_torque" and kwargs["observe"] == ["arm"]
-    assert MechanismRanges.from_value(kwargs["arm_feature_ranges"]) == course
+    assert MechanismRanges.from_value(kwargs["arm_feature_ranges"]) == envelope
     plain = {"preset": "default", "episode_duration": 0.1, "action_mode": "joint_torque"}
     model = run.best.with_suffix(".zip")
     policy = PPOPolicy.load(model, gym.make("Tendon2R-v0", **plain))
-    assert policy.arm.tolist() == course.features(EnvConfig.make(**plain))
+    assert policy.arm.tolist() == envelope.features(EnvConfig.make(**plain))
     seen = gym.make("Tendon2R-v0", **kwargs)
     full, _ = seen.reset(seed=3)
     assert np.array_equal(
