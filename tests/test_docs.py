@@ -122,3 +122,10 @@ def test_the_site_builds_in_strict_mode(tmp_path):
     )
     assert done.returncode == 0, done.stderr[-3000:]
     assert (site / "env" / "index.html").is_file() and (site / "api" / "index.html").is_file()
+
+
+def test_the_research_page_lists_every_note():
+    """docs/research.md's table names every lab note of research/notes/."""
+    page = (ROOT / "docs" / "research.md").read_text()
+    notes = sorted((ROOT / "research" / "notes").glob("*.md"))
+    assert notes and not [n.name for n in notes if f"research/notes/{n.name}" not in page]
