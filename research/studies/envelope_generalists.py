@@ -142,10 +142,10 @@ def summarize(arms: dict[str, Any]) -> dict[str, Any]:
             else:
                 s["rows"].append((row, arm["rows"]["pd_tuned"], arm["rows"]["pd"]))
     for s in out.values():
-        residual = Residual.from_record(training_record(bundled_model(s["bundle"]))).active
         rows = s.pop("rows")
         if not rows:  # it refused every arm
             continue
+        residual = Residual.from_record(training_record(bundled_model(s["bundle"]))).active
         ratio = [worst_ratio(r["rms_deg"], t["rms_deg"]) for r, t, _ in rows]
         vs_pd = [worst_ratio(r["rms_deg"], p["rms_deg"]) for r, _, p in rows]
         tension, rate = zip(*(smoothness_x_pd(r, t) for r, t, _ in rows), strict=True)
