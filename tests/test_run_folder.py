@@ -21,7 +21,7 @@ from tendon2r_gym.app.cli import TrainArgs, experiment, train_main
 from tendon2r_gym.policies.residual import Residual
 from tendon2r_gym.policies.runs import REMOVED, RunFolder, saved_steps, training_record
 from tendon2r_gym.training import Experiment, Hyperparams, manager
-from tendon2r_gym.training.records import RunWriteError
+from tendon2r_gym.training.records import RunWriteError, training_lock
 
 
 def _files(folder):
@@ -309,6 +309,33 @@ def test_a_killed_runs_resume_counts_every_segment_and_keeps_the_evaluation_grid
     assert set(steps) - set(grid) <= {summary["timesteps"]}, steps
     walls = [r["wall_time_s"] for r in rows]
     assert walls == sorted(walls) and walls[2] >= first["wall_time_s"], walls
+
+
+def test_a_folder_that_another_process_trains_is_refused_and_freed_when_it_ends(tmp_path):
+    """A --resume while another process trains the folder (it holds the folder's lock) is a
+    ValueError naming the seed folder, and writes nothing; once that process has ended (here:
+    killed, as a crash would), the folder can be taken again."""
+    base, run = _started_run(tmp_path)
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys, time\n"
+         "from tendon2r_gym.policies.runs import RunFolder\n"
+         "from tendon2r_gym.training.records import training_lock\n"
+         "with training_lock([RunFolder(sys.argv[1])]):\n"
+         "    print('held', flush=True)\n    time.sleep(120)\n", str(run.path)],
+        stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        before = _files(tmp_path)
+        where = re.escape(f"run_dir = '{run.path}' is invalid")
+        with pytest.raises(ValueError, match=rf"^{where}.*no other process is training"):
+            train_main(["--run-dir", str(base), "--resume"])
+        assert _files(tmp_path) == before
+    finally:
+        holder.kill()
+        holder.wait()
+    with training_lock([run]):
+        pass
 
 
 def test_the_plan_of_a_run_is_checked_for_every_seed_before_any_trains(tmp_path):

@@ -19,6 +19,8 @@ tendon2r_gym.policies.runs) and survives interruption:
   the original command with one line per resume;
 - a run is checked before anything is written (:func:`plan_run`): a refused start leaves its
   folder as it was;
+- a folder in training is held by its process (records.training_lock): a second command on it
+  (a --resume while it trains) is refused, not run beside it;
 - a run folder that cannot be written (read-only, a full disk) stops training with one
   :class:`RunWriteError` line, after keeping the last state it can.
 """
@@ -63,6 +65,7 @@ from tendon2r_gym.training.records import (
     attempt_write,
     is_write_error,
     seeds_summary,
+    training_lock,
     write_failure,
 )
 from tendon2r_gym.validation import invalid
@@ -151,13 +154,16 @@ class Experiment:
             for seed, run in zip(self.seeds, runs, strict=True)
         ]
         results: list[dict[str, Any]] = []
-        try:
-            for plan in plans:
-                results.append(train_planned(plan, self.command, self.progress_bar))
-        except BaseException:
-            with contextlib.suppress(OSError):  # the error in flight is the one to report
-                RunFolder(self.base).write_json(SEEDS_SUMMARY, seeds_summary(self.seeds, results))
-            raise
+        with training_lock(runs):
+            try:
+                for plan in plans:
+                    results.append(train_planned(plan, self.command, self.progress_bar))
+            except BaseException:
+                with contextlib.suppress(OSError):  # the error in flight is the one to report
+                    RunFolder(self.base).write_json(
+                        SEEDS_SUMMARY, seeds_summary(self.seeds, results)
+                    )
+                raise
         agg = seeds_summary(self.seeds, results)
         try:
             RunFolder(self.base).write_json(SEEDS_SUMMARY, agg)
@@ -263,7 +269,9 @@ def train_run(
     progress_bar: bool = False,
 ) -> dict[str, Any]:
     """Trains one run; returns its summary (:func:`plan_run`, then :func:`train_planned`)."""
-    return train_planned(plan_run(hp, run, seed, resume), command, progress_bar)
+    plan = plan_run(hp, run, seed, resume)
+    with training_lock([run]):
+        return train_planned(plan, command, progress_bar)
 
 
 def train_planned(plan: RunPlan, command: str = "", progress_bar: bool = False) -> dict[str, Any]:

@@ -8,7 +8,7 @@ import contextlib
 import errno
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -22,6 +22,37 @@ from tendon2r_gym.policies.runs import (
     RunFolder,
     saved_steps,
 )
+
+
+@contextlib.contextmanager
+def training_lock(runs: Sequence[RunFolder]) -> Iterator[None]:
+    """Holds each run folder (made if missing) for one process while it trains: a second
+    command on a folder in training (a --resume, a benchmark run again) is a ValueError naming
+    it, before anything is written, instead of two trainings writing the same records.  An
+    advisory lock on the folder itself (flock), released when the process ends, however it
+    ends; none where the OS has no flock."""
+    try:
+        import fcntl
+    except ImportError:  # not POSIX
+        yield
+        return
+    with contextlib.ExitStack() as stack:
+        for run in runs:
+            run.path.mkdir(parents=True, exist_ok=True)
+            fd = os.open(run.path, os.O_RDONLY)
+            stack.callback(os.close, fd)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                from tendon2r_gym.validation import invalid
+
+                raise invalid(
+                    "run_dir",
+                    str(run.path),
+                    "a run folder that no other process is training (one is: wait for it to "
+                    "finish, or stop it with Ctrl-C, which saves it, then --resume)",
+                ) from None
+        yield
 
 
 class RunWriteError(ValueError):
