@@ -10,8 +10,8 @@ the envs' own seeded generators):
   them, and the pull-only generalist on the same geometries with its preset's cables
   (``ideal_<i>_pull_only``).
 - ``real_<i>``: ``--arms`` arms drawn as the ``generalist_real`` entry's env draws them
-  (research/configs/ablations.yaml: the envelope, and the cables, motors, sensors and model
-  errors of the realism ranges), on the real_arm preset's pull-only cables.
+  (tendon2r_gym/data/ppo.yaml: the envelope, and the cables, motors, sensors and model errors
+  of the realism ranges), on the real_arm preset's pull-only cables.
 - ``one_geometry_<i>``: ``--one-geometry`` arms of the real_arm preset's geometry and reference
   with the realism ranges drawn (research.studies.realism.perturbed_arms, another seed): the
   arms where the one-geometry realism residual (the ``real_arm`` bundle) applies, beside
@@ -65,9 +65,7 @@ def real_arms(n: int, seed: int) -> dict[str, dict[str, Any]]:
     from tendon2r_gym.envs.env_config import EnvConfig
     from tendon2r_gym.training import Hyperparams
 
-    kwargs = Hyperparams.from_entry(
-        REAL, ROOT / "research" / "configs" / "ablations.yaml"
-    ).env_kwargs
+    kwargs = Hyperparams.from_entry(REAL).env_kwargs
     env = EnvConfig.make(**kwargs)
     rng = np.random.default_rng(seed)
     out = {}
