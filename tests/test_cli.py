@@ -114,7 +114,7 @@ def test_benchmark_on_your_own_arm(tmp_path, monkeypatch):
     assert not [r for r in result["rows"] if package in r.get("missing", "")], "a machine's path"
     for row in zero_shot:  # the pull-only ones have another observation (three commands)
         assert "R2 = 0.065 outside [0.008, 0.06]" in row["missing"] or (
-            ("pull_only" in row["policy"] or "real_arm" in row["policy"])
+            any(k in row["policy"] for k in ("pull_only", "real_arm", "generalist_real"))
             and "was trained for another env" in row["missing"]
         ), row
     tuned = next(r for r in result["rows"] if r["policy"] == "PD tuned")  # tendon2r-tune-pd's
@@ -139,6 +139,32 @@ def _untuned(monkeypatch):
     stub = type("Scan", (), {"gains": default_gains()})
     monkeypatch.setattr(tuning, "tune_pd", lambda *a, **k: stub)
     monkeypatch.setattr(evaluator, "REPRO_RUNS", 1)
+
+
+def test_generalist_real_runs_zero_shot_on_a_real_arm(tmp_path, monkeypatch, short_episodes):
+    """An experiment file with realism values (configs/examples/my_real_arm.yaml, as
+    tendon2r-identify writes one) runs generalist_real zero-shot: through tendon2r-evaluate,
+    and as a row of the own-arm benchmark, where it runs on the gains of the PD tuned row."""
+    arm = Path(__file__).resolve().parents[1] / "configs" / "examples" / "my_real_arm.yaml"
+    out = tmp_path / "m.json"
+    evaluate_main(["--policy", "ppo", "--bundle", "generalist_real", "--env-config", str(arm),
+                   "--episodes", "1", "--json", str(out)])  # fmt: skip
+    assert len(json.loads(out.read_text())["rms_deg"]) == 2
+    _untuned(monkeypatch)
+    from tendon2r_gym.app import benchmark
+
+    seen = []
+    real = benchmark.evaluate
+    monkeypatch.setattr(
+        benchmark, "evaluate", lambda p, kw, *a: seen.append((p, kw, *a)) or real(p, kw, *a)
+    )
+    rows = benchmark_main(["--env-config", str(arm), "--no-train", "--episodes", "1",
+                           "--out", str(tmp_path / "out")])["rows"]  # fmt: skip
+    row = next(r for r in rows if r["policy"] == "generalist_real zero-shot")
+    assert "missing" not in row and len(row["rms_deg"]) == 2, row
+    tuned = next(r for r in rows if r["policy"] == "PD tuned")["pd_gains"]
+    ran = [kw for p, kw, *rest in seen if p == "ppo" and "generalist_real" in str(rest)]
+    assert ran and all(kw["pd_gains"] == tuned for kw in ran)
 
 
 def test_benchmark_fine_tunes_the_generalist_on_an_arm_it_covers(

@@ -186,6 +186,8 @@ def summarize(arms: dict[str, Any]) -> dict[str, Any]:
 
 def lines(result: dict[str, Any]) -> list[str]:
     """Returns envelope_generalists.md."""
+    from tendon2r_gym.evaluation.metrics import beats
+
     out = [
         "# The generalists on the envelope's unseen arms",
         "",
@@ -213,6 +215,16 @@ def lines(result: dict[str, Any]) -> list[str]:
             f"{s['median_tension_x']:.2f} / {s['max_tension_x']:.2f} | "
             f"{s['median_rate_x']:.2f} / {s['max_rate_x']:.2f} | {s['smooth']} of {ran} |"
         )
+    above = [(n, b, a["rows"]["pd_tuned"]["rms_deg"], r["rms_deg"])
+             for n, a in result["arms"].items() for b, r in a["rows"].items()
+             if b not in ("pd", "pd_tuned") and "rms_deg" in r
+             and not beats(r["rms_deg"], a["rows"]["pd_tuned"]["rms_deg"])]  # fmt: skip
+    if above:
+        out += ["", "## Arms where a bundle is above PD tuned", "",
+                "RMS error of joints A / B (deg).", "",
+                "| arm | bundle | PD tuned | bundle |", "|---|---|---|---|"]  # fmt: skip
+        out += [f"| {n} | {b} | {t[0]:.3g} / {t[1]:.3g} | {r[0]:.3g} / {r[1]:.3g} |"
+                for n, b, t, r in above]  # fmt: skip
     refusals = {f"{n}: {b}": r["error"] for n, a in result["arms"].items()
                 for b, r in a["rows"].items() if "error" in r}  # fmt: skip
     if refusals:
