@@ -154,9 +154,17 @@ class Experiment:
             for seed, run in zip(self.seeds, runs, strict=True)
         ]
         results: list[dict[str, Any]] = []
-        with training_lock(runs):
+        # the seed folders that exist are held before anything is written; a new one from the
+        # start of its training (a seed that never starts leaves no folder)
+        held = {run.path for run in runs if run.path.is_dir()}
+        with (
+            training_lock([run for run in runs if run.path in held]),
+            contextlib.ExitStack() as new,
+        ):
             try:
                 for plan in plans:
+                    if plan.run.path not in held:
+                        new.enter_context(training_lock([plan.run]))
                     results.append(train_planned(plan, self.command, self.progress_bar))
             except BaseException:
                 with contextlib.suppress(OSError):  # the error in flight is the one to report
