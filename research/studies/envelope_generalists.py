@@ -92,30 +92,55 @@ def one_geometry_arms(n: int, seed: int) -> dict[str, dict[str, Any]]:
 KEYS = ("rms_deg", "rms_tension_N", "rms_tension_rate_N_per_s")
 
 
-def evaluate_arm(kwargs: dict[str, Any], bundles: list[str], seeds: list[int]) -> dict[str, Any]:
+def model_id(bundle: str) -> str:
+    """Returns the first 12 hex digits of the sha256 of ``bundle``'s shipped model: a row
+    records the model it measured, and ``--resume`` measures a bundle again once it is
+    retrained."""
+    import hashlib
+
+    from tendon2r_gym.policies.bundle import bundled_model
+
+    return hashlib.sha256(bundled_model(bundle).read_bytes()).hexdigest()[:12]
+
+
+def evaluate_arm(
+    kwargs: dict[str, Any], bundles: list[str], seeds: list[int], done: dict[str, Any] | None = None
+) -> dict[str, Any]:
     """Returns PD tuned's, PD's and each bundle's metrics on one arm (a bundle that refuses
-    the arm is reported with its error)."""
+    the arm is reported with its error).  ``done``: the rows of an earlier run on the same
+    arm, whose PD rows and the rows of bundles not retrained since (model_id) are kept."""
     from research.studies.realism import on_its_pd
+    from tendon2r_gym.envs.env_config import EnvConfig
     from tendon2r_gym.evaluation.evaluator import evaluate
     from tendon2r_gym.evaluation.tuning import tune_pd
     from tendon2r_gym.policies.bundle import bundle_names, bundled_model
     from tendon2r_gym.policies.model_env import in_model_settings
+    from tendon2r_gym.task.gains import gains_of
 
-    scan = tune_pd(kwargs, TUNE_EPISODES)
-    tuned = {**kwargs, "pd_gains": scan.gains.to_dict()}
-    rows: dict[str, Any] = {}
-    for name, on in (("pd_tuned", tuned), ("pd", kwargs)):
-        metrics, _ = evaluate("pd", on, seeds)
-        rows[name] = {k: metrics[k] for k in KEYS}
-    rows["pd_tuned"]["bandwidth_hz"] = scan.chosen
+    if done is not None:  # tune_pd's choice, with the arm's other gains (as tune_pd keeps them)
+        rows = {k: done[k] for k in ("pd_tuned", "pd")}
+        base = gains_of(EnvConfig.make(**kwargs).pd_gains).to_dict()
+        gains = {**base, "bandwidth_hz": rows["pd_tuned"]["bandwidth_hz"]}
+    else:
+        scan = tune_pd(kwargs, TUNE_EPISODES)
+        gains, rows = scan.gains.to_dict(), {}
+        for name, on in (("pd_tuned", {**kwargs, "pd_gains": gains}), ("pd", kwargs)):
+            metrics, _ = evaluate("pd", on, seeds)
+            rows[name] = {k: metrics[k] for k in KEYS}
+        rows["pd_tuned"]["bandwidth_hz"] = scan.chosen
+    tuned = {**kwargs, "pd_gains": gains}
     for bundle in [b for b in bundles if b in bundle_names()]:  # those bundled
-        model = bundled_model(bundle)
+        model, shipped = bundled_model(bundle), model_id(bundle)
+        if done is not None and done.get(bundle, {}).get("model") == shipped:
+            rows[bundle] = done[bundle]
+            continue
         try:
             on = in_model_settings(model, on_its_pd(kwargs, tuned, model))
             metrics, _ = evaluate("ppo", on, seeds, model)
             rows[bundle] = {k: metrics[k] for k in KEYS}
         except ValueError as e:  # outside its ranges; paths relative to the repository
             rows[bundle] = {"error": str(e).replace(f"{ROOT}/", "")}
+        rows[bundle]["model"] = shipped
     return rows
 
 
@@ -211,8 +236,21 @@ class Args:
     out: Annotated[str, arg("folder of envelope_generalists.md and .json")] = str(OUT)
     only_report: Annotated[bool, arg("rewrite the .md from the .json")] = False
     resume: Annotated[
-        bool, arg("keep the arms an earlier run finished (envelope_generalists.partial.json)")
+        bool,
+        arg(
+            "keep the arms an earlier run finished (envelope_generalists.partial.json, else "
+            ".json), measuring again only the bundles retrained since"
+        ),
     ] = False
+
+
+def earlier_arms(out: Path, partial: Path) -> dict[str, Any]:
+    """Returns the arms of an earlier run: its partial file (a run that stopped), else its
+    saved results, else none."""
+    if partial.is_file():
+        return json.loads(partial.read_text())
+    saved = out / "envelope_generalists.json"
+    return json.loads(saved.read_text())["arms"] if saved.is_file() else {}
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -229,15 +267,19 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         draws = {"ideal": lambda: ideal_arms(args.arms, SEED),
                  "real": lambda: real_arms(args.arms, SEED),
                  "one_geometry": lambda: one_geometry_arms(args.one_geometry, SEED)}  # fmt: skip
-        done = json.loads(partial.read_text()) if args.resume and partial.is_file() else {}
+        done = earlier_arms(out, partial) if args.resume else {}
         arms: dict[str, Any] = {}
         for kind in args.kinds:
             for name, arm in draws[kind]().items():
-                if name in done and done[name]["kwargs"] == json.loads(json.dumps(arm["kwargs"])):
-                    arms[name] = done[name]  # done by an earlier run of the same arms
-                    continue
-                arm["rows"] = evaluate_arm(arm["kwargs"], arm["bundles"], seeds)
+                same = name in done and done[name]["kwargs"] == json.loads(
+                    json.dumps(arm["kwargs"])
+                )
+                rows = evaluate_arm(arm["kwargs"], arm["bundles"], seeds,
+                                    done[name]["rows"] if same else None)  # fmt: skip
+                arm["rows"] = rows
                 arms[name] = arm
+                if same and rows == done[name]["rows"]:
+                    continue  # done by an earlier run, every bundle as shipped now
                 shown = {b: r.get("rms_deg", "refused") for b, r in arm["rows"].items()}
                 print(name, json.dumps(shown), flush=True)
                 out.mkdir(parents=True, exist_ok=True)  # a crash or Ctrl-C keeps these

@@ -657,6 +657,21 @@ def test_envelope_generalists_study_runs_each_bundle_on_its_arms(
     md = (tmp_path / "envelope_generalists.md").read_text()
     assert md == "\n".join(study.lines(result)) + "\n"
     assert study.main([*argv, "--only-report"]) == result
-    # --resume keeps the arms a run finished (its partial file), computing none again
-    monkeypatch.setattr(study, "evaluate_arm", lambda *a: pytest.fail("recomputed an arm"))
+    # --resume keeps the arms a run finished (its partial file), computing none again ...
+    from tendon2r_gym.evaluation import evaluator, tuning
+    from tendon2r_gym.policies.bundle import bundled_model
+
+    monkeypatch.setattr(tuning, "tune_pd", lambda *a, **k: pytest.fail("tuned PD again"))
+    monkeypatch.setattr(evaluator, "evaluate", lambda *a, **k: pytest.fail("recomputed a row"))
     assert study.main([*argv, "--resume"])["arms"] == json.loads(json.dumps(result["arms"]))
+    # ... but measures a bundle retrained since (another model_id) again, and only it
+    calls, shipped = [], study.model_id
+    fake = {k: [0.0, 0.0] for k in study.KEYS}
+    monkeypatch.setattr(evaluator, "evaluate", lambda *a: calls.append(a) or (fake, []))
+    monkeypatch.setattr(study, "model_id", lambda b: "new" if b == "generalist" else shipped(b))
+    again = study.main([*argv, "--resume"])["arms"]
+    assert [(c[0], c[3]) for c in calls] == [("ppo", bundled_model("generalist"))]
+    assert again["ideal_0"]["rows"]["generalist"] == {**fake, "model": "new"}
+    for name, arm in result["arms"].items():
+        kept = {b: r for b, r in arm["rows"].items() if (name, b) != ("ideal_0", "generalist")}
+        assert {b: again[name]["rows"][b] for b in kept} == json.loads(json.dumps(kept))

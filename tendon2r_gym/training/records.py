@@ -30,7 +30,7 @@ def training_lock(runs: Sequence[RunFolder]) -> Iterator[None]:
     command on a folder in training (a --resume, a benchmark run again) is a ValueError naming
     it, before anything is written, instead of two trainings writing the same records.  An
     advisory lock on the folder itself (flock), released when the process ends, however it
-    ends; none where the OS has no flock."""
+    ends; none where the OS or the file system has no flock."""
     try:
         import fcntl
     except ImportError:  # not POSIX
@@ -52,6 +52,8 @@ def training_lock(runs: Sequence[RunFolder]) -> Iterator[None]:
                     "a run folder that no other process is training (one is: wait for it to "
                     "finish, or stop it with Ctrl-C, which saves it, then --resume)",
                 ) from None
+            except OSError:  # a file system without locks (some network mounts): unheld
+                pass
         yield
 
 
