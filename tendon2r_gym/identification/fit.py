@@ -179,8 +179,9 @@ class Replay:
         pieces, n_sub = self.pieces, self.n_sub
         shifts = shifts or [None] * len(mechs)
         models, states = [], []
+        built: dict[int, mujoco.MjModel] = {}  # one model per distinct arm
         for mech, shift in zip(mechs, shifts, strict=True):
-            model = build_model(mech)
+            model = built.get(id(mech)) or built.setdefault(id(mech), build_model(mech))
             models += [model] * len(pieces)
             states.append(self.initial_states(model, mech, shift))
         ctrl = np.repeat(pieces.commands(mechs[0]), n_sub, axis=1)
@@ -238,9 +239,10 @@ class Replay:
 
     def refine_starts(self, mech: Mechanism, passes: int = 2) -> None:
         """Moves each piece's start (q, dq) by the Gauss-Newton step that best explains its
-        residual on ``mech`` (``passes`` times), then sets the projection there: the start's
-        errors are then small enough for the projection's linearization even where the
-        smoothed estimate misses fast motion."""
+        residual on ``mech`` (``passes`` times): the start's errors are then small enough for
+        the projection's linearization even where the smoothed estimate misses fast motion.
+        The projection is the last step's directions (set at ``mech`` if ``passes`` is 0):
+        the start moves little, and setting them again would cost as much as a pass."""
         for _ in range(passes):
             base, cols = self.set_projection(mech)
             err = np.nan_to_num(base - self._measured.reshape(len(self.pieces), -1))
@@ -248,7 +250,8 @@ class Replay:
             for p, (q, dq) in enumerate(self._start):
                 step = np.linalg.lstsq(cols[p], -err[p], rcond=None)[0]
                 self._start[p] = (q + step[:2], dq + step[2:])
-        self.set_projection(mech)
+        if passes < 1:  # else the last pass's directions serve: the start moved little
+            self.set_projection(mech)
 
     def residual(self, mechs: list[Mechanism]) -> np.ndarray:
         """Returns the residual of each candidate (len(mechs), P, 2 length): predicted minus

@@ -28,6 +28,7 @@ toolbox's box-constrained Gauss-Newton (``mujoco.sysid.optimize``, MuJoCo's own
 from __future__ import annotations
 
 import io
+import itertools
 import math
 import os
 import time
@@ -74,6 +75,14 @@ class Stage(NamedTuple):
 
 
 STAGES = (Stage(PIECE_S, 5 * PIECE_S, 4), Stage(PIECE_S, 2 * PIECE_S, 4))
+#: The coarse start: about this many pieces, spread over the recordings, on which a grid of
+#: the fields that dominate the replay far from the truth is tried (multiples of their
+#: nominal values, within their bounds).  Dry friction several times too high sticks the
+#: cables, a mass twice too light doubles every acceleration: from there Gauss-Newton lands
+#: in another basin, with the lag and the stiffness absorbing the miss.
+COARSE_PIECES = 10
+GRID = {"density_scale": (0.5, 0.7, 1.0, 1.4, 2.0, 2.8),
+        "tendon_friction": (0.2, 0.5, 1.0, 2.0, 5.0)}  # fmt: skip
 #: Gauss-Newton stops when a step is below this fraction of the fields (scaled): the
 #: intervals are never narrower.
 XTOL = 1e-4
@@ -81,8 +90,14 @@ XTOL = 1e-4
 #: tendon2r_gym.simulation.stability) is held there by that limit, not by the recording: the
 #: fields that cross it within this step are flagged, as at a bound.
 EDGE_STEP = 1e-3
-#: Rounds of each stage: a fit of max_iters, then the pieces' starts refined at it.
+#: Gauss-Newton's regularizer on the scaled problem (unit columns): its least nonzero value
+#: and the factor it grows by after a step that does not lower the cost (the toolbox's
+#: 1e-6 and 10**0.1 take some 50 rollouts to reach a useful value each time a step fails).
+MU = (1e-3, 10.0)
+#: Rounds of each stage: a fit of max_iters, then the pieces' starts refined at it; no
+#: more rounds once a fit lowers the cost by less than ROUND_GAIN (a fraction of it).
 ROUNDS = 3
+ROUND_GAIN = 1e-3
 
 
 def bounds(name: str, mech: Mechanism) -> tuple[float, float, float] | str:
@@ -209,9 +224,9 @@ class _Problem:
         return not (self.stable(self.arm(x - step)) and self.stable(self.arm(x + step)))
 
     def fit(self, x: np.ndarray, stage: Stage, rounds: int) -> np.ndarray:
-        """Returns the fit from ``x`` on the current pieces: ``rounds`` times a Gauss-Newton
-        fit of ``stage.max_iters`` iterations (mujoco.sysid.optimize, box-constrained), then
-        the starts refined at it."""
+        """Returns the fit from ``x`` on the current pieces: up to ``rounds`` times a
+        Gauss-Newton fit of ``stage.max_iters`` iterations (mujoco.sysid.optimize,
+        box-constrained), then the starts refined at it (ROUND_GAIN)."""
         from absl import logging
         from mujoco import sysid
 
@@ -222,14 +237,38 @@ class _Problem:
                 lo, hi, s = self.box[n]
                 params.add(sysid.Parameter(n, self.x0[i], lo / s, hi / s))
                 params[n].value[:] = x[i]
-            opt, _ = sysid.optimize(
-                params, self.residual, optimizer="mujoco", verbose=False,
-                max_iters=stage.max_iters, eps=1e-6, xtol=XTOL, x_scale="jac",
-                output=io.StringIO(),
-            )  # fmt: skip
-            x = opt.as_vector()
+            try:
+                opt, _ = sysid.optimize(
+                    params, self.residual, optimizer="mujoco", verbose=False,
+                    max_iters=stage.max_iters, eps=1e-6, xtol=XTOL, x_scale="jac",
+                    mu_min=MU[0], mu_factor=MU[1], output=io.StringIO(),
+                    iter_callback=_stop_when_flat,
+                )  # fmt: skip
+                y = opt.as_vector()
+            except _Flat as flat:
+                y = flat.x
+            moved = self.cost(y) < (1 - ROUND_GAIN) * self.cost(x)
+            x = y
             self.rep.refine_starts(self.arm(x), 1)
+            if not moved:  # converged: another round would start where this one did
+                break
         return x
+
+
+class _Flat(Exception):
+    """Raised by _stop_when_flat with the point it stops at."""
+
+    def __init__(self, x: np.ndarray) -> None:
+        self.x = x
+
+
+def _stop_when_flat(trace: list) -> None:
+    """The toolbox's iteration callback: stops Gauss-Newton (raising _Flat) once a step lowers
+    the cost by less than ROUND_GAIN of it (the toolbox stops only on the step's size, which
+    a cost this flat may not shrink), at the point before that step."""
+    log = trace[-1]
+    if log.reduction < ROUND_GAIN * log.objective:
+        raise _Flat(np.asarray(log.candidate, dtype=float).reshape(-1))
 
 
 def _worse(other: np.ndarray, best: np.ndarray) -> bool:
@@ -274,38 +313,64 @@ class _Delays(NamedTuple):
     told: set[int]  # the delays not told apart from it (it included)
     fits: dict[int, np.ndarray]  # each fitted delay's fit on the subset's pieces
     costs: dict[int, float]  # and its cost
-    at_nominal: dict[int, float]  # each delay's cost at the nominal values
-    entries: int  # the subset's residual entries
 
 
-def _search_delay(prob: _Problem, scan: range) -> _Delays:
-    """Finds the loop delay among ``scan`` on the subset's pieces: a scan at the nominal values,
-    a fit at the best delay, the scan again at that fit, then a walk to the least fitted
-    residual (the lag, the cables' stretch and the delay trade off: each delay is fitted),
-    and the delays around it that the pieces do not tell apart from it (_worse)."""
+def _coarse_start(prob: _Problem, d: int) -> tuple[np.ndarray, float]:
+    """Returns the point of GRID (the other fields nominal) whose replay at loop delay ``d``
+    misses the coarse pieces (COARSE_PIECES) least, and the RMS miss (rad) of the nominal
+    values there: the residual before the fit."""
+    x0, cfg = prob.x0, prob.config
+    seconds = sum(len(r.time) for r in prob.recordings) * cfg.ctrl_dt
+    coarse = Stage(PIECE_S, max(PIECE_S, seconds / COARSE_PIECES), 0)
+    axes = [[(i, v) for v in GRID[n]] if x0[i] > 0 else [(i, x0[i])]
+            for i, n in enumerate(prob.names) if n in GRID]  # fmt: skip
+    best, least, nominal = x0, math.inf, math.nan
+    for point in itertools.product(*axes):
+        x = x0.copy()
+        for i, v in point:
+            lo, hi, s = prob.box[prob.names[i]]
+            x[i] = min(max(v * x0[i], lo / s), hi / s)
+        if not prob.stable(prob.arm(x)):
+            continue
+        prob.pieces(d, x, coarse, 1)
+        cost = prob.cost(x)
+        if np.array_equal(x, x0):
+            entries = 2 * len(prob.rep.pieces) * prob.rep.pieces.length
+            nominal = math.sqrt(cost / entries) * ANGLE_UNIT
+        if cost < least:
+            best, least = x, cost
+    return best, nominal
+
+
+def _search_delay(prob: _Problem, scan: range, start: np.ndarray) -> _Delays:
+    """Finds the loop delay among ``scan`` on the subset's pieces: a scan at ``start`` (the
+    coarse start), a fit at the best delay, the scan again at that fit, then a walk to the
+    least fitted residual (the lag, the cables' stretch and the delay trade off: each delay is
+    fitted), and the delays around it that the pieces do not tell apart from it (_worse)."""
     subset, x0 = STAGES[0], prob.x0
     scanned = {}
     for k in scan:
-        prob.pieces(k, x0, subset, 1)
-        scanned[k] = prob.cost(x0)
-    entries = prob.rep.residual([prob.arm(x0)]).size
-    at_nominal = dict(scanned)
+        prob.pieces(k, start, subset, 1)
+        scanned[k] = prob.cost(start)
     fits: dict[int, np.ndarray] = {}
     costs: dict[int, float] = {}
     per_piece: dict[int, np.ndarray] = {}
 
     def profile(k: int) -> None:
-        # From the nominal values or a fit at another delay, whichever fits delay k best
-        # before the fit (each may lead it astray: its fields absorb a wrong delay).
-        starts = [x0, *fits.values()]
-        before = []
-        for start in starts:
-            prob.pieces(k, start, subset, 1)
-            before.append(prob.cost(start))
-        start = starts[int(np.argmin(before))]
+        # From the coarse start, then from the nominal values and each fit at another delay
+        # that fits delay k better before its fit than that fit does after; the best fit
+        # is kept.  (A fit at another delay has absorbed that delay: from it, the fit at k
+        # may stay in its basin, though it starts with a smaller miss than the coarse start.)
         prob.pieces(k, start, subset)
         fits[k] = prob.fit(start, subset, ROUNDS)
         per_piece[k] = prob.piece_costs(fits[k])
+        for y in [*([] if start is x0 else [x0]), *[v for j, v in fits.items() if j != k]]:
+            prob.pieces(k, y, subset, 1)
+            if prob.cost(y) < per_piece[k].sum():
+                prob.pieces(k, y, subset)
+                z = prob.fit(y, subset, ROUNDS)
+                if (c := prob.piece_costs(z)).sum() < per_piece[k].sum():
+                    fits[k], per_piece[k] = z, c
         costs[k] = float(per_piece[k].sum())
 
     several = len(scan) > 1
@@ -337,7 +402,7 @@ def _search_delay(prob: _Problem, scan: range) -> _Delays:
                     if not _worse(per_piece[n], per_piece[best]):
                         told.add(n)
                         grow = True
-    return _Delays(best, told, fits, costs, at_nominal, entries)
+    return _Delays(best, told, fits, costs)
 
 
 def identify(
@@ -367,7 +432,8 @@ def identify(
     check_pieces(recordings, config, len(names), prob.first)
     final = STAGES[1]
     scan = range(max_d + 1) if fit_delay else range(nominal_steps, nominal_steps + 1)
-    delays = _search_delay(prob, scan)
+    start, before = _coarse_start(prob, nominal_steps)
+    delays = _search_delay(prob, scan, start)
     d, told, fits = delays.best, delays.told, delays.fits
     prob.pieces(d, fits[d], final)  # every piece, from the subset's fit
     x = prob.fit(fits[d], final, ROUNDS)
@@ -441,10 +507,11 @@ def identify(
         noise=noise,
         pieces=P,
         residual_rms_rad=(
-            math.sqrt(delays.at_nominal[d] / delays.entries) * ANGLE_UNIT,
+            before,
             math.sqrt(float(np.sum(r**2)) / r.size) * ANGLE_UNIT,
         ),
         seconds=time.perf_counter() - began,
         sources=[rec.source for rec in recordings],
-        extras={"problem": prob, "x": x, "cov": cov, "costs": delays.costs},
+        extras={"problem": prob, "x": x, "cov": cov, "costs": delays.costs, "fits": fits,
+                "start": start},
     )
