@@ -15,9 +15,11 @@ toolbox's box-constrained Gauss-Newton (``mujoco.sysid.optimize``, MuJoCo's own
   (then the fit is the better guess, and the arm takes it);
 - the delays: commands and angles show only the loop delay, ``motor_delay +
   observation_delay`` (a command held back d steps and a measurement d steps late move the
-  replay alike), found in whole control steps by the least fitted residual (each delay's fit
-  starts from the nominal values or another delay's fit, whichever fits it better: the fields
-  absorb a wrong delay, and a fit started there may stay in its basin).  A neighbouring
+  replay alike), found in whole control steps by the least fitted residual.  Each delay's fit
+  starts from the coarse start (the best point of GRID: far from the truth, Gauss-Newton
+  lands in another basin), and again from the nominal values or another delay's fit where
+  one of them fits that delay better than the first fit (the fields absorb a wrong delay, and
+  a fit started there may stay in its basin); the best fit is kept.  A neighbouring
   delay, fitted too, is told apart if it leaves larger residuals on the pieces (a one-sided
   paired t-test over them at 95%); the delay is identified if every neighbour is.  The fields
   are fitted at the best delay either way, and their intervals hold their fits at each delay
