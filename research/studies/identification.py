@@ -18,7 +18,8 @@ In closed loop, on the true arm (EPISODES held-out episodes of its reference):
 - the realism residual (bundle ``real_arm``), its PD tuned as above and its arm features
   (what it observes of the arm) those of the nominal, the identified and the true arm.
 
-The gap closed is (nominal - identified) / (nominal - true) of the worst joint's RMS error.
+The gap closed is (nominal - identified) / (nominal - true) of the worst joint's RMS error,
+where the nominal choice loses more than NO_GAP against the true one.
 """
 
 from __future__ import annotations
@@ -102,39 +103,47 @@ def closed_loop(true_kw: dict[str, Any], beliefs: dict[str, dict[str, Any]],
     return out
 
 
-#: A gap (nominal choice - true choice) within this fraction of the true choice's error is no
-#: gap: the nominal choice is already as good, and a ratio of two small differences says
-#: nothing.  The identified choice then passes if it is within the same fraction.
+#: The nominal choice's loss against the true one: a gap only past this fraction of the true
+#: choice's error.  Within it the nominal choice is already as good, and a ratio of two small
+#: differences says nothing.  Where the nominal choice beats the true one there is no gap
+#: either: each tuning picks on its own held-out episodes, and the true arm's choice need not
+#: be the best on these.  Without a gap, the identified choice passes if it loses at most this
+#: fraction against the true one.
 NO_GAP = 0.05
+
+
+def _choices(cl: dict[str, Any], key: str) -> tuple[float, float, float] | None:
+    """Returns the worst joint's RMS error (nominal, identified, true), or None if a choice
+    is missing."""
+    if any(key not in cl[b] for b in ("nominal", "identified", "true")):
+        return None
+    nom, idf, tru = (_worst(cl[b][key]) for b in ("nominal", "identified", "true"))
+    return nom, idf, tru
 
 
 def gap_closed(cl: dict[str, Any], key: str) -> float | None:
     """Returns (nominal - identified) / (nominal - true) of the worst joint's RMS error, or
     None if a choice is missing or there is no gap (NO_GAP)."""
-    if any(key not in cl[b] for b in ("nominal", "identified", "true")):
+    if (c := _choices(cl, key)) is None:
         return None
-    nom, idf, tru = (_worst(cl[b][key]) for b in ("nominal", "identified", "true"))
-    return None if abs(nom - tru) <= NO_GAP * tru else (nom - idf) / (nom - tru)
+    nom, idf, tru = c
+    return None if nom <= (1 + NO_GAP) * tru else (nom - idf) / (nom - tru)
 
 
 def closes(cl: dict[str, Any], key: str) -> bool:
-    """Whether the identified choice closes at least 80% of a gap (gap_closed) and ends no
-    further from the true choice than the nominal one: a ratio past 100% may be an overshoot
-    beyond the true choice, better or worse."""
+    """Whether the identified choice closes at least 80% of a gap (gap_closed; past 100% it
+    beats the true choice)."""
     g = gap_closed(cl, key)
-    if g is None:
-        return False
-    nom, idf, tru = (_worst(cl[b][key]) for b in ("nominal", "identified", "true"))
-    return g >= 0.8 and abs(idf - tru) <= abs(nom - tru)
+    return g is not None and g >= 0.8
 
 
 def no_gap(cl: dict[str, Any], key: str) -> bool | None:
-    """Returns, on an arm without a gap (NO_GAP), whether the identified choice is within
-    NO_GAP of the true one too (None if there is a gap or a choice is missing)."""
-    if any(key not in cl[b] for b in ("nominal", "identified", "true")):
+    """Returns, on an arm without a gap (NO_GAP), whether the identified choice loses at most
+    NO_GAP against the true one (None if there is a gap or a choice is missing)."""
+    if (c := _choices(cl, key)) is None:
         return None
-    nom, idf, tru = (_worst(cl[b][key]) for b in ("nominal", "identified", "true"))
-    return abs(idf - tru) <= NO_GAP * tru if abs(nom - tru) <= NO_GAP * tru else None
+    nom, idf, tru = c
+    return idf <= (1 + NO_GAP) * tru if nom <= (1 + NO_GAP) * tru else None
 
 
 def ideal_check(threads: int | None) -> dict[str, Any]:
@@ -278,7 +287,9 @@ def lines(result: dict[str, Any]) -> list[str]:
         "",
         "Worst joint's RMS error (deg), with the choice made on the nominal, the identified "
         "and the true arm; gap closed = (nominal - identified) / (nominal - true). An arm "
-        f"whose nominal choice is within {NO_GAP:.0%} of the true one has no gap to close.",
+        f"whose nominal choice loses at most {NO_GAP:.0%} against the true one, or beats it "
+        "(each tuning picks on its own held-out episodes, not on these), has no gap to close: "
+        f"its identified choice passes if it loses at most {NO_GAP:.0%} against the true one.",
         "",
         "| arm | PD nominal | PD identified | PD true | PD gap closed | residual nominal | "
         "residual identified | residual true | residual gap closed |",
@@ -293,7 +304,7 @@ def lines(result: dict[str, Any]) -> list[str]:
                for b in ("nominal", "identified", "true")]  # fmt: skip
         gp, gr = (f"{g[k]:.0%}" if g[k] is not None else
                   "n/a" if none[k] is None else
-                  f"no gap, identified {'within' if none[k] else 'beyond'} {NO_GAP:.0%}"
+                  f"no gap, identified {'within' if none[k] else 'beyond'} {NO_GAP:.0%} of true"
                   for k in ("pd", "residual"))  # fmt: skip
         missing = [f"{b}: {cl[b]['residual_missing']}" for b in cl if "residual_missing" in cl[b]]
         if missing:
@@ -308,12 +319,10 @@ def lines(result: dict[str, Any]) -> list[str]:
         if gaps:
             at = sum(closes(cl, f"{key}_rms_deg") for cl in cls)
             line += (f"median gap closed {np.median(gaps):.0%}, {at} of {len(gaps)} arms with a "
-                     "gap at 80% or more and no further from the true choice than the nominal "
-                     "one (past 100%, the identified choice may overshoot)")  # fmt: skip
+                     "gap at 80% or more (past 100%, the identified choice beats the true one)")
         if flat:
-            line += (f"{'; ' if gaps else ''}{len(flat)} arms without a gap (within "
-                     f"{NO_GAP:.0%}), the identified choice within {NO_GAP:.0%} of the true one "
-                     f"on {sum(flat)}")  # fmt: skip
+            line += (f"{'; ' if gaps else ''}{len(flat)} arms without a gap, the identified "
+                     f"choice losing at most {NO_GAP:.0%} against the true one on {sum(flat)}")
         out.append(line + ".")
     return out
 

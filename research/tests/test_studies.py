@@ -635,7 +635,13 @@ def test_identification_gap_is_none_without_a_gap_and_a_ratio_with_one():
     assert gap_closed(cl(0.4, 0.15, 0.1), "residual_rms_deg") is None  # no residual row
     assert closes(cl(0.4, 0.15, 0.1), "pd_rms_deg")
     assert closes(cl(0.4, 0.05, 0.1), "pd_rms_deg")  # past the true choice, and nearer to it
-    assert not closes(cl(0.34, 0.70, 0.46), "pd_rms_deg")  # 305%: further than the nominal
+    # The nominal choice beats the true one: no gap; the identified one passes if it loses at
+    # most NO_GAP against the true one.
+    assert gap_closed(cl(0.34, 0.70, 0.46), "pd_rms_deg") is None
+    assert not closes(cl(0.34, 0.70, 0.46), "pd_rms_deg")
+    assert no_gap(cl(0.34, 0.70, 0.46), "pd_rms_deg") is False
+    assert no_gap(cl(0.473, 0.473, 0.501), "pd_rms_deg") is True
+    assert not closes(cl(0.4, 0.2, 0.1), "pd_rms_deg")  # 67% of the gap
 
 
 def test_envelope_generalists_study_runs_each_bundle_on_its_arms(
