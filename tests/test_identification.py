@@ -296,12 +296,13 @@ def test_the_loop_delay_is_found_and_split_evenly(arm):
 def test_the_coarse_start_finds_a_mass_far_from_the_nominal_one(arm):
     # Twice the nominal mass: the grid's best point is there, and the nominal arm's residual
     # (before the fit) is reported.
-    from tendon2r_gym.identification.identify import DEFAULT_FIT, _coarse_start, _fields, _Problem
+    from tendon2r_gym.identification.identify import DEFAULT_FIT, _coarse_start, _fields
+    from tendon2r_gym.identification.problem import Problem
 
     true = EnvConfig.make("default", mechanism={"density_scale": 2.0})
     signal = MultiSine(amp_rad=(0.1, 0.08), bias_rad=(0.1, -0.2))
     rec = record(true, "pd", 2.6, seed=0, signal=signal)
     names, box, _ = _fields(list(DEFAULT_FIT), arm.mechanism, False)
-    start, before = _coarse_start(_Problem([rec], arm, names, box, 1), 0)
+    start, before = _coarse_start(Problem([rec], arm, names, box, 1), 0)
     assert start[names.index("density_scale")] == 2.0
     assert before > 1e-3  # rad: the nominal arm misses the heavy one widely
