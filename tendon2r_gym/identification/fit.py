@@ -181,7 +181,9 @@ class Replay:
         models, states = [], []
         built: dict[int, mujoco.MjModel] = {}  # one model per distinct arm
         for mech, shift in zip(mechs, shifts, strict=True):
-            model = built.get(id(mech)) or built.setdefault(id(mech), build_model(mech))
+            if id(mech) not in built:
+                built[id(mech)] = build_model(mech)
+            model = built[id(mech)]
             models += [model] * len(pieces)
             states.append(self.initial_states(model, mech, shift))
         ctrl = np.repeat(pieces.commands(mechs[0]), n_sub, axis=1)

@@ -194,7 +194,8 @@ def _search_delay(prob: Problem, scan: range, start: np.ndarray) -> _Delays:
         prob.pieces(k, start, subset)
         fits[k] = prob.fit(start, subset, ROUNDS)
         per_piece[k] = prob.piece_costs(fits[k])
-        for y in [*([] if start is x0 else [x0]), *[v for j, v in fits.items() if j != k]]:
+        others = [x0, *[v for j, v in fits.items() if j != k]]
+        for y in [y for y in others if not np.array_equal(y, start)]:
             prob.pieces(k, y, subset, 1)
             if prob.cost(y) < per_piece[k].sum():
                 prob.rep.refine_starts(prob.arm(y), 1)  # the second pass of prob.pieces
