@@ -69,6 +69,11 @@ def true_arms(n: int = ARMS, seed: int = SEED) -> list[dict[str, Any]]:
     return arms
 
 
+#: What each closed-loop row records: tracking, control effort and smoothness (the
+#: residual's against PD's on the same arm and episodes: smoothness_x_pd).
+EFFORT = ("rms_deg", "rms_tension_N", "rms_tension_rate_N_per_s")
+
+
 def _worst(rms: list[float]) -> float:
     return float(max(rms))
 
@@ -90,7 +95,8 @@ def closed_loop(true_kw: dict[str, Any], beliefs: dict[str, dict[str, Any]],
     for name, belief in beliefs.items():
         on = {**true_kw, "pd_gains": tuned[name]}
         pd, _ = evaluate("pd", on, seeds)
-        out[name] = {"pd_bandwidth_hz": tuned[name]["bandwidth_hz"], "pd_rms_deg": pd["rms_deg"]}
+        out[name] = {"pd_bandwidth_hz": tuned[name]["bandwidth_hz"],
+                     **{f"pd_{k}": pd[k] for k in EFFORT}}  # fmt: skip
         probe = make_env(**{**belief, "pd_gains": tuned[name]})
         try:  # the believed arm may lie outside the residual's training ranges
             policy = make_policy("ppo", probe, model)
@@ -99,7 +105,8 @@ def closed_loop(true_kw: dict[str, Any], beliefs: dict[str, dict[str, Any]],
             continue
         finally:
             probe.close()
-        out[name]["residual_rms_deg"] = tracking_metrics(rollouts(policy, on, seeds))["rms_deg"]
+        res = tracking_metrics(rollouts(policy, on, seeds))
+        out[name].update({f"residual_{k}": res[k] for k in EFFORT})
     return out
 
 
@@ -204,6 +211,7 @@ def study(n: int, threads: int | None, partial: Path | None = None,
         cl = closed_loop(kw, beliefs, tuned)
         row = {
             "arm": i, "seconds": ident.seconds, "fields": fields,
+            "identified": beliefs["identified"],
             "loop_delay_ms": {"true": true_loop * 1e3, "found": ident.loop_delay_s * 1e3,
                               "identified": ident.delay_identified},
             "closed_loop": cl,
@@ -324,6 +332,47 @@ def lines(result: dict[str, Any]) -> list[str]:
             line += (f"{'; ' if gaps else ''}{len(flat)} arms without a gap, the identified "
                      f"choice losing at most {NO_GAP:.0%} against the true one on {sum(flat)}")
         out.append(line + ".")
+    return out + effort_lines(rows)
+
+
+def effort_lines(rows: list[dict[str, Any]]) -> list[str]:
+    """The closed loop's control effort and smoothness: PD's RMS tension and tension rate
+    (the largest over the tendons), and the residual's as multiples of PD's on the same arm,
+    gains and episodes (smoothness_x_pd), with the count within its limits."""
+    from tendon2r_gym.evaluation.metrics import smoothness_x_pd, within_limits
+
+    beliefs = ("nominal", "identified", "true")
+    out = [
+        "",
+        "## Control effort and smoothness on the true arm",
+        "",
+        "PD's RMS tension (N) and tension rate (N/s), the largest over the tendons; the "
+        "residual's as multiples of PD's with the same gains (nominal / identified / true).",
+        "",
+        "| arm | PD tension | PD tension rate | residual tension x PD | residual rate x PD |",
+        "|---|---|---|---|---|",
+    ]
+    within, runs = 0, 0
+    for r in rows:
+        cl = r["closed_loop"]
+        pd = {b: {k: cl[b][f"pd_{k}"] for k in EFFORT} for b in beliefs}
+        res = {}
+        for b in beliefs:
+            if "residual_rms_deg" in cl[b]:
+                res[b] = smoothness_x_pd({k: cl[b][f"residual_{k}"] for k in EFFORT}, pd[b])
+                within += within_limits(*res[b], residual=True)
+                runs += 1
+
+        def cells(values: list[float | None]) -> str:
+            return " / ".join("-" if v is None else f"{v:.3g}" for v in values)
+
+        out.append(
+            f"| {r['arm']} | {cells([max(pd[b]['rms_tension_N']) for b in beliefs])} | "
+            f"{cells([max(pd[b]['rms_tension_rate_N_per_s']) for b in beliefs])} | "
+            f"{cells([res[b][0] if b in res else None for b in beliefs])} | "
+            f"{cells([res[b][1] if b in res else None for b in beliefs])} |"
+        )
+    out += ["", f"The residual keeps the smoothness limits on {within} of its {runs} runs."]
     return out
 
 

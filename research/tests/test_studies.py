@@ -681,3 +681,18 @@ def test_envelope_generalists_study_runs_each_bundle_on_its_arms(
     for name, arm in result["arms"].items():
         kept = {b: r for b, r in arm["rows"].items() if (name, b) != ("ideal_0", "generalist")}
         assert {b: again[name]["rows"][b] for b in kept} == json.loads(json.dumps(kept))
+
+
+def test_identification_effort_compares_the_residual_with_pd_on_the_same_gains():
+    from research.studies.identification import effort_lines
+
+    pd = {"pd_rms_deg": [0.2, 0.1], "pd_rms_tension_N": [2.0, 1.0, 1.0],
+          "pd_rms_tension_rate_N_per_s": [10.0, 5.0, 5.0]}  # fmt: skip
+    smooth = {"residual_rms_deg": [0.1, 0.1], "residual_rms_tension_N": [2.0, 1.0, 1.0],
+              "residual_rms_tension_rate_N_per_s": [20.0, 10.0, 10.0]}  # fmt: skip
+    rough = {**smooth, "residual_rms_tension_rate_N_per_s": [50.0, 25.0, 25.0]}
+    row = {"arm": 0, "closed_loop": {"nominal": {**pd, **smooth}, "identified": {**pd, **rough},
+                                     "true": {**pd}}}  # fmt: skip
+    text = "\n".join(effort_lines([row]))
+    assert "| 0 | 2 / 2 / 2 | 10 / 10 / 10 | 1 / 1 / - | 2 / 5 / - |" in text
+    assert "on 1 of its 2 runs" in text  # the rate limit is 3x PD's for a residual
