@@ -293,6 +293,19 @@ def test_the_loop_delay_is_found_and_split_evenly(arm):
     assert ident.changes["mechanism"]["motor_delay"] == pytest.approx(0.002)
 
 
+def test_a_delay_left_out_of_fit_keeps_its_nominal_value_and_the_other_takes_the_rest():
+    # The sensor's 2 ms are known (a datasheet): the loop's 2 ms are all the sensor's, where
+    # an even split would give each delay 1 ms.
+    true = EnvConfig.make("default", observation_delay=0.002)
+    signal = MultiSine(amp_rad=(0.1, 0.08), bias_rad=(0.1, -0.2))
+    rec = record(true, "pd", 2.6, seed=0, signal=signal)
+    nominal = EnvConfig.make("default", mechanism={"motor_delay": 0.003}, observation_delay=0.002)
+    ident = identify([rec], nominal, ["density_scale", "motor_delay"], threads=1)
+    assert ident.loop_delay_s == pytest.approx(0.002)
+    assert ident.changes["observation_delay"] == pytest.approx(0.002)
+    assert ident.changes["mechanism"]["motor_delay"] == pytest.approx(0.0)
+
+
 def test_the_coarse_start_finds_a_mass_far_from_the_nominal_one(arm):
     # Twice the nominal mass: the grid's best point is there, and the nominal arm's residual
     # (before the fit) is reported.

@@ -83,30 +83,55 @@ def closed_loop(true_kw: dict[str, Any], beliefs: dict[str, dict[str, Any]],
     """PD and the residual on the true arm, tuned and informed by each belief: the residual
     is loaded on the believed arm's env (its arm features and its PD's gains are then the
     believed ones) and rolled out on the true arm's."""
-    from tendon2r_gym.envs.registration import make as make_env
-    from tendon2r_gym.evaluation.evaluator import evaluate, make_policy
-    from tendon2r_gym.evaluation.metrics import tracking_metrics
-    from tendon2r_gym.evaluation.rollout import rollouts
-    from tendon2r_gym.policies.bundle import bundled_model
+    from tendon2r_gym.evaluation.evaluator import evaluate
 
     seeds = list(range(EPISODES))
-    model = bundled_model(RESIDUAL)
     out: dict[str, Any] = {}
     for name, belief in beliefs.items():
         on = {**true_kw, "pd_gains": tuned[name]}
         pd, _ = evaluate("pd", on, seeds)
         out[name] = {"pd_bandwidth_hz": tuned[name]["bandwidth_hz"],
                      **{f"pd_{k}": pd[k] for k in EFFORT}}  # fmt: skip
-        probe = make_env(**{**belief, "pd_gains": tuned[name]})
-        try:  # the believed arm may lie outside the residual's training ranges
-            policy = make_policy("ppo", probe, model)
-        except ValueError as e:
-            out[name]["residual_missing"] = str(e).split(": ", 1)[-1]
-            continue
-        finally:
-            probe.close()
-        res = tracking_metrics(rollouts(policy, on, seeds))
-        out[name].update({f"residual_{k}": res[k] for k in EFFORT})
+        out[name].update(residual_on(true_kw, belief, tuned[name]))
+    return out
+
+
+def residual_on(true_kw: dict[str, Any], belief: dict[str, Any],
+                gains: dict[str, Any]) -> dict[str, Any]:  # fmt: skip
+    """The realism residual on the true arm, with PD's ``gains``, loaded on the believed arm's
+    env (its arm features are then the believed ones): ``residual_<EFFORT>``, or
+    ``residual_missing`` with the reason if the believed arm lies outside its training
+    ranges."""
+    from tendon2r_gym.envs.registration import make as make_env
+    from tendon2r_gym.evaluation.evaluator import make_policy
+    from tendon2r_gym.evaluation.metrics import tracking_metrics
+    from tendon2r_gym.evaluation.rollout import rollouts
+    from tendon2r_gym.policies.bundle import bundled_model
+
+    probe = make_env(**{**belief, "pd_gains": gains})
+    try:
+        policy = make_policy("ppo", probe, bundled_model(RESIDUAL))
+    except ValueError as e:
+        return {"residual_missing": str(e).split(": ", 1)[-1]}
+    finally:
+        probe.close()
+    res = tracking_metrics(rollouts(policy, {**true_kw, "pd_gains": gains}, list(range(EPISODES))))
+    return {f"residual_{k}": res[k] for k in EFFORT}
+
+
+def hidden_true(identified: dict[str, Any], true_kw: dict[str, Any],
+                fields: dict[str, dict[str, Any]]) -> dict[str, Any]:  # fmt: skip
+    """Returns the identified arm with what the recording does not show at its true values:
+    each flagged field, and how the loop delay splits into the motor's and the sensor's (the
+    identified loop delay is kept)."""
+    out = json.loads(json.dumps(identified))
+    mech = out.setdefault("mechanism", {})
+    for name, f in fields.items():
+        if not f["identified"]:
+            mech[name] = f["true"]
+    loop = mech.get("motor_delay", 0.0) + out.get("observation_delay", 0.0)
+    obs = min(true_kw.get("observation_delay", 0.0), loop)
+    out["observation_delay"], mech["motor_delay"] = obs, round(loop - obs, 12)
     return out
 
 
@@ -209,6 +234,8 @@ def study(n: int, threads: int | None, partial: Path | None = None,
         for b in ("identified", "true"):
             tuned[b] = tune_pd(beliefs[b], 2).gains.to_dict()
         cl = closed_loop(kw, beliefs, tuned)
+        hidden = hidden_true(beliefs["identified"], kw, fields)
+        cl["hidden_true"] = residual_on(kw, hidden, tuned["identified"])
         row = {
             "arm": i, "seconds": ident.seconds, "fields": fields,
             "identified": beliefs["identified"],
@@ -299,9 +326,15 @@ def lines(result: dict[str, Any]) -> list[str]:
         "(each tuning picks on its own held-out episodes, not on these), has no gap to close: "
         f"its identified choice passes if it loses at most {NO_GAP:.0%} against the true one.",
         "",
+        "The last two columns: the residual informed by the identified arm with what the "
+        "recording does not show at its true values (each flagged field, and how the loop "
+        "delay splits into the motor's and the sensor's), with the identified arm's PD: how "
+        "much of what is left is out of the recording's reach.",
+        "",
         "| arm | PD nominal | PD identified | PD true | PD gap closed | residual nominal | "
-        "residual identified | residual true | residual gap closed |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "residual identified | residual true | residual gap closed | residual, hidden true "
+        "| its gap closed |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         cl = r["closed_loop"]
@@ -314,11 +347,20 @@ def lines(result: dict[str, Any]) -> list[str]:
                   "n/a" if none[k] is None else
                   f"no gap, identified {'within' if none[k] else 'beyond'} {NO_GAP:.0%} of true"
                   for k in ("pd", "residual"))  # fmt: skip
-        missing = [f"{b}: {cl[b]['residual_missing']}" for b in cl if "residual_missing" in cl[b]]
+        missing = [f"{b}: {cl[b]['residual_missing']}" for b in ("nominal", "identified", "true")
+                   if "residual_missing" in cl[b]]  # fmt: skip
         if missing:
             gr += " (residual refused the arm: " + "; ".join(missing) + ")"
+        hid, gh = _hidden(cl)
         out.append(f"| {r['arm']} | " + " | ".join(f"{v:.3g}" for v in pd) + f" | {gp} | "
-                   + " | ".join(f"{v:.3g}" for v in res) + f" | {gr} |")  # fmt: skip
+                   + " | ".join(f"{v:.3g}" for v in res) + f" | {gr} | {hid} | {gh} |")  # fmt: skip
+    hidden = [cl for r in rows if "hidden_true" in (cl := r["closed_loop"])]
+    if hidden:
+        views = [{**cl, "identified": cl["hidden_true"]} for cl in hidden]
+        fine = sum(closes(v, "residual_rms_deg") or bool(no_gap(v, "residual_rms_deg"))
+                   for v in views)  # fmt: skip
+        out.append(f"\nThe residual, hidden true: the gap closed (or, without a gap, within "
+                   f"{NO_GAP:.0%} of the true choice) on {fine} of {len(views)} arms.")
     for key, label in (("pd", "PD"), ("residual", "residual")):
         cls = [r["closed_loop"] for r in rows]
         gaps = [g for cl in cls if (g := gap_closed(cl, f"{key}_rms_deg")) is not None]
@@ -333,6 +375,20 @@ def lines(result: dict[str, Any]) -> list[str]:
                      f"choice losing at most {NO_GAP:.0%} against the true one on {sum(flat)}")
         out.append(line + ".")
     return out + effort_lines(rows)
+
+
+def _hidden(cl: dict[str, Any]) -> tuple[str, str]:
+    """The table's residual, hidden true cells: its error and its gap closed."""
+    if "hidden_true" not in cl:
+        return "-", "-"
+    h = cl["hidden_true"]
+    if "residual_rms_deg" not in h:
+        return f"refused ({h['residual_missing']})", "n/a"
+    view = {**cl, "identified": h}
+    g, none = gap_closed(view, "residual_rms_deg"), no_gap(view, "residual_rms_deg")
+    shown = (f"{g:.0%}" if g is not None else "n/a" if none is None
+             else f"no gap, {'within' if none else 'beyond'} {NO_GAP:.0%} of true")  # fmt: skip
+    return f"{_worst(h['residual_rms_deg']):.3g}", shown
 
 
 def effort_lines(rows: list[dict[str, Any]]) -> list[str]:

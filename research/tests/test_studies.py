@@ -696,3 +696,26 @@ def test_identification_effort_compares_the_residual_with_pd_on_the_same_gains()
     text = "\n".join(effort_lines([row]))
     assert "| 0 | 2 / 2 / 2 | 10 / 10 / 10 | 1 / 1 / - | 2 / 5 / - |" in text
     assert "on 1 of its 2 runs" in text  # the rate limit is 3x PD's for a residual
+
+
+def test_identification_hidden_true_sets_only_what_the_recording_does_not_show():
+    from research.studies.identification import hidden_true
+
+    identified = {"preset": "real_arm", "observation_delay": 0.001,
+                  "mechanism": {"tendon_elasticity": 2700.0, "motor_tau": 0.0025,
+                                "motor_delay": 0.002}}  # fmt: skip
+    true_kw = {"preset": "real_arm", "observation_delay": 0.002,
+               "mechanism": {"tendon_elasticity": 2823.0, "tendon_damping": 2.07,
+                             "motor_tau": 0.0024, "motor_delay": 0.001}}  # fmt: skip
+    fields = {"tendon_elasticity": {"identified": False, "true": 2823.0},
+              "tendon_damping": {"identified": False, "true": 2.07},
+              "motor_tau": {"identified": True, "true": 0.0024}}  # fmt: skip
+    out = hidden_true(identified, true_kw, fields)
+    assert out["mechanism"] == {"tendon_elasticity": 2823.0, "tendon_damping": 2.07,
+                                "motor_tau": 0.0025, "motor_delay": 0.001}  # fmt: skip
+    assert out["observation_delay"] == 0.002  # the identified 3 ms loop, split as the truth's
+    assert identified["mechanism"]["tendon_elasticity"] == 2700.0  # not changed in place
+    # A loop delay found shorter than the true sensor's delay: the sensor takes all of it.
+    short = hidden_true({**identified, "observation_delay": 0.0,
+                         "mechanism": {"motor_delay": 0.001}}, true_kw, {})  # fmt: skip
+    assert short["observation_delay"] == 0.001 and short["mechanism"]["motor_delay"] == 0.0

@@ -77,6 +77,8 @@ IDENTIFIED_WITHIN = 0.1
 COARSE_PIECES = 10
 GRID = {"density_scale": (0.5, 0.7, 1.0, 1.4, 2.0, 2.8),
         "tendon_friction": (0.2, 0.5, 1.0, 2.0, 5.0)}  # fmt: skip
+
+
 def load_recordings(paths: Sequence[str | os.PathLike], config: EnvConfig) -> list[Recording]:
     """Reads and checks each recording against the arm of ``config`` (identify checks that
     together they are long enough)."""
@@ -262,7 +264,11 @@ def identify(
     prob.first = max(prob.first, max_d + 1)
     check_pieces(recordings, config, len(names), prob.first)
     final = STAGES[1]
-    scan = range(max_d + 1) if fit_delay else range(nominal_steps, nominal_steps + 1)
+    # A delay left out of ``fit`` is known: it keeps its nominal value, and the loop delay is
+    # at least that long (the other takes the rest).
+    kept = {"motor_delay": config.delay_steps, "observation_delay": config.observation_delay_steps}
+    known = sum(kept[n] for n in DELAYS if n not in asked) if fit_delay else nominal_steps
+    scan = range(known, max_d + 1)
     start, before = _coarse_start(prob, nominal_steps)
     delays = _search_delay(prob, scan, start)
     d, told, fits = delays.best, delays.told, delays.fits
@@ -325,7 +331,12 @@ def identify(
     out["observation_noise"] = [noise[0], config.observation_noise[1] if noise[1] is None
                                 else noise[1]]  # fmt: skip
     if fit_delay:  # the best one, even if others are not told apart: the fields fit it
-        obs = round(d // 2 * config.ctrl_dt, 12)  # only the sum shows: split evenly
+        # Only the sum shows: a delay left out of ``fit`` keeps its nominal value, and the
+        # other takes the rest; with both fitted, the loop delay is split evenly.
+        obs_steps = (kept["observation_delay"] if "observation_delay" not in asked
+                     else d - kept["motor_delay"] if "motor_delay" not in asked
+                     else d // 2)  # fmt: skip
+        obs = round(obs_steps * config.ctrl_dt, 12)
         values["motor_delay"] = round(loop - obs, 12)
         out["observation_delay"] = obs
     return Identification(
