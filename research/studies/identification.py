@@ -16,7 +16,9 @@ In closed loop, on the true arm (EPISODES held-out episodes of its reference):
 
 - PD tuned (tendon2r-tune-pd) on the nominal, the identified and the true arm;
 - the realism residual (bundle ``real_arm``), its PD tuned as above and its arm features
-  (what it observes of the arm) those of the nominal, the identified and the true arm.
+  (what it observes of the arm) those of the nominal, the identified and the true arm;
+- both again on the identified arm with what the recording does not show at its true values
+  (hidden_true): how much of the gap left is out of the recording's reach.
 
 The gap closed is (nominal - identified) / (nominal - true) of the worst joint's RMS error,
 where the nominal choice loses more than NO_GAP against the true one.
@@ -234,8 +236,10 @@ def study(n: int, threads: int | None, partial: Path | None = None,
         for b in ("identified", "true"):
             tuned[b] = tune_pd(beliefs[b], 2).gains.to_dict()
         cl = closed_loop(kw, beliefs, tuned)
-        hidden = hidden_true(beliefs["identified"], kw, fields)
-        cl["hidden_true"] = residual_on(kw, hidden, tuned["identified"])
+        # What is left once the recording's blind spots are filled in: a fourth belief.
+        hidden = {"hidden_true": hidden_true(beliefs["identified"], kw, fields)}
+        tuned["hidden_true"] = tune_pd(hidden["hidden_true"], 2).gains.to_dict()
+        cl.update(closed_loop(kw, hidden, tuned))
         row = {
             "arm": i, "seconds": ident.seconds, "fields": fields,
             "identified": beliefs["identified"],
@@ -328,8 +332,8 @@ def lines(result: dict[str, Any]) -> list[str]:
         "",
         "The last two columns: the residual informed by the identified arm with what the "
         "recording does not show at its true values (each flagged field, and how the loop "
-        "delay splits into the motor's and the sensor's), with the identified arm's PD: how "
-        "much of what is left is out of the recording's reach.",
+        "delay splits into the motor's and the sensor's), on PD tuned on that arm: how much "
+        "of what is left is out of the recording's reach.",
         "",
         "| arm | PD nominal | PD identified | PD true | PD gap closed | residual nominal | "
         "residual identified | residual true | residual gap closed | residual, hidden true "
