@@ -23,8 +23,10 @@ finds where to start and the loop delay, and judges each result:
   delay, fitted too, is told apart if it leaves larger residuals on the pieces (a one-sided
   paired t-test over them at 95%); the delay is identified if every neighbour is.  The fields
   are fitted at the best delay either way, and their intervals hold their fits at each delay
-  not told apart.  The identified arm splits the loop delay evenly (``motor_delay`` takes an
-  odd step): the loop that PD tuning and the policies see is the same.
+  not told apart.  A delay left out of ``fit`` is known and keeps its nominal value, the
+  other taking the rest of the loop delay; with both fitted, the identified arm splits it
+  evenly (``motor_delay`` takes an odd step).  PD tuning sees only the loop; the realism
+  residuals observe each delay.
 """
 
 from __future__ import annotations
@@ -330,9 +332,8 @@ def identify(
     out: dict[str, Any] = {"mechanism": values}
     out["observation_noise"] = [noise[0], config.observation_noise[1] if noise[1] is None
                                 else noise[1]]  # fmt: skip
-    if fit_delay:  # the best one, even if others are not told apart: the fields fit it
-        # Only the sum shows: a delay left out of ``fit`` keeps its nominal value, and the
-        # other takes the rest; with both fitted, the loop delay is split evenly.
+    if fit_delay:  # the best one, even if others are not told apart: the fields fit it;
+        # only the sum shows, split as the module docstring says
         obs_steps = (kept["observation_delay"] if "observation_delay" not in asked
                      else d - kept["motor_delay"] if "motor_delay" not in asked
                      else d // 2)  # fmt: skip
