@@ -358,9 +358,8 @@ def lines(result: dict[str, Any]) -> list[str]:
         hid, gh = _hidden(cl)
         out.append(f"| {r['arm']} | " + " | ".join(f"{v:.3g}" for v in pd) + f" | {gp} | "
                    + " | ".join(f"{v:.3g}" for v in res) + f" | {gr} | {hid} | {gh} |")  # fmt: skip
-    hidden = [cl for r in rows if "hidden_true" in (cl := r["closed_loop"])]
-    if hidden:
-        views = [{**cl, "identified": cl["hidden_true"]} for cl in hidden]
+    views = [v for r in rows if (v := _hidden_view(r["closed_loop"])) is not None]
+    if views:
         fine = sum(closes(v, "residual_rms_deg") or bool(no_gap(v, "residual_rms_deg"))
                    for v in views)  # fmt: skip
         out.append(f"\nThe residual, hidden true: the gap closed (or, without a gap, within "
@@ -381,14 +380,19 @@ def lines(result: dict[str, Any]) -> list[str]:
     return out + effort_lines(rows)
 
 
+def _hidden_view(cl: dict[str, Any]) -> dict[str, Any] | None:
+    """Returns the closed loop with the hidden-true belief as the identified one (None if the
+    row has none): the gap it closes."""
+    return {**cl, "identified": cl["hidden_true"]} if "hidden_true" in cl else None
+
+
 def _hidden(cl: dict[str, Any]) -> tuple[str, str]:
     """The table's residual, hidden true cells: its error and its gap closed."""
-    if "hidden_true" not in cl:
+    if (view := _hidden_view(cl)) is None:
         return "-", "-"
-    h = cl["hidden_true"]
+    h = view["identified"]
     if "residual_rms_deg" not in h:
         return f"refused ({h['residual_missing']})", "n/a"
-    view = {**cl, "identified": h}
     g, none = gap_closed(view, "residual_rms_deg"), no_gap(view, "residual_rms_deg")
     shown = (f"{g:.0%}" if g is not None else "n/a" if none is None
              else f"no gap, {'within' if none else 'beyond'} {NO_GAP:.0%} of true")  # fmt: skip
