@@ -259,7 +259,8 @@ def identify(
         integer("threads", threads, 1, 1024)
     prob = Problem(recordings, config, names, box, threads or os.cpu_count() or 1)
     x0 = prob.x0
-    nominal_steps = config.delay_steps + config.observation_delay_steps
+    kept = {"motor_delay": config.delay_steps, "observation_delay": config.observation_delay_steps}
+    nominal_steps = sum(kept.values())
 
     max_d = max(round(MAX_DELAY_S / config.ctrl_dt), 2 * nominal_steps)
     max_d = max_d if fit_delay else nominal_steps
@@ -267,10 +268,8 @@ def identify(
     check_pieces(recordings, config, len(names), prob.first)
     final = STAGES[1]
     # A delay left out of ``fit`` is known: it keeps its nominal value, and the loop delay is
-    # at least that long (the other takes the rest).
-    kept = {"motor_delay": config.delay_steps, "observation_delay": config.observation_delay_steps}
-    known = sum(kept[n] for n in DELAYS if n not in asked) if fit_delay else nominal_steps
-    scan = range(known, max_d + 1)
+    # at least that long (the other takes the rest; with neither fitted, only the nominal).
+    scan = range(sum(kept[n] for n in DELAYS if n not in asked), max_d + 1)
     start, before = _coarse_start(prob, nominal_steps)
     delays = _search_delay(prob, scan, start)
     d, told, fits = delays.best, delays.told, delays.fits
