@@ -1,6 +1,6 @@
 """Nothing lost, nothing crashes: bundling never deletes or writes outside its bundle, replaces
 one only when asked and only once the new one is complete; every corrupt model-side file (model
-zip, VecNormalize pkl, bundle.json) is one ValueError that names it."""
+zip, VecNormalize statistics, bundle.json) is one ValueError that names it."""
 
 import json
 import os
@@ -18,7 +18,13 @@ import tendon2r_gym  # noqa: F401  (registers Tendon2R-v0)
 from tendon2r_gym.app import cli, tools
 from tendon2r_gym.policies import bundle
 from tendon2r_gym.policies.bundle import bundle_meta, bundle_names, bundle_runs, bundled_model
-from tendon2r_gym.policies.files import load_model, load_vecnormalize
+from tendon2r_gym.policies.files import (
+    PickleRefused,
+    load_model,
+    load_policy,
+    load_ppo,
+    load_vecnormalize,
+)
 from tendon2r_gym.policies.learned import PPOPolicy
 from tendon2r_gym.presets import MODELS_DIR
 
@@ -208,15 +214,28 @@ def swapped(path: Path) -> None:
     shutil.copy(MODELS_DIR / OTHER / "seed_0" / path.name, path)
 
 
+def without_array(path: Path) -> None:
+    import numpy as np
+
+    with np.load(path) as npz:
+        arrays = {k: npz[k] for k in npz.files if k != "obs_var"}
+    with open(path, "wb") as f:
+        np.savez(f, **arrays)
+
+
 CORRUPT = {
     "zip cut at 50%": ("best_model.zip", truncate(0.5), "is truncated"),
     "zip cut at 99.9%": ("best_model.zip", truncate(0.999), "is truncated"),
     "zip without a model": ("best_model.zip", no_model, "is not an SB3 model zip"),
     "zip of another bundle": ("best_model.zip", swapped,
                               r"does not match .*observation shape \(26,\) in the file, \(24,\)"),
-    "pkl cut at 50%": ("best_model_vecnormalize.pkl", truncate(0.5), "is truncated"),
-    "empty pkl": ("best_model_vecnormalize.pkl", truncate(0), "is truncated"),
-    "pkl of another bundle": ("best_model_vecnormalize.pkl", swapped,
+    "npz cut at 50%": ("best_model_vecnormalize.npz", truncate(0.5), "is truncated"),
+    "empty npz": ("best_model_vecnormalize.npz", truncate(0), "is truncated"),
+    "npz not a zip": ("best_model_vecnormalize.npz", lambda p: p.write_text("stats"),
+                      "is not a statistics npz"),
+    "npz without an array": ("best_model_vecnormalize.npz", without_array,
+                             "is not a statistics npz of this version .no array 'obs_var'"),
+    "npz of another bundle": ("best_model_vecnormalize.npz", swapped,
                               r"does not match .*observation shape \(26,\) in the file, \(24,\)"),
 }  # fmt: skip
 
@@ -242,15 +261,20 @@ def test_the_loaders_name_the_file(small):
 
     folder = small / SMALL / "seed_0"
     other = DummyVecEnv([lambda: gym.make("Tendon2R-v0", preset="default", preview_steps=2)])
+    with pytest.raises(ValueError, match=r"best_model.zip does not match .*observation shape"):
+        load_ppo(folder / "best_model.zip", other, {})
+    with pytest.raises(PickleRefused, match=r"best_model.zip is read by SB3.*--trust-pickle"):
+        load_model(folder / "best_model.zip", device="cpu")  # SB3's load unpickles
     with pytest.raises(ValueError, match=r"best_model.zip does not load \(ValueError: Observ"):
-        load_model(folder / "best_model.zip", env=other, device="cpu")
+        load_model(folder / "best_model.zip", env=other, device="cpu", trust_pickle=True)
     truncate(0.5)(folder / "best_model.zip")
-    with pytest.raises(ValueError, match="best_model.zip is truncated"):
-        load_model(folder / "best_model.zip", device="cpu")
-    swapped(folder / "best_model_vecnormalize.pkl")
+    for load in (load_policy, lambda p: load_model(p, trust_pickle=True, device="cpu")):
+        with pytest.raises(ValueError, match="best_model.zip is truncated"):
+            load(folder / "best_model.zip")
+    swapped(folder / "best_model_vecnormalize.npz")
     venv = DummyVecEnv([lambda: gym.make("Tendon2R-v0", preset="default")])
-    with pytest.raises(ValueError, match=r"vecnormalize.pkl does not match .*\(26,\).*\(24,\)"):
-        load_vecnormalize(folder / "best_model_vecnormalize.pkl", venv)
+    with pytest.raises(ValueError, match=r"vecnormalize.npz does not match .*\(26,\).*\(24,\)"):
+        load_vecnormalize(folder / "best_model_vecnormalize.npz", venv)
 
 
 BUNDLE_JSON = {

@@ -22,6 +22,7 @@ from typing import Annotated, Any, Literal
 from tendon2r_gym.app.args import arg, parse, run
 from tendon2r_gym.evaluation.evaluator import names as policy_names
 from tendon2r_gym.evaluation.tuning import SCANS
+from tendon2r_gym.policies.files import TRUST_HELP, trusting_pickle
 from tendon2r_gym.training.hyperparams import VEC_ENVS
 
 if typing.TYPE_CHECKING:
@@ -71,6 +72,7 @@ class TrainArgs:
         str | None, arg("start from a bundle's (or model zip's) weights: fine-tune")
     ] = None
     progress_bar: Annotated[bool, arg("also on whenever stderr is a terminal")] = False
+    trust_pickle: Annotated[bool, arg(TRUST_HELP)] = False
 
 
 def experiment(args: TrainArgs, command: str = "") -> Experiment:
@@ -104,11 +106,13 @@ def train_main(argv: list[str] | None = None) -> dict[str, Any]:
                           flag="--replace-bundle")  # fmt: skip
     command = command_line(argv, "tendon2r-train")
     exp = experiment(args, command)
-    agg = exp.train(resume=args.resume)
+    with trusting_pickle(args.trust_pickle):  # --init-from, --resume of an earlier version's run
+        agg = exp.train(resume=args.resume)
     print(json.dumps({k: v for k, v in agg.items() if k != "runs"}), flush=True)
     if args.bundle is not None:
         runs = [exp.run_folder(s).path for s in exp.seeds]
-        dest = bundle_runs(runs, args.bundle, command, replace=args.replace_bundle)
+        dest = bundle_runs(runs, args.bundle, command, replace=args.replace_bundle,
+                           trust_pickle=args.trust_pickle)  # fmt: skip
         print("bundled into", dest, flush=True)
     return agg
 
@@ -135,6 +139,7 @@ class EvaluateArgs:
     json: Annotated[str | None, arg("write all metrics here")] = None
     plots: Annotated[str | None, arg("folder for the PNGs of the first episode")] = None
     video: Annotated[str | None, arg("mp4 or gif of the first episode")] = None
+    trust_pickle: Annotated[bool, arg(TRUST_HELP)] = False
 
 
 def evaluate_main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -156,7 +161,8 @@ def evaluate_main(argv: list[str] | None = None) -> dict[str, Any]:
 
         env_kwargs = in_model_settings(model, env_kwargs)
     seeds = list(range(args.seed, args.seed + args.episodes))
-    metrics, traces = evaluate(args.policy, env_kwargs, seeds, model)
+    with trusting_pickle(args.trust_pickle):  # --model of an earlier version
+        metrics, traces = evaluate(args.policy, env_kwargs, seeds, model)
     metrics["env_kwargs"], metrics["model"] = env_kwargs, None if model is None else str(model)
     keys = ("policy", "rms_deg", "max_deg", "rms_tension_N", "saturated_fraction", "steps")
     print(json.dumps({k: metrics[k] for k in keys}))
@@ -173,7 +179,8 @@ def evaluate_main(argv: list[str] | None = None) -> dict[str, Any]:
         from tendon2r_gym.envs.registration import make as make_env_as_given
 
         env = make_env_as_given(render_mode="rgb_array", width=480, height=360, **env_kwargs)
-        trace = rollout(make_policy(args.policy, env, model), env, seeds[0], render=True)
+        with trusting_pickle(args.trust_pickle):
+            trace = rollout(make_policy(args.policy, env, model), env, seeds[0], render=True)
         every = max(1, round(1 / 30 / env.unwrapped.ctrl_dt))  # ~30 fps of real time
         print("wrote", save_video(trace.frames[::every], args.video, fps=30))
         env.close()

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Annotated
 
 from tendon2r_gym.app.args import arg, parse, run
+from tendon2r_gym.policies.files import TRUST_HELP
 
 if typing.TYPE_CHECKING:
     from tendon2r_gym.envs.env_config import EnvConfig
@@ -157,6 +158,10 @@ class BundleArgs:
     --name is required: a plain name (letters, digits, '_', '.', '-'), one folder under the
     models root.  A bundle of that name is replaced only with --replace, and only once the new
     one is complete (written beside it, then renamed into place): a failure leaves it intact.
+
+    A bundle holds no pickle.  A run of an earlier version, whose VecNormalize statistics are
+    a pickle, is bundled only with --trust-pickle (its statistics converted to plain arrays):
+    unpickling a file can run code, so only for runs you trained yourself.
     """
 
     name: Annotated[str | None, arg("bundle name, e.g. default (required)")] = None
@@ -165,6 +170,7 @@ class BundleArgs:
     )
     replace: Annotated[bool, arg("replace the bundle of that name")] = False
     root: Annotated[str | None, arg("models folder (default: the package's bundled models)")] = None
+    trust_pickle: Annotated[bool, arg(TRUST_HELP)] = False
 
 
 def bundle_main(argv: list[str] | None = None) -> Path:
@@ -179,7 +185,8 @@ def bundle_main(argv: list[str] | None = None) -> Path:
     if not args.runs:
         raise invalid("--runs", args.runs, "one or more run folders")
     command = command_line(argv, "tendon2r-bundle")
-    dest = bundle_runs([Path(r) for r in args.runs], args.name, command, root, args.replace)
+    runs = [Path(r) for r in args.runs]
+    dest = bundle_runs(runs, args.name, command, root, args.replace, args.trust_pickle)
     print("bundled", len(args.runs), "run(s) into", dest)
     return dest
 

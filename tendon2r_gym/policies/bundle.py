@@ -3,11 +3,14 @@
 Layout (the small files of each run, tendon2r_gym.policies.runs.BUNDLE_FILES)::
 
     <name>/bundle.json        seeds, primary seed, the training and bundling commands
-    <name>/seed_<n>/          best_model.zip, best_model_vecnormalize.pkl, run.json, ...
+    <name>/seed_<n>/          best_model.zip, best_model_vecnormalize.npz, run.json, ...
 
 The primary seed (the first one trained, chosen before training, not the best one) is the model
 that ``tendon2r-evaluate --policy ppo`` uses; the others give the spread over training seeds.
-Each run.json records the env config the model was trained with.
+Each run.json records the env config the model was trained with.  A bundle holds no pickle:
+its statistics are plain arrays (npz), and its model zip is read without unpickling
+(tendon2r_gym.policies.files); bundling a run of an earlier version, whose statistics are a
+pickle, converts them, and only with the trust option.
 
 A bundle's name is one plain folder name under the models root (:func:`check_name`), and
 bundling writes nothing else: the new bundle is written into a temporary folder beside it
@@ -24,8 +27,16 @@ import uuid
 from pathlib import Path
 from typing import Any
 
-from tendon2r_gym.policies.files import corrupt, model_data, read_json, vecnormalize
-from tendon2r_gym.policies.runs import BEST, BUNDLE_FILES, SUMMARY, RunFolder, seed_dir
+from tendon2r_gym.policies.files import corrupt, load_policy, read_json, read_stats
+from tendon2r_gym.policies.runs import (
+    BEST,
+    BUNDLE_FILES,
+    STATS,
+    SUMMARY,
+    RunFolder,
+    model_files,
+    seed_dir,
+)
 from tendon2r_gym.presets import MODELS_DIR
 from tendon2r_gym.validation import invalid
 
@@ -77,21 +88,27 @@ def bundle_runs(
     command: str,
     root: Path = MODELS_DIR,
     replace: bool = False,
+    trust_pickle: bool | None = None,
 ) -> Path:
     """Copies the small files of each training run into root/<name>/seed_<n>/ and writes
     bundle.json (an existing bundle of that name only with ``replace``, and only once the new
-    one is complete: module docstring).  Returns the bundle folder."""
+    one is complete: module docstring).  A run of an earlier version (its statistics a pickle)
+    is bundled only with ``trust_pickle`` (or inside files.trusting_pickle), its statistics
+    written as the npz.  Returns the bundle folder."""
     dest = check_destination(name, replace, root)
     runs = [RunFolder(r) for r in run_dirs]
     if not runs:
         raise invalid("runs", run_dirs, "one or more run folders")
-    summaries = []
+    summaries, stats = [], []
     for run in runs:
-        missing = [f for f in BUNDLE_FILES if not run.file(f).is_file()]
+        stats.append(model_files(run.best)[1])  # the npz, or an earlier version's pkl
+        needed = [f for f in BUNDLE_FILES if f != f"{BEST}{STATS}"]
+        missing = [f for f in needed if not run.file(f).is_file()]
+        missing += [] if stats[-1].is_file() else [f"{BEST}{STATS}"]
         if missing:
             raise FileNotFoundError(f"run folder {run.path} lacks {missing}; was it finished?")
-        model_data(run.file(f"{BEST}.zip"))  # a corrupt model is not bundled
-        vecnormalize(run.file(f"{BEST}_vecnormalize.pkl"))
+        load_policy(run.file(f"{BEST}.zip"))  # a corrupt model is not bundled
+        read_stats(stats[-1], trust_pickle)  # nor a pickle unless trusted
         summaries.append(run.read_json(SUMMARY))
     seeds = [s["seed"] for s in summaries]
     if len(set(seeds)) != len(seeds):
@@ -107,11 +124,14 @@ def bundle_runs(
     new = _beside(dest, "new")
     new.mkdir()
     try:
-        for run, seed in zip(runs, seeds, strict=True):
+        for run, seed, saved in zip(runs, seeds, stats, strict=True):
             folder = seed_dir(new, seed)
             folder.mkdir()
             for f in BUNDLE_FILES:
-                shutil.copy2(run.file(f), folder / f)
+                if f == f"{BEST}{STATS}" and saved.suffix != ".npz":  # an earlier version's
+                    read_stats(saved, trust_pickle).save(folder / f)
+                else:
+                    shutil.copy2(run.file(f), folder / f)
         (new / BUNDLE_META).write_text(json.dumps(meta, indent=1) + "\n")
         _swap_in(new, dest)
     finally:

@@ -3,9 +3,11 @@
 A trained model only meets the env it was trained for: :meth:`PPOPolicy.load` compares the env
 config recorded in the run (``run.json``) with the env's (tendon2r_gym.policies.model_env) and
 refuses another mechanism, reference set or observation layout, and its model zip and
-VecNormalize pkl when unreadable or made for another observation or action size
-(tendon2r_gym.policies.files).  A residual model adds its action to PD's command
-(tendon2r_gym.policies.residual).
+VecNormalize statistics when unreadable or made for another observation or action size
+(tendon2r_gym.policies.files).  Neither file is unpickled: the policy is built from the zip's
+plain JSON and weights, the statistics read from plain arrays; an earlier version's pickled
+statistics load only with the trust option (files.TRUST_HELP).  A residual model adds its
+action to PD's command (tendon2r_gym.policies.residual).
 """
 
 from __future__ import annotations
@@ -22,10 +24,10 @@ from tendon2r_gym.policies.baselines import PDPolicy
 from tendon2r_gym.policies.files import (
     check_model_spaces,
     check_stats_shape,
-    load_model,
+    load_policy,
     load_vecnormalize,
     model_data,
-    vecnormalize,
+    read_stats,
 )
 from tendon2r_gym.policies.model_env import arm_features, check_model_env, deployed_gains
 from tendon2r_gym.policies.residual import Residual, ResidualFilter, residual_command
@@ -34,12 +36,13 @@ from tendon2r_gym.task.gains import Gains, gains_of
 
 
 def trained_model(
-    model_path: str | Path, env: gym.Env, field: str = "model"
+    model_path: str | Path, env: gym.Env, field: str = "model", trust_pickle: bool | None = None
 ) -> tuple[Path, Path, dict[str, Any]]:
-    """Returns (``<name>.zip``, ``<name>_vecnormalize.pkl``, the run's run.json) of a model
-    that tendon2r-train wrote, after checking that it was trained for ``env``
-    (:func:`check_model_env`; a ValueError naming ``field`` otherwise) and that both files are
-    readable and made for it (:func:`check_model_files`; a ValueError naming the file)."""
+    """Returns (``<name>.zip``, its statistics ``<name>_vecnormalize.npz``, or an earlier
+    version's ``.pkl``, the run's run.json) of a model that tendon2r-train wrote, after checking
+    that it was trained for ``env`` (:func:`check_model_env`; a ValueError naming ``field``
+    otherwise) and that both files are readable without pickle (or with ``trust_pickle``) and
+    made for it (:func:`check_model_files`; a ValueError naming the file)."""
     zip_path, stats = model_files(stem_of(model_path))
     if zip_path.is_dir() or not zip_path.is_file():
         raise ValueError(
@@ -54,22 +57,29 @@ def trained_model(
             )
     meta = training_record(zip_path)
     check_model_env(meta["env_config"], env, f"{field} {zip_path}")
-    check_model_files(zip_path, stats, meta, env)
+    check_model_files(zip_path, stats, meta, env, trust_pickle)
     return zip_path, stats, meta
 
 
-def check_model_files(zip_path: Path, stats: Path, meta: dict[str, Any], env: gym.Env) -> None:
-    """Raises a ValueError naming the file if the model zip or its VecNormalize pkl is
-    unreadable, or made for another observation or action size than ``env`` (whose config
-    matches the run's ``meta``, :func:`check_model_env`) gives it: the model sees the env's
-    observation (with its :func:`arm_features` appended), ``frame_stack`` times."""
+def check_model_files(
+    zip_path: Path,
+    stats: Path,
+    meta: dict[str, Any],
+    env: gym.Env,
+    trust_pickle: bool | None = None,
+) -> None:
+    """Raises a ValueError naming the file if the model zip or its VecNormalize statistics
+    are unreadable (a pickle without ``trust_pickle``: files.read_stats), or made for another
+    observation or action size than ``env`` (whose config matches the run's ``meta``,
+    :func:`check_model_env`) gives it: the model sees the env's observation (with its
+    :func:`arm_features` appended), ``frame_stack`` times."""
     arm = arm_features(meta["env_config"], env)
     seen = env.observation_space.shape[0] + (0 if arm is None else arm.size)
     stack = int(meta.get("frame_stack", 1))
     where = f"the env it is loaded on (that of its {RUN_META})"
     data = model_data(zip_path)
     check_model_spaces(zip_path, data, (stack * seen,), env.action_space.shape, where)
-    check_stats_shape(stats, vecnormalize(stats), (seen,), where)
+    check_stats_shape(stats, read_stats(stats, trust_pickle), (seen,), where)
 
 
 class PPOPolicy:
@@ -110,18 +120,23 @@ class PPOPolicy:
             self.filter = ResidualFilter(residual.filter_tau, env.unwrapped.config.ctrl_dt)
 
     @classmethod
-    def load(cls, model_path: str | Path, env: gym.Env) -> PPOPolicy:
-        """Loads ``<name>.zip`` with ``<name>_vecnormalize.pkl`` and the run's run.json; raises
-        if the env is not the one the model was trained on, or a file is corrupt or made for
-        another observation size (:func:`trained_model`)."""
+    def load(
+        cls, model_path: str | Path, env: gym.Env, trust_pickle: bool | None = None
+    ) -> PPOPolicy:
+        """Loads ``<name>.zip`` with its statistics (``<name>_vecnormalize.npz``) and the
+        run's run.json, without unpickling (an earlier version's ``.pkl`` statistics only with
+        ``trust_pickle``, or inside files.trusting_pickle); raises if the env is not the one
+        the model was trained on, or a file is corrupt or made for another observation size
+        (:func:`trained_model`)."""
         load_triton()  # torch's triton after a GL context's LLVM segfaults: tendon2r_gym.llvm
         from stable_baselines3.common.vec_env import DummyVecEnv
 
-        zip_path, stats, meta = trained_model(model_path, env)
-        model = load_model(zip_path, device="cpu")
+        zip_path, stats, meta = trained_model(model_path, env, trust_pickle=trust_pickle)
+        model = load_policy(zip_path)
         arm = arm_features(meta["env_config"], env)
         seen = env if arm is None else _with_arm(env, arm)
-        vecnorm = load_vecnormalize(stats, DummyVecEnv([lambda: seen]))
+        venv = DummyVecEnv([lambda: seen])
+        vecnorm = load_vecnormalize(stats, venv, trust_pickle=trust_pickle)
         vecnorm.training, vecnorm.norm_reward = False, False
         gains = deployed_gains(meta["env_config"], env)
         history = int(meta.get("frame_stack", 1)), int(meta.get("frame_stride", 1))

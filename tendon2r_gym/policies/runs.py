@@ -7,18 +7,20 @@ A training run writes, in ``runs/<name>/seed_<n>/``::
     command.txt                  the original command, then one line per resume
     best_model.zip               best evaluation on the eval seeds: the lowest tracking RMS
                                  among those <= PD within the smoothness limits, else overall
-    best_model_vecnormalize.pkl  its VecNormalize statistics
+    best_model_vecnormalize.npz  its VecNormalize statistics, as plain arrays (and SB3's
+                                 pickle of them, .pkl, which is read only when trusted)
     best_metrics.json            its tracking metrics
     evaluations.json             every evaluation: steps, wall time, RMS, smoothness x PD
     pd_eval.json                 PD's tracking metrics on the eval seeds (and on_reference:
                                  on them started on the reference, where smoothness is judged)
-    last_model.zip (+ pkl)       the state at the end, or at Ctrl-C
+    last_model.zip (+ npz, pkl)  the state at the end, or at Ctrl-C
     checkpoints/                 periodic checkpoints (by steps and by time)
     summary.json                 steps and wall time summed over all segments (also written at
                                  each checkpoint, as if the run were interrupted there)
     tb/                          TensorBoard logs
 
-A bundle (tendon2r_gym.policies.bundle) copies the small files of a run: :data:`BUNDLE_FILES`.  Each
+A bundle (tendon2r_gym.policies.bundle) copies the small files of a run: :data:`BUNDLE_FILES`
+(no pickle: a bundle's statistics are the npz).  Each
 record is checked when it is read (:func:`read_record`): a corrupt one is a ValueError naming
 the file, what is wrong with it and how to recover.  A training option this version no longer
 has (:data:`REMOVED`) is dropped from a record that holds it off, and refused in one that
@@ -50,12 +52,16 @@ LAST = "last_model"
 CHECKPOINTS = "checkpoints"
 CHECKPOINT_PREFIX = "rl_model"
 TENSORBOARD = "tb"
+#: A model's statistics beside ``<name>.zip``: plain arrays (tendon2r_gym.policies.files), and
+#: the pickle that earlier versions wrote (and SB3's own VecNormalize.save writes).
+STATS = "_vecnormalize.npz"
+LEGACY_STATS = "_vecnormalize.pkl"
 #: Beside the seed folders of a multi-seed command.
 SEEDS_SUMMARY = "seeds_summary.json"
 #: The small files a bundle keeps (no checkpoints, no TensorBoard logs).
 BUNDLE_FILES = (
     f"{BEST}.zip",
-    f"{BEST}_vecnormalize.pkl",
+    f"{BEST}{STATS}",
     RUN_META,
     BEST_METRICS,
     EVALUATIONS,
@@ -88,7 +94,7 @@ RECOVERY = {
     EVALUATIONS: "restore it from a copy (a bundle keeps one), or delete it: the evaluations "
     "start anew (best_metrics.json keeps the best model's RMS)",
     BEST_METRICS: "restore it from a copy (a bundle keeps one), or delete it with best_model.zip "
-    "and best_model_vecnormalize.pkl: the next evaluation saves a new best model",
+    "and its best_model_vecnormalize files: the next evaluation saves a new best model",
     PD_EVAL: "delete it: the next training measures PD again",
     SEEDS_SUMMARY: "delete it: the next train command writes it again",
 }
@@ -199,8 +205,17 @@ def seed_dirs(base: str | Path) -> list[Path]:
 
 
 def model_files(stem: Path) -> tuple[Path, Path]:
-    """Returns (model zip, VecNormalize pkl) of a saved model ``stem`` (a path without .zip)."""
-    return stem.with_name(stem.name + ".zip"), stem.with_name(stem.name + "_vecnormalize.pkl")
+    """Returns (model zip, statistics) of a saved model ``stem`` (a path without .zip): the
+    statistics' npz, or an earlier version's pkl where only that one is there."""
+    npz, pkl = stats_files(stem)
+    stats = pkl if pkl.is_file() and not npz.is_file() else npz
+    return stem.with_name(stem.name + ".zip"), stats
+
+
+def stats_files(stem: Path) -> tuple[Path, Path]:
+    """Returns (npz, pkl): the names of a saved model's statistics (:data:`STATS`,
+    :data:`LEGACY_STATS`)."""
+    return stem.with_name(stem.name + STATS), stem.with_name(stem.name + LEGACY_STATS)
 
 
 def stem_of(model_path: str | Path) -> Path:
@@ -324,7 +339,8 @@ class RunFolder:
         self.write_json(EVALUATIONS, [*rows, row])
 
     def checkpoint_candidates(self) -> list[tuple[Path, Path]]:
-        """Returns every saved (zip, pkl) pair of the run, the most trained first (by the steps
+        """Returns every saved (zip, statistics) pair of the run (the statistics' npz, or an
+        earlier version's pkl: :func:`model_files`), the most trained first (by the steps
         each one recorded, last_model first among equals, not by file times, which a copy of
         the run folder may reset): last_model (written on Ctrl-C and at the end) and the
         checkpoints."""
@@ -334,11 +350,19 @@ class RunFolder:
             steps = zip_path.stem.removeprefix(f"{CHECKPOINT_PREFIX}_").removesuffix("_steps")
             if not steps.isdigit():
                 continue
-            stats = zip_path.with_name(f"{CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.pkl")
+            stats = checkpoint_stats(zip_path.parent, steps)
             pairs.append((zip_path, stats, int(steps)))
         pairs = [p for p in pairs if p[0].is_file() and p[1].is_file()]
         ordered = sorted(enumerate(pairs), key=lambda ip: (-ip[1][2], ip[0]))
         return [(zip_path, stats) for _, (zip_path, stats, _) in ordered]
+
+
+def checkpoint_stats(folder: Path, steps: int | str) -> Path:
+    """Returns the statistics of the checkpoint at ``steps`` (SB3's CheckpointCallback names):
+    its npz, or an earlier version's pkl where only that one is there."""
+    stem = folder / f"{CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps"
+    npz, pkl = stem.with_name(stem.name + ".npz"), stem.with_name(stem.name + ".pkl")
+    return pkl if pkl.is_file() and not npz.is_file() else npz
 
 
 def saved_steps(zip_path: Path) -> int:

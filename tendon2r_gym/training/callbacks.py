@@ -25,6 +25,7 @@ from tendon2r_gym.evaluation.metrics import (
 )
 from tendon2r_gym.evaluation.rollout import rollouts
 from tendon2r_gym.policies.baselines import PDPolicy
+from tendon2r_gym.policies.files import NormStats
 from tendon2r_gym.policies.learned import PPOPolicy
 from tendon2r_gym.policies.residual import Residual
 from tendon2r_gym.policies.runs import (
@@ -32,7 +33,7 @@ from tendon2r_gym.policies.runs import (
     CHECKPOINT_PREFIX,
     PD_EVAL,
     RunFolder,
-    model_files,
+    stats_files,
 )
 
 #: pd_eval.json's key of PD's metrics on the eval seeds started on the reference.
@@ -74,7 +75,7 @@ class TimedCheckpointCallback(CheckpointCallback):
         if due or self.n_calls % self.save_freq == 0:
             self._last_save = time.monotonic()
             zip_path = Path(self._checkpoint_path(extension="zip"))
-            save_pair(self.model, zip_path, Path(self._checkpoint_path("vecnormalize_", "pkl")))
+            save_pair(self.model, zip_path, Path(self._checkpoint_path("vecnormalize_", "npz")))
             if self.on_save is not None:
                 self.on_save()
         return True
@@ -242,15 +243,22 @@ def save_pair(model: Any, zip_path: Path, stats_path: Path) -> None:
     """Saves the model and its VecNormalize statistics so that a kill at any moment leaves no
     torn file: each is written under a hidden temporary name and renamed into place, the
     statistics first, so a model zip never appears before its statistics.  Where a save
-    replaces an earlier pair (last_model, best_model), a kill between the two renames leaves
-    the new statistics beside the previous zip."""
+    replaces an earlier pair (last_model, best_model), a kill between the renames leaves the
+    new statistics beside the previous zip.
+
+    The statistics are the plain arrays of ``stats_path`` (an npz: files.NormStats, what
+    this package reads), and beside it SB3's own pickle of them (``.pkl``, for SB3's
+    VecNormalize.load; read here only with the trust option)."""
     zip_path.parent.mkdir(parents=True, exist_ok=True)
     venv = model.get_vec_normalize_env()
     if venv is not None:
-        part = stats_path.with_name(f".{stats_path.name}.part")
-        with _removed_on_error(part):
-            venv.save(str(part))
-            os.replace(part, stats_path)
+        stats = NormStats.of(venv)
+        pkl = stats_path.with_suffix(".pkl")
+        for path, write in ((stats_path, stats.save), (pkl, lambda p: venv.save(str(p)))):
+            part = path.with_name(f".{path.name}.part")
+            with _removed_on_error(part):
+                write(part)
+                os.replace(part, path)
     part = zip_path.with_name(f".{zip_path.stem}.part.zip")
     with _removed_on_error(part):
         model.save(part)
@@ -288,5 +296,6 @@ def quiet_writer_threads() -> Iterator[None]:
 
 
 def save_model(model: Any, stem: Path) -> None:
-    """Saves ``stem.zip`` and ``stem_vecnormalize.pkl`` (see :func:`save_pair`)."""
-    save_pair(model, *model_files(stem))
+    """Saves ``stem.zip`` and its statistics ``stem_vecnormalize.npz`` (see
+    :func:`save_pair`)."""
+    save_pair(model, stem.with_name(stem.name + ".zip"), stats_files(stem)[0])

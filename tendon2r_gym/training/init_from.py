@@ -1,6 +1,7 @@
 """Starting a run from a trained model (init_from): the source model checked against the
 run's env and residual, the env kwargs and residual the run inherits from it, and PPO
-loaded from its weights and observation statistics."""
+loaded from its weights and observation statistics, without unpickling either (an earlier
+version's pickled statistics only with the trust option: tendon2r_gym.policies.files)."""
 
 from __future__ import annotations
 
@@ -22,8 +23,8 @@ from tendon2r_gym.validation import invalid
 
 
 def initial_model(hp: Hyperparams) -> tuple[Path, Path]:
-    """Returns (model zip, VecNormalize pkl) of ``hp.init_from`` (a bundle's primary seed, or
-    a model file) after checking that it covers the run's env and residual scale."""
+    """Returns (model zip, statistics) of ``hp.init_from`` (a bundle's primary seed, or a
+    model file) after checking that it covers the run's env and residual scale."""
 
     from tendon2r_gym.policies.bundle import model_path
     from tendon2r_gym.policies.learned import trained_model
@@ -75,18 +76,16 @@ def load_initial(
     hp: Hyperparams, source: tuple[Path, Path], venv: Any, seed: int, run: RunFolder
 ) -> tuple[Any, Any]:
     """Returns (PPO, VecNormalize) started from the weights and observation statistics of
-    ``source`` (:func:`initial_model`), training on ``venv`` with the run's PPO settings."""
-    from stable_baselines3 import PPO
-    from stable_baselines3.common.vec_env import VecNormalize
+    ``source`` (:func:`initial_model`), training on ``venv`` with the run's PPO settings and
+    the source's policy (its class and policy_kwargs: files.load_ppo)."""
+    from tendon2r_gym.policies.files import load_ppo, load_vecnormalize
 
     zip_path, stats = source
-    vecnorm = VecNormalize.load(str(stats), venv)
+    vecnorm = load_vecnormalize(stats, venv)
     vecnorm.training = True
     vecnorm.norm_reward = bool(hp.normalize.get("norm_reward", True))
-    model = PPO.load(
-        zip_path, env=stacked(vecnorm, hp.frame_stack, hp.frame_stride), device="cpu",
-        custom_objects=hp.ppo_kwargs(), seed=seed, tensorboard_log=str(run.tensorboard),
-    )  # fmt: skip
+    env = stacked(vecnorm, hp.frame_stack, hp.frame_stride)
+    model = load_ppo(zip_path, env, hp.ppo_kwargs(), seed, str(run.tensorboard))
     model.num_timesteps = 0  # a fine-tune counts its own steps (the zip holds the source's)
     if hp.init_log_std is not None:
         reset_log_std(model.policy.log_std, hp.init_log_std)

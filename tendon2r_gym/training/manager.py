@@ -221,19 +221,21 @@ def make_vec_env(hp: Hyperparams, seed: int) -> Any:
 
 
 def _load_newest(run: RunFolder, venv: Any, hp: Hyperparams) -> tuple[Any, Any]:
-    """Returns (PPO, VecNormalize) from the newest readable saved state of the run; a corrupt
-    one is skipped with a warning."""
-    from stable_baselines3 import PPO
-    from stable_baselines3.common.vec_env import VecNormalize
+    """Returns (PPO, VecNormalize) from the newest readable saved state of the run, read
+    without unpickling (files.load_ppo; an earlier version's pickled statistics only with
+    the trust option, else the error names it); a corrupt one is skipped with a warning."""
+    from tendon2r_gym.policies.files import PickleRefused, load_ppo, load_vecnormalize
 
     candidates = run.checkpoint_candidates()
     if not candidates:
         raise FileNotFoundError(f"resume: no last_model or checkpoint in {run.path}")
     for zip_path, stats in candidates:
         try:
-            vecnorm = VecNormalize.load(str(stats), venv)
+            vecnorm = load_vecnormalize(stats, venv)
             env = stacked(vecnorm, hp.frame_stack, hp.frame_stride)
-            model = PPO.load(zip_path, env=env, device="cpu")
+            model = load_ppo(zip_path, env, hp.ppo_kwargs(), tensorboard_log=str(run.tensorboard))
+        except PickleRefused:
+            raise
         except Exception as e:  # noqa: BLE001 (any unreadable file: try the one before)
             warnings.warn(f"resume: skipping unreadable {zip_path.name} ({e!r})", stacklevel=2)
             continue
