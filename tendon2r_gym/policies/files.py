@@ -140,7 +140,7 @@ def model_weights(path: str | Path) -> dict[str, Any]:
 
 def _read_zip(path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
     """Returns (plain ``data``, policy state dict) of a model zip; a file that is not a whole
-    one is a ValueError naming it."""
+    one, or whose weights are not tensors alone, is a ValueError naming it."""
     load_triton()  # before torch: tendon2r_gym.llvm
     import torch
 
@@ -148,16 +148,35 @@ def _read_zip(path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
     try:
         with zipfile.ZipFile(path) as z:
             names = z.namelist()
-            data = json.loads(z.read(_MODEL_DATA)) if _MODEL_DATA in names else None
-            raw = z.read(_POLICY_WEIGHTS) if _POLICY_WEIGHTS in names else None
-        weights = None
-        if raw is not None:
-            weights = torch.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
+            raw = {n: z.read(n) for n in (_MODEL_DATA, _POLICY_WEIGHTS) if n in names}
     except Exception as e:  # noqa: BLE001 (anything unreadable is a corrupt file)
         raise corrupt(path, f"{_zip_state(path)} ({type(e).__name__}: {e})") from None
-    if not isinstance(data, dict) or not isinstance(weights, dict) or not weights:
+    if len(raw) < 2:
         raise corrupt(path, _zip_state(path))
+    try:
+        data = json.loads(raw[_MODEL_DATA])
+    except ValueError as e:  # not UTF-8, or not JSON
+        raise corrupt(path, f"not an SB3 model zip (its data entry is not JSON: {e})") from None
+    try:
+        weights = torch.load(
+            io.BytesIO(raw[_POLICY_WEIGHTS]), map_location="cpu", weights_only=True
+        )
+    except Exception as e:  # noqa: BLE001 (anything but plain tensors is refused)
+        raise corrupt(
+            path, f"not an SB3 model zip of plain weights ({_POLICY_WEIGHTS}: {_refusal(e)})"
+        ) from None
+    if not isinstance(data, dict) or not isinstance(weights, dict) or not weights:
+        raise corrupt(path, "not an SB3 model zip (no data object, or no weights in policy.pth)")
     return data, weights
+
+
+def _refusal(error: Exception) -> str:
+    """Returns why ``torch.load(weights_only=True)`` refused a file, on one line (without
+    torch's advice to load it with weights_only=False)."""
+    text = " ".join(str(error).split())
+    _, found, reason = text.partition("WeightsUnpickler error:")
+    reason = reason.split(" Check the documentation")[0].strip() if found else text[:200]
+    return f"{type(error).__name__}: {reason} (it does not load as tensors alone)"
 
 
 def check_model_spaces(
