@@ -365,8 +365,13 @@ def test_training_saves_plain_statistics_and_resumes_and_fine_tunes_without_pick
     # A run of an earlier version (its statistics pickles alone) resumes only when trusted.
     for npz in run.path.rglob("*_vecnormalize*.npz"):
         npz.unlink()
+    last, marker = run.file("last_model_vecnormalize.pkl"), tmp_path / "marker"
+    kept = last.read_bytes()
+    last.write_bytes(hostile(marker))
     with pytest.raises(PickleRefused, match=r"last_model_vecnormalize.pkl .*--trust-pickle"):
         cli.train_main([*argv, "--resume", "--total-timesteps", "512"])
+    assert not marker.exists()
+    last.write_bytes(kept)
     resumed = cli.train_main([*argv, "--resume", "--total-timesteps", "512", "--trust-pickle"])
     assert resumed["runs"][0]["timesteps"] >= 512
     # --init-from a bundle: its weights and statistics, read without pickle.
