@@ -92,12 +92,16 @@ def trusted(trust_pickle: bool | None = None) -> bool:
     return _TRUST.get() if trust_pickle is None else bool(trust_pickle)
 
 
-def refuse_pickle(path: str | Path, what: str) -> PickleRefused:
+#: How to recover from a refused pickle of the statistics.
+CONVERT = "convert it to plain files once (scripts/convert_model_files.py, or files.convert_stats)"
+
+
+def refuse_pickle(path: str | Path, what: str, recover: str = CONVERT) -> PickleRefused:
     """Returns the error of a pickle read without the trust option: it names the file, what it
-    is and the option."""
+    is, how to do without it (``recover``) and the option."""
     return PickleRefused(
-        f"{path} is {what}, which can run code when loaded; to recover: convert it to plain "
-        f"files (scripts/convert_model_files.py), or pass {TRUST_OPTION} to {TRUST_HELP}"
+        f"{path} is {what}, which can run code when loaded; to recover: {recover}, or pass "
+        f"{TRUST_OPTION} to {TRUST_HELP}"
     )
 
 
@@ -126,16 +130,9 @@ _BOX = "<class 'gymnasium.spaces.box.Box'>"
 def model_data(path: str | Path) -> dict[str, Any]:
     """Returns the plain JSON ``data`` of an SB3 model zip (its spaces and settings; the
     cloudpickled entries stay unread base64 text) after checking that its weights read as
-    tensors alone (:func:`model_weights`)."""
+    tensors alone (``torch.load(weights_only=True)``)."""
     data, _ = _read_zip(Path(path))
     return data
-
-
-def model_weights(path: str | Path) -> dict[str, Any]:
-    """Returns the policy's state dict of an SB3 model zip (``policy.pth``), read with
-    ``torch.load(weights_only=True)``: tensors only, no code."""
-    _, weights = _read_zip(Path(path))
-    return weights
 
 
 def _read_zip(path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -226,18 +223,15 @@ def _box(path: Path, data: dict[str, Any], key: str) -> Any:
 
 
 def _printed_array(text: Any, shape: tuple[int, ...]) -> np.ndarray | None:
-    """Returns the array that numpy printed as ``text`` ('[-1. -1.]', 'inf'), or None if it is
-    not all there (numpy summarizes a long array with '...')."""
+    """Returns the array of ``shape`` that numpy printed as ``text`` ('[-1. -1.]'), or None if
+    it is not all there (numpy summarizes a long array with '...')."""
     if not isinstance(text, str) or "..." in text:
         return None
     try:
         values = [float(t) for t in text.replace("[", " ").replace("]", " ").split()]
     except ValueError:
         return None
-    size = int(np.prod(shape))
-    if len(values) == size:
-        return np.array(values).reshape(shape)
-    return np.full(shape, values[0]) if len(values) == 1 else None
+    return np.array(values).reshape(shape) if len(values) == int(np.prod(shape)) else None
 
 
 def _pickled_global(entry: Any) -> tuple[str, str] | None:
@@ -268,9 +262,8 @@ def _policy_class(path: Path, data: dict[str, Any]) -> Any:
         shown = ".".join(named) if named else "a class that is not named by reference"
         allowed = ", ".join(sorted({".".join(v) for v in POLICY_CLASSES.values()}))
         raise ValueError(
-            f"{path} records the policy class {shown}; allowed: {allowed} (a model zip's "
-            f"other classes load only through SB3's PPO.load, which unpickles: pass "
-            f"{TRUST_OPTION} to {TRUST_HELP})"
+            f"{path} records the policy class {shown}; allowed: {allowed} (the classes "
+            f"built without unpickling); to recover: {RECOVER_MODEL}"
         )
     module, name = POLICY_CLASSES[named]
     return getattr(importlib.import_module(module), name)
@@ -283,8 +276,7 @@ def _policy_kwargs(path: Path, data: dict[str, Any]) -> dict[str, Any]:
     if not isinstance(kwargs, dict) or ":serialized:" in kwargs:
         raise ValueError(
             f"{path} records policy_kwargs that only a pickle holds; allowed: plain JSON "
-            f"policy_kwargs (net_arch, log_std_init, ...); or pass {TRUST_OPTION} to "
-            f"{TRUST_HELP}"
+            f"policy_kwargs (net_arch, log_std_init, ...); to recover: {RECOVER_MODEL}"
         )
     kwargs = {k: v for k, v in kwargs.items() if k != "device"}
     arch = kwargs.get("net_arch")
@@ -399,7 +391,8 @@ def load_model(
     path = Path(path)
     _exists(path)
     if not trusted(trust_pickle):
-        raise refuse_pickle(path, "read by SB3's load through pickle (its cloudpickled data)")
+        no_pickle = "read its policy with load_policy, or train on from it with load_ppo"
+        raise refuse_pickle(path, "read by SB3's load through pickle", no_pickle)
     if cls is None:
         load_triton()  # before torch: tendon2r_gym.llvm
         from stable_baselines3 import PPO
@@ -449,7 +442,7 @@ STATS_ARRAYS = {
 _KINDS = {"int": "i", "float": "f", "bool": "b"}
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, eq=False)  # arrays: compare them with arrays()
 class NormStats:
     """SB3's VecNormalize statistics as plain values: the observations' running mean,
     variance and count, the returns' (for reward normalization), and its settings.  Saved as
