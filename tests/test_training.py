@@ -12,13 +12,14 @@ import numpy as np
 import pytest
 import yaml
 from stable_baselines3 import PPO
-from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+from stable_baselines3.common.vec_env import DummyVecEnv
 
 from tendon2r_gym.app.args import parse
 from tendon2r_gym.app.cli import TrainArgs, experiment, train_main
 from tendon2r_gym.evaluation.evaluator import evaluate
 from tendon2r_gym.evaluation.metrics import beats, selection_rank, within_limits
 from tendon2r_gym.policies.bundle import bundle_meta, bundle_runs, bundled_model
+from tendon2r_gym.policies.files import load_policy, load_vecnormalize
 from tendon2r_gym.policies.learned import PPOPolicy
 from tendon2r_gym.policies.residual import residual_command
 from tendon2r_gym.policies.runs import REMOVED, RunFolder
@@ -321,8 +322,8 @@ def test_sigkill_loses_little_thanks_to_timed_checkpoints(tmp_path):
     candidates = RunFolder(tmp_path / "run" / "seed_0").checkpoint_candidates()
     assert candidates
     zip_path, stats = candidates[0]
-    PPO.load(zip_path)
-    VecNormalize.load(str(stats), DummyVecEnv([lambda: gym.make("Tendon2R-v0")]))
+    load_policy(zip_path)
+    load_vecnormalize(stats, DummyVecEnv([lambda: gym.make("Tendon2R-v0")]))
 
 
 def test_a_run_on_reference_ranges_records_them_and_loads(tmp_path):

@@ -120,9 +120,10 @@ def evaluate_zoo_model(
     kwargs = env_kwargs(env_id)
     probe = gym.make(env_id)
     try:
-        vecnorm = load_vecnormalize(stats, DummyVecEnv([lambda: probe]), env_id)
+        # rl_zoo3 writes pickles: this study's own files, trusted
+        vecnorm = load_vecnormalize(stats, DummyVecEnv([lambda: probe]), env_id, trust_pickle=True)
         vecnorm.training, vecnorm.norm_reward = False, False
-        policy = PPOPolicy(load_model(model, device="cpu"), vecnorm, NO_RESIDUAL)
+        policy = PPOPolicy(load_model(model, device="cpu", trust_pickle=True), vecnorm, NO_RESIDUAL)
         before = torch.get_num_threads()
         torch.set_num_threads(threads)
         try:
