@@ -49,6 +49,9 @@ class TrainArgs:
     --bundle NAME copies the finished runs into the bundled models as tendon2r-bundle does; the
     name is checked before training starts, and a bundle of that name is replaced only with
     --replace-bundle.
+
+    --workers N trains N seeds at once in local processes; --cluster auto (or HOST:PORT) on a
+    Ray cluster (the cluster extra).  Each seed's run is the same on every executor.
     """
 
     hyperparams: Annotated[str, arg("entry of the hyperparameter file (a new run)")] = "default"
@@ -72,6 +75,13 @@ class TrainArgs:
         str | None, arg("start from a bundle's (or model zip's) weights: fine-tune")
     ] = None
     progress_bar: Annotated[bool, arg("also on whenever stderr is a terminal")] = False
+    workers: Annotated[
+        int, arg("train this many seeds at once in local worker processes (1: in this one)")
+    ] = 1
+    cluster: Annotated[
+        str | None,
+        arg("train the seeds on a Ray cluster: auto (ray start's, or RAY_ADDRESS) or HOST:PORT"),
+    ] = None
     trust_pickle: Annotated[bool, arg(TRUST_HELP)] = False
 
 
@@ -106,8 +116,14 @@ def train_main(argv: list[str] | None = None) -> dict[str, Any]:
                           flag="--replace-bundle")  # fmt: skip
     command = command_line(argv, "tendon2r-train")
     exp = experiment(args, command)
-    with trusting_pickle(args.trust_pickle):  # --init-from, --resume of an earlier version's run
-        agg = exp.train(resume=args.resume)
+    from tendon2r_gym.training.executors import entered, make_executor
+    from tendon2r_gym.training.jobs import train_experiment
+
+    # --trust-pickle: --init-from, or --resume of an earlier version's run; a cluster that
+    # cannot be reached, or has no CPU to give, is refused here, before training
+    executor = make_executor(args.workers, args.cluster, exp.hyperparams.torch_threads)
+    with trusting_pickle(args.trust_pickle), entered(executor) as ex:
+        agg = train_experiment(exp, args.resume, ex)
     print(json.dumps({k: v for k, v in agg.items() if k != "runs"}), flush=True)
     if args.bundle is not None:
         runs = [exp.run_folder(s).path for s in exp.seeds]

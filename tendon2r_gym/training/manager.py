@@ -68,7 +68,7 @@ from tendon2r_gym.training.records import (
     training_lock,
     write_failure,
 )
-from tendon2r_gym.validation import invalid
+from tendon2r_gym.validation import integer, invalid
 
 
 @dataclass
@@ -136,10 +136,35 @@ class Experiment:
         return RunFolder(seed_dir(self.base, seed))
 
     def train(self, resume: bool = False) -> dict[str, Any]:
-        """Trains one run per seed (continuing those with a saved state if ``resume``) and
-        writes SEEDS_SUMMARY.  Every seed's run is checked before any is written
-        (:func:`plan_run`).  A Ctrl-C stops them all: the summary of the finished seeds is
-        written, then it re-raises."""
+        """Trains one run per seed in this process, one after another (continuing those with a
+        saved state if ``resume``) and writes SEEDS_SUMMARY.  Every seed's run is checked
+        before any is written (:meth:`plan`).  A Ctrl-C stops them all: the summary of the
+        finished seeds is written, then it re-raises.  (Local workers or a Ray cluster train
+        the seeds at once: tendon2r_gym.training.jobs.train_experiment.)"""
+        plans = self.plan(resume)
+        results: list[dict[str, Any]] = []
+        # the seed folders that exist are held before anything is written; a new one from the
+        # start of its training (a seed that never starts leaves no folder)
+        held = {plan.run.path for plan in plans if plan.run.path.is_dir()}
+        with (
+            training_lock([plan.run for plan in plans if plan.run.path in held]),
+            contextlib.ExitStack() as new,
+        ):
+            try:
+                for plan in plans:
+                    if plan.run.path not in held:
+                        new.enter_context(training_lock([plan.run]))
+                    results.append(train_planned(plan, self.command, self.progress_bar))
+            except BaseException:
+                self.record_seeds(results, failing=True)
+                raise
+        return self.record_seeds(results)
+
+    def plan(self, resume: bool = False) -> list[RunPlan]:
+        """Returns the plan of every seed's run, each checked before anything is written: the
+        seeds (distinct, each one numpy takes), a folder that holds a run refused unless
+        ``resume``, and all that each run reads (:func:`plan_run`)."""
+        check_seeds(self.seeds)
         runs = [self.run_folder(seed) for seed in self.seeds]
         started = [str(run.path) for run in runs if run.read_config() is not None]
         if not resume and started:
@@ -149,38 +174,35 @@ class Experiment:
                 f"a folder without runs (it holds {started}: --resume continues them; a new "
                 "run needs another --run-dir)",
             )
-        plans = [  # every seed checked before anything is written
+        return [
             plan_run(self.hyperparams, run, seed, resume and bool(run.checkpoint_candidates()))
             for seed, run in zip(self.seeds, runs, strict=True)
         ]
-        results: list[dict[str, Any]] = []
-        # the seed folders that exist are held before anything is written; a new one from the
-        # start of its training (a seed that never starts leaves no folder)
-        held = {run.path for run in runs if run.path.is_dir()}
-        with (
-            training_lock([run for run in runs if run.path in held]),
-            contextlib.ExitStack() as new,
-        ):
-            try:
-                for plan in plans:
-                    if plan.run.path not in held:
-                        new.enter_context(training_lock([plan.run]))
-                    results.append(train_planned(plan, self.command, self.progress_bar))
-            except BaseException:
-                with contextlib.suppress(OSError):  # the error in flight is the one to report
-                    RunFolder(self.base).write_json(
-                        SEEDS_SUMMARY, seeds_summary(self.seeds, results)
-                    )
-                raise
+
+    def record_seeds(self, results: list[dict[str, Any]], failing: bool = False) -> dict:
+        """Writes and returns SEEDS_SUMMARY of the finished seeds' summaries ``results``.  While
+        an error is in flight (``failing``), a failed write is ignored: that error is the one
+        to report."""
         agg = seeds_summary(self.seeds, results)
         try:
             RunFolder(self.base).write_json(SEEDS_SUMMARY, agg)
         except OSError as e:
+            if failing:
+                return agg
             raise RunWriteError(
                 f"writing {self.base / SEEDS_SUMMARY} failed ({e}); the runs are saved in "
                 "their seed folders"
             ) from e
         return agg
+
+
+def check_seeds(seeds: list[int]) -> list[int]:
+    """Returns ``seeds`` if each is a seed numpy takes and none repeats (one folder each)."""
+    for seed in seeds:
+        integer("seeds", seed, 0, 2**32 - 1)
+    if len(set(seeds)) != len(seeds):
+        raise invalid("seeds", list(seeds), "distinct seeds (one run folder each)")
+    return list(seeds)
 
 
 def recorded_hyperparams(run: RunFolder) -> Hyperparams:
