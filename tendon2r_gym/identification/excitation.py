@@ -107,8 +107,13 @@ class Excitation:
         if callable(inner):
             inner(info)
 
-    def predict(self, observation: np.ndarray, state: Any = None, episode_start: Any = None,
-                deterministic: bool = True) -> tuple[np.ndarray, Any]:  # fmt: skip
+    def predict(
+        self,
+        observation: np.ndarray,
+        state: Any = None,
+        episode_start: Any = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, Any]:
         obs = np.array(observation, dtype=np.float64)
         obs[Q_DES], obs[DQ_DES] = self.signal.q(self._step * self.ctrl_dt)
         self._step += 1

@@ -100,8 +100,9 @@ class Pieces:
         """Returns the normalized commands each piece's motors apply (P, length, n_tendons):
         the commands sent ``delay`` rows before."""
         u = self.normalized(mech)
-        return np.array([u[i][s - self.delay : s - self.delay + self.length]
-                         for i, s in self.starts])  # fmt: skip
+        return np.array(
+            [u[i][s - self.delay : s - self.delay + self.length] for i, s in self.starts]
+        )
 
     def measured(self, speeds: bool = False) -> np.ndarray:
         """Returns the measured angles (or with ``speeds`` the measured speeds) each piece is
@@ -113,8 +114,10 @@ class Pieces:
         """Returns each piece's motor lag states at its first row (P, n_tendons): the applied
         commands before it through the candidate's lag, from the first command."""
         h = mech.sim_dt / mech.motor_tau
-        step = 1.0 - math.exp(-h) if mech.integrator != "RK4" else 1.0 - (
-            1 - h + h * h / 2 - h**3 / 6 + h**4 / 24
+        step = (
+            1.0 - math.exp(-h)
+            if mech.integrator != "RK4"
+            else 1.0 - (1 - h + h * h / 2 - h**3 / 6 + h**4 / 24)
         )
         keep = (1.0 - step) ** n_sub  # one control step of n_sub physics steps
         M = max(1, round(30 * mech.motor_tau / self.ctrl_dt))  # older rows weigh < e^-30
@@ -232,8 +235,9 @@ class Replay:
             shifts.append(s)
         q = self.angles([mech] * 5, shifts)
         base = q[0].reshape(P, -1)
-        cols = np.stack([(q[k + 1].reshape(P, -1) - base) / START_STEP[k // 2] for k in range(4)],
-                        axis=2)  # fmt: skip
+        cols = np.stack(
+            [(q[k + 1].reshape(P, -1) - base) / START_STEP[k // 2] for k in range(4)], axis=2
+        )
         cols[:, : 2 * self.pieces.settle] = 0.0
         cols = np.nan_to_num(cols)
         self.projection = np.linalg.qr(cols)[0]  # (P, 2 length, 4)
@@ -280,4 +284,3 @@ def cluster_covariance(J: np.ndarray, r: np.ndarray, groups: int) -> np.ndarray:
     scores = np.einsum("gri,gr->gi", J.reshape(groups, -1, J.shape[1]), r.reshape(groups, -1))
     meat = scores.T @ scores * groups / max(groups - 1, 1)
     return H_inv @ meat @ H_inv
-

@@ -66,9 +66,15 @@ from tendon2r_gym.validation import integer, invalid
 #: The delays: whole control steps, identified as their sum.
 DELAYS = ("motor_delay", "observation_delay")
 DEFAULT_FIT = (
-    "tendon_elasticity", "tendon_damping", "tendon_friction", "motor_tau", "motor_delay",
-    "observation_delay", "density_scale", "extra_joint_damping",
-)  # fmt: skip
+    "tendon_elasticity",
+    "tendon_damping",
+    "tendon_friction",
+    "motor_tau",
+    "motor_delay",
+    "observation_delay",
+    "density_scale",
+    "extra_joint_damping",
+)
 #: A field is identified if its 95% interval's half-width is within this fraction of it.
 IDENTIFIED_WITHIN = 0.1
 #: The coarse start: about this many pieces, spread over the recordings, on which a grid of
@@ -77,8 +83,10 @@ IDENTIFIED_WITHIN = 0.1
 #: cables, a mass twice too light doubles every acceleration: from there Gauss-Newton lands
 #: in another basin, with the lag and the stiffness absorbing the miss.
 COARSE_PIECES = 10
-GRID = {"density_scale": (0.5, 0.7, 1.0, 1.4, 2.0, 2.8),
-        "tendon_friction": (0.2, 0.5, 1.0, 2.0, 5.0)}  # fmt: skip
+GRID = {
+    "density_scale": (0.5, 0.7, 1.0, 1.4, 2.0, 2.8),
+    "tendon_friction": (0.2, 0.5, 1.0, 2.0, 5.0),
+}
 
 
 def load_recordings(paths: Sequence[str | os.PathLike], config: EnvConfig) -> list[Recording]:
@@ -86,8 +94,7 @@ def load_recordings(paths: Sequence[str | os.PathLike], config: EnvConfig) -> li
     together they are long enough)."""
     mech = config.mechanism
     force = float(mech.max_tendon_force)
-    return [recording.load(p, mech.n_tendons, config.ctrl_dt, force, mech.pull_only)
-            for p in paths]  # fmt: skip
+    return [recording.load(p, mech.n_tendons, config.ctrl_dt, force, mech.pull_only) for p in paths]
 
 
 def check_pieces(recs: Sequence[Recording], config: EnvConfig, n_fields: int, first: int) -> None:
@@ -156,8 +163,11 @@ def _coarse_start(prob: Problem, d: int) -> tuple[np.ndarray, float]:
     x0, cfg = prob.x0, prob.config
     seconds = sum(len(r.time) for r in prob.recordings) * cfg.ctrl_dt
     coarse = Stage(PIECE_S, max(PIECE_S, seconds / COARSE_PIECES), 0)
-    axes = [[(i, v) for v in GRID[n]] if x0[i] > 0 else [(i, x0[i])]
-            for i, n in enumerate(prob.names) if n in GRID]  # fmt: skip
+    axes = [
+        [(i, v) for v in GRID[n]] if x0[i] > 0 else [(i, x0[i])]
+        for i, n in enumerate(prob.names)
+        if n in GRID
+    ]
     best, least, nominal = x0, math.inf, math.nan
     for point in itertools.product(*axes):
         x = x0.copy()
@@ -279,8 +289,9 @@ def identify(
     # along it): it is fitted again with the limiting fields (those check_stability names)
     # from their nominal values, and the better fit is kept.
     step = EDGE_STEP * np.eye(len(names))
-    limiting = {prob.limiting(prob.arm(x + sign * step[i]))
-                for i in range(len(names)) for sign in (-1, 1)} - {None}  # fmt: skip
+    limiting = {
+        prob.limiting(prob.arm(x + sign * step[i])) for i in range(len(names)) for sign in (-1, 1)
+    } - {None}
     pinned = [i for i, n in enumerate(names) if n in limiting]
     if pinned:
         held = prob.cost(x)
@@ -316,9 +327,15 @@ def identify(
         at_bound = min(value - lo, hi - value) <= 1e-3 * (hi - lo)
         at_limit = prob.at_limit(x, i)
         ok = half <= IDENTIFIED_WITHIN * abs(value) and not (at_bound or at_limit)
-        why = ("" if ok else "at its bound" if at_bound
-               else "at the integrator's limit" if at_limit
-               else f"+-{half:.3g} {FIELDS[n][0]}")  # fmt: skip
+        why = (
+            ""
+            if ok
+            else "at its bound"
+            if at_bound
+            else "at the integrator's limit"
+            if at_limit
+            else f"+-{half:.3g} {FIELDS[n][0]}"
+        )
         nominal = float(getattr(mech, n))
         # Too wide to identify, yet the recording rules the nominal value out: the fit is
         # the better guess, and the identified arm takes it.
@@ -329,13 +346,19 @@ def identify(
     loop = d * config.ctrl_dt
     noise = prob.rep.noise(prob.arm(x))
     out: dict[str, Any] = {"mechanism": values}
-    out["observation_noise"] = [noise[0], config.observation_noise[1] if noise[1] is None
-                                else noise[1]]  # fmt: skip
+    out["observation_noise"] = [
+        noise[0],
+        config.observation_noise[1] if noise[1] is None else noise[1],
+    ]
     if fit_delay:  # the best one, even if others are not told apart: the fields fit it;
         # only the sum shows, split as the module docstring says
-        obs_steps = (kept["observation_delay"] if "observation_delay" not in asked
-                     else d - kept["motor_delay"] if "motor_delay" not in asked
-                     else d // 2)  # fmt: skip
+        obs_steps = (
+            kept["observation_delay"]
+            if "observation_delay" not in asked
+            else d - kept["motor_delay"]
+            if "motor_delay" not in asked
+            else d // 2
+        )
         obs = round(obs_steps * config.ctrl_dt, 12)
         values["motor_delay"] = round(loop - obs, 12)
         out["observation_delay"] = obs
@@ -354,6 +377,12 @@ def identify(
         ),
         seconds=time.perf_counter() - began,
         sources=[rec.source for rec in recordings],
-        extras={"problem": prob, "x": x, "cov": cov, "costs": delays.costs, "fits": fits,
-                "start": start},
+        extras={
+            "problem": prob,
+            "x": x,
+            "cov": cov,
+            "costs": delays.costs,
+            "fits": fits,
+            "start": start,
+        },
     )

@@ -88,9 +88,14 @@ def bounds(name: str, mech: Mechanism) -> tuple[float, float, float] | str:
 class Problem:
     """The fit's state: the fields, their bounds and scales, and the current pieces."""
 
-    def __init__(self, recordings: Sequence[Recording], config: EnvConfig,
-                 names: list[str], box: dict[str, tuple[float, float, float]],
-                 threads: int) -> None:  # fmt: skip
+    def __init__(
+        self,
+        recordings: Sequence[Recording],
+        config: EnvConfig,
+        names: list[str],
+        box: dict[str, tuple[float, float, float]],
+        threads: int,
+    ) -> None:
         self.recordings, self.config, self.names, self.box = list(recordings), config, names, box
         self.mech, self.threads = config.mechanism, threads
         self.scales = np.array([box[n][2] for n in names])
@@ -112,8 +117,9 @@ class Problem:
         """Sets and returns the pieces of ``stage`` at loop delay ``d``, their starts refined
         on the arm at ``x``."""
         cfg = self.config
-        pieces = Pieces(self.recordings, cfg.ctrl_dt, d, stage.piece_s, stage.spacing_s,
-                        first=self.first)  # fmt: skip
+        pieces = Pieces(
+            self.recordings, cfg.ctrl_dt, d, stage.piece_s, stage.spacing_s, first=self.first
+        )
         self.rep = Replay(pieces, cfg.n_substeps, self.threads)
         self.rep.refine_starts(self.arm(x), passes)
         return self.rep
@@ -171,11 +177,19 @@ class Problem:
                 params[n].value[:] = x[i]
             try:
                 opt, _ = sysid.optimize(
-                    params, self.residual, optimizer="mujoco", verbose=False,
-                    max_iters=stage.max_iters, eps=1e-6, xtol=XTOL, x_scale="jac",
-                    mu_min=MU[0], mu_factor=MU[1], output=io.StringIO(),
+                    params,
+                    self.residual,
+                    optimizer="mujoco",
+                    verbose=False,
+                    max_iters=stage.max_iters,
+                    eps=1e-6,
+                    xtol=XTOL,
+                    x_scale="jac",
+                    mu_min=MU[0],
+                    mu_factor=MU[1],
+                    output=io.StringIO(),
                     iter_callback=_stop_when_flat,
-                )  # fmt: skip
+                )
                 y = opt.as_vector()
             except _Flat as flat:
                 y = flat.x

@@ -143,10 +143,12 @@ def load(
     for name in header:
         if name not in required and name not in optional:
             raise _fail(
-                source, name, None,
+                source,
+                name,
+                None,
                 f"unknown column; allowed: {required + optional} (this arm has {n_tendons} "
                 "tendons)",
-            )  # fmt: skip
+            )
     if len(set(header)) != len(header):
         twice = next(h for h in header if header.count(h) > 1)
         raise _fail(source, twice, None, "the column appears twice")
@@ -175,17 +177,21 @@ def load(
         r = int(bad[0]) + 2  # the row whose time is off
         what = "does not increase" if steps[bad[0]] <= 0 else "is not uniform"
         raise _fail(
-            source, "time", r,
+            source,
+            "time",
+            r,
             f"time {what}: {float(col['time'][r - 2])!r} s then {float(col['time'][r - 1])!r}"
             f" s; allowed: steps of ctrl_dt = {ctrl_dt} s (to {TIME_TOLERANCE:g} of it)",
-        )  # fmt: skip
+        )
     drift = float(col["time"][-1] - col["time"][0]) - (len(data) - 1) * ctrl_dt
     if abs(drift) > 0.5 * ctrl_dt:
         raise _fail(
-            source, "time", len(data),
+            source,
+            "time",
+            len(data),
             f"the clock drifts: {len(data)} rows span {float(col['time'][-1] - col['time'][0])!r}"
             f" s, {drift:+.3g} s off {len(data) - 1} steps of ctrl_dt = {ctrl_dt} s",
-        )  # fmt: skip
+        )
     lo, hi = (0.0 if pull_only else -force_limit), force_limit
     slack = FORCE_TOLERANCE * force_limit
     for name in command_columns(n_tendons):
@@ -193,17 +199,21 @@ def load(
         if out.size:
             r = int(out[0]) + 1
             raise _fail(
-                source, name, r,
+                source,
+                name,
+                r,
                 f"command {float(col[name][r - 1])!r} N is beyond the arm's force limit; allowed: "
                 f"[{lo:g}, {hi:g}] N ({'pull-only' if pull_only else 'push-pull'} motors, "
                 "max_tendon_force of the experiment file)",
-            )  # fmt: skip
+            )
     duration = float(col["time"][-1] - col["time"][0])
     if duration < min_duration - 0.5 * ctrl_dt:
         raise _fail(
-            source, None, None,
+            source,
+            None,
+            None,
             f"it lasts {duration:g} s; what is asked of it needs at least {min_duration:g} s",
-        )  # fmt: skip
+        )
     n = n_tendons
 
     def block(names: list[str]) -> np.ndarray | None:

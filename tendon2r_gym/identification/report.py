@@ -65,28 +65,35 @@ def save_html(ident: Identification, path: str | os.PathLike) -> Path:
         rb.add_section(
             ParameterDistribution(
                 title="Parameter distribution (95% simultaneous intervals, cluster-robust)",
-                opt_params=fitted, initial_params=nominal, confidence_intervals=half,
+                opt_params=fitted,
+                initial_params=nominal,
+                confidence_intervals=half,
                 anchor="distribution",
             )
-        )  # fmt: skip
+        )
         scales = prob.scales
         rb.add_section(
             Covariance(
-                title="Covariance and correlation", anchor="covariance",
-                covariance=ident.extras["cov"] * np.outer(scales, scales), parameter_dict=fitted,
+                title="Covariance and correlation",
+                anchor="covariance",
+                covariance=ident.extras["cov"] * np.outer(scales, scales),
+                parameter_dict=fitted,
             )
-        )  # fmt: skip
+        )
     # The pieces' angles back to back: measured, replayed on the nominal and identified arms.
     measured = rep._measured.reshape(-1, 2)
     fit_q = rep.angles([prob.arm(x)])[0].reshape(-1, 2)
     nom_q = rep.angles([prob.arm(prob.x0)])[0].reshape(-1, 2)
     # One time axis: each recording after the last one's end (their clocks may restart).
     offsets = np.cumsum([0.0] + [r.time[-1] - r.time[0] + 1.0 for r in prob.recordings])
-    t = np.concatenate([
-        prob.recordings[i].time[s + 1 : s + 1 + rep.pieces.length]
-        - prob.recordings[i].time[0] + offsets[i]
-        for i, s in rep.pieces.starts
-    ])  # fmt: skip
+    t = np.concatenate(
+        [
+            prob.recordings[i].time[s + 1 : s + 1 + rep.pieces.length]
+            - prob.recordings[i].time[0]
+            + offsets[i]
+            for i, s in rep.pieces.starts
+        ]
+    )
     mapping = {"q_A": ("q_A", [0]), "q_B": ("q_B", [1])}
     series = {
         "measured": TimeSeries(t, measured, mapping),
@@ -95,11 +102,12 @@ def save_html(ident: Identification, path: str | os.PathLike) -> Path:
     }
     rb.add_section(
         SignalReport(
-            "Joint angles (rad) over the pieces, each replayed from its start", None,
-            ts_dict=series, max_datapoints=None,
+            "Joint angles (rad) over the pieces, each replayed from its start",
+            None,
+            ts_dict=series,
+            max_datapoints=None,
         )
-    )  # fmt: skip
+    )
     rb.build()
     rb.save(str(path))
     return path
-
