@@ -278,6 +278,12 @@ def _import_ray() -> Any:
     return ray
 
 
+def _apply(fn: Callable[[J], R], job: J) -> R:
+    """A Ray task: ``fn(job)`` (any callable, builtins included; the task is named by the job's
+    label)."""
+    return fn(job)
+
+
 def _reachable(address: str, timeout_s: float) -> str | None:
     """Returns why ``host:port`` takes no TCP connection within ``timeout_s``, or None."""
     host, _, port = address.rpartition(":")
@@ -295,7 +301,11 @@ class RayCluster:
     (``auto``: the one ``ray start`` made on this machine, or that ``RAY_ADDRESS`` names;
     else ``HOST:PORT`` of its head).  A task on a node that is lost runs again elsewhere, up
     to ``max_retries`` times.  Use as a context manager: entering connects and checks that the
-    cluster has a node with ``cpus`` CPUs (a ValueError otherwise, before any job runs)."""
+    cluster has a node with ``cpus`` CPUs (a ValueError otherwise, before any job runs).
+
+    ``shared_files``: a job that sees the caller's files (this machine, a shared file system)
+    works in them; False: every job works in a folder of its own and sends its results back
+    (a shared file system too slow, or untrusted, for a training's writes)."""
 
     remote = True
 
@@ -306,6 +316,7 @@ class RayCluster:
         max_retries: int = 3,
         grace_s: float = 60.0,
         connect_timeout_s: float = 10.0,
+        shared_files: bool = True,
     ) -> None:
         if not isinstance(address, str) or not address.strip():
             raise invalid("cluster", address, "'auto' or the HOST:PORT of a Ray head node")
@@ -313,6 +324,7 @@ class RayCluster:
         self.cpus = integer("cpus", cpus, 1, 256)
         self.max_retries = integer("max_retries", max_retries, 0, 1000)
         self.grace_s, self.connect_timeout_s = grace_s, connect_timeout_s
+        self.shared_files = bool(shared_files)
         self._ray: Any = None
         self._connected = False
 
@@ -392,8 +404,8 @@ class RayCluster:
         if not ray.is_initialized():
             raise RuntimeError("RayCluster.map: enter the executor first (with RayCluster(...))")
         labels = _labels(labels, len(jobs))
-        task = ray.remote(num_cpus=self.cpus, max_retries=self.max_retries)(fn)
-        refs = {task.remote(job): i for i, job in enumerate(jobs)}
+        task = ray.remote(num_cpus=self.cpus, max_retries=self.max_retries)(_apply)
+        refs = {task.options(name=labels[i]).remote(fn, job): i for i, job in enumerate(jobs)}
         results: dict[int, R] = {}
         errors: dict[int, JobError] = {}
         pending = list(refs)

@@ -51,7 +51,11 @@ class SeedSpec:
     command: str = ""
     progress_bar: bool = False
     cwd: str = ""  # the driver's working directory: relative paths of the hyperparameters
-    token: str = ""  # "": train in base (local); else the driver's marker base/.driver-<token>
+    # "": train in base (local workers); else the name of the driver's marker in base
+    # (base/.driver-<token>): a job that finds it trains in base, one that does not (or any
+    # job, without shared_files) in a folder of its own, which it sends back
+    token: str = ""
+    shared_files: bool = True
     # For a node that does not see the driver's files: the files the hyperparameters name
     # (path relative to cwd -> bytes).
     inputs: Mapping[str, bytes] = field(default_factory=dict)
@@ -155,6 +159,7 @@ def _run_jobs(
     from tendon2r_gym.policies.files import trusted
 
     remote = bool(getattr(executor, "remote", False))
+    shared = bool(getattr(executor, "shared_files", True))
     cwd, base = Path.cwd(), exp.base.resolve()
     spec = SeedSpec(
         exp.hyperparams,
@@ -163,7 +168,8 @@ def _run_jobs(
         exp.command,
         progress_bar=False,  # one bar per job would garble the terminal
         cwd=str(cwd),
-        token=held.enter_context(driver_marker(base)) if remote else "",
+        token=held.enter_context(driver_marker(base, shared)) if remote else "",
+        shared_files=shared,
         inputs=inputs_of(exp.hyperparams, cwd) if remote else {},
         trust_pickle=trusted(),  # the command's --trust-pickle, for each job's process
     )
@@ -191,7 +197,7 @@ def run_seed_job(job: SeedJob) -> SeedResult:
     token, or the driver's marker found), else in a temporary folder whose run folder it
     returns whole.  A Ctrl-C returns the state saved so far, marked ``interrupted``."""
     spec = job.spec
-    if not spec.token or _sees_driver(spec):
+    if not spec.token or (spec.shared_files and _sees_driver(spec)):
         with _working_dir(spec.cwd):
             return _trained(job, None)
     with tempfile.TemporaryDirectory(prefix="tendon2r-seed-") as tmp:
@@ -228,11 +234,14 @@ def _sees_driver(spec: SeedSpec) -> bool:
 
 
 @contextlib.contextmanager
-def driver_marker(base: Path) -> Iterator[str]:
-    """Writes the driver's marker in ``base`` (made if missing) for the block; yields its
-    token."""
+def driver_marker(base: Path, write: bool = True) -> Iterator[str]:
+    """Writes the driver's marker in ``base`` (made if missing) for the block, if ``write``;
+    yields its token."""
     token = uuid.uuid4().hex
     marker = base / f"{MARKER_PREFIX}{token}"
+    if not write:
+        yield token
+        return
     base.mkdir(parents=True, exist_ok=True)
     marker.write_text(f"{token}\n")
     try:
