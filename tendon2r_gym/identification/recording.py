@@ -124,6 +124,24 @@ def load(
     ``ctrl_dt`` (s) and force limit ``force_limit`` (N); ``min_duration``: what the caller
     needs of it (s).  Raises a ValueError naming the file, column and row of a problem."""
     source = str(path)
+    rows = _read_rows(path, source)
+    header = _check_header(rows, n_tendons, source)
+    col = _parse_columns(rows[1:], header, source)
+    _check_time(col["time"], ctrl_dt, source)
+    _check_commands(col, n_tendons, force_limit, pull_only, source)
+    _check_duration(col["time"], ctrl_dt, min_duration, source)
+    return Recording(
+        time=col["time"],
+        command=np.column_stack([col[k] for k in command_columns(n_tendons)]),
+        q=np.column_stack([col[k] for k in JOINT_COLUMNS]),
+        tension=_block(col, tension_columns(n_tendons), source),
+        dq=_block(col, list(SPEED_COLUMNS), source),
+        source=source,
+    )
+
+
+def _read_rows(path: str | os.PathLike, source: str) -> list[list[str]]:
+    """Returns the file's rows of cells, without comment lines and blank rows."""
     try:  # utf-8-sig: a spreadsheet's byte-order mark is not part of the first column's name
         with open(path, newline="", encoding="utf-8-sig") as f:
             lines = [line for line in f if not line.lstrip().startswith("#")]
@@ -134,7 +152,11 @@ def load(
             f"recording {source}: not a UTF-8 text file (byte {e.start}); save it as CSV "
             "(UTF-8) with the columns of the recording format"
         ) from None
-    rows = [row for row in csv.reader(lines) if any(cell.strip() for cell in row)]
+    return [row for row in csv.reader(lines) if any(cell.strip() for cell in row)]
+
+
+def _check_header(rows: list[list[str]], n_tendons: int, source: str) -> list[str]:
+    """Returns the header's column names: each known, none twice, every required one."""
     if not rows or not any(rows[0]):
         raise _fail(source, None, None, "it is empty; a header row names the columns")
     header = [h.strip() for h in rows[0]]
@@ -155,7 +177,11 @@ def load(
     for name in required:
         if name not in header:
             raise _fail(source, name, None, f"missing; required: {required}")
-    data = rows[1:]
+    return header
+
+
+def _parse_columns(data: list[list[str]], header: list[str], source: str) -> dict[str, np.ndarray]:
+    """Returns each column's values: finite numbers, a full row each, at least two rows."""
     values = np.empty((len(data), len(header)))
     for r, row in enumerate(data, start=1):
         if len(row) != len(header):
@@ -168,10 +194,14 @@ def load(
             if not math.isfinite(x):
                 raise _fail(source, header[c], r, f"{text!r} is not a finite number")
             values[r - 1, c] = x
-    col = {name: values[:, i] for i, name in enumerate(header)}
     if len(data) < 2:
         raise _fail(source, None, None, f"{len(data)} data rows; it needs at least 2")
-    steps = np.diff(col["time"])
+    return {name: values[:, i] for i, name in enumerate(header)}
+
+
+def _check_time(time: np.ndarray, ctrl_dt: float, source: str) -> None:
+    """Raises if time does not step by ``ctrl_dt`` (TIME_TOLERANCE) or drifts from it."""
+    steps = np.diff(time)
     bad = np.flatnonzero(np.abs(steps - ctrl_dt) > TIME_TOLERANCE * ctrl_dt)
     if bad.size:
         r = int(bad[0]) + 2  # the row whose time is off
@@ -180,18 +210,27 @@ def load(
             source,
             "time",
             r,
-            f"time {what}: {float(col['time'][r - 2])!r} s then {float(col['time'][r - 1])!r}"
+            f"time {what}: {float(time[r - 2])!r} s then {float(time[r - 1])!r}"
             f" s; allowed: steps of ctrl_dt = {ctrl_dt} s (to {TIME_TOLERANCE:g} of it)",
         )
-    drift = float(col["time"][-1] - col["time"][0]) - (len(data) - 1) * ctrl_dt
+    n = len(time)
+    span = float(time[-1] - time[0])
+    drift = span - (n - 1) * ctrl_dt
     if abs(drift) > 0.5 * ctrl_dt:
         raise _fail(
             source,
             "time",
-            len(data),
-            f"the clock drifts: {len(data)} rows span {float(col['time'][-1] - col['time'][0])!r}"
-            f" s, {drift:+.3g} s off {len(data) - 1} steps of ctrl_dt = {ctrl_dt} s",
+            n,
+            f"the clock drifts: {n} rows span {span!r}"
+            f" s, {drift:+.3g} s off {n - 1} steps of ctrl_dt = {ctrl_dt} s",
         )
+
+
+def _check_commands(
+    col: dict[str, np.ndarray], n_tendons: int, force_limit: float, pull_only: bool, source: str
+) -> None:
+    """Raises if a command is beyond the force limit (FORCE_TOLERANCE) or pushes a pull-only
+    motor."""
     lo, hi = (0.0 if pull_only else -force_limit), force_limit
     slack = FORCE_TOLERANCE * force_limit
     for name in command_columns(n_tendons):
@@ -206,7 +245,11 @@ def load(
                 f"[{lo:g}, {hi:g}] N ({'pull-only' if pull_only else 'push-pull'} motors, "
                 "max_tendon_force of the experiment file)",
             )
-    duration = float(col["time"][-1] - col["time"][0])
+
+
+def _check_duration(time: np.ndarray, ctrl_dt: float, min_duration: float, source: str) -> None:
+    """Raises if the recording is shorter than ``min_duration`` (s, to half a step)."""
+    duration = float(time[-1] - time[0])
     if duration < min_duration - 0.5 * ctrl_dt:
         raise _fail(
             source,
@@ -214,20 +257,12 @@ def load(
             None,
             f"it lasts {duration:g} s; what is asked of it needs at least {min_duration:g} s",
         )
-    n = n_tendons
 
-    def block(names: list[str]) -> np.ndarray | None:
-        present = [k in col for k in names]
-        if any(present) and not all(present):
-            missing = names[present.index(False)]
-            raise _fail(source, missing, None, f"missing; give all of {names} or none")
-        return np.column_stack([col[k] for k in names]) if all(present) else None
 
-    return Recording(
-        time=col["time"],
-        command=np.column_stack([col[k] for k in command_columns(n)]),
-        q=np.column_stack([col[k] for k in JOINT_COLUMNS]),
-        tension=block(tension_columns(n)),
-        dq=block(list(SPEED_COLUMNS)),
-        source=source,
-    )
+def _block(col: dict[str, np.ndarray], names: list[str], source: str) -> np.ndarray | None:
+    """Returns an optional block of columns (all of ``names``), or None if none is given."""
+    present = [k in col for k in names]
+    if any(present) and not all(present):
+        missing = names[present.index(False)]
+        raise _fail(source, missing, None, f"missing; give all of {names} or none")
+    return np.column_stack([col[k] for k in names]) if all(present) else None
