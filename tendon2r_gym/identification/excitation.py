@@ -145,60 +145,72 @@ def record(
     from tendon2r_gym.evaluation.evaluator import make_policy
 
     number("duration", duration, 0.0, 3600.0, lo_open=True)
-    overrides = {}
-    if signal is not None:  # at rest at the signal's start, with the arm's force limit
-        cfg = config if isinstance(config, EnvConfig) else EnvConfig.make(config)
-        start = [math.degrees(b) for b in signal.bias_rad]
-        overrides = {
-            "reference": {"amp_deg": [0.0, 0.0], "bias_deg": start},
-            "mechanism": cfg.mechanism.to_dict(),  # the force limit resolved: the file's
-            "pd_gains": {"bandwidth_hz": signal.bandwidth_hz, "max_delay_phase": None},
-        }
+    overrides = {} if signal is None else _signal_overrides(config, signal)
     env = _env(config, duration, **overrides)
     try:
         pol = make_policy(policy, env, model) if isinstance(policy, str) else policy
         if signal is not None:
             pol = Excitation(pol, signal, env.ctrl_dt)
-        obs, info = env.reset(seed=seed)
-        reset = getattr(pol, "reset", None)
-        if callable(reset):
-            reset(info)
-        mech = env.mechanism
-        gain, offset = mech.command_map
-        force = float(mech.max_tendon_force)
-        rows: dict[str, list] = {"q": [], "dq": [], "command": [], "tension": []}
-        tension = env.tendon_tensions()
-        for _ in range(env.config.max_episode_steps):
-            action, _ = pol.predict(obs, deterministic=True)
-            rows["q"].append(obs[Q])
-            rows["dq"].append(obs[DQ])
-            rows["tension"].append(tension)
-            obs, _, terminated, _, info = env.step(np.asarray(action, dtype=np.float32))
-            rows["command"].append(force * (gain * np.asarray(env.sent_command) + offset))
-            tension = env.tendon_tensions()
-            if terminated:
-                raise RuntimeError(f"the arm diverged at t = {info['time']:.3f} s")
-        n = len(rows["q"])
-        cfg = env.config
-        notes = {
-            "recorded_on": "tendon2r_gym simulator",
-            "policy": policy if isinstance(policy, str) else type(policy).__name__,
-            "seed": str(seed),
-            "mechanism": str(cfg.mechanism.to_dict()),
-            "observation_noise": str(list(cfg.observation_noise)),
-            "observation_delay": str(cfg.observation_delay),
-        }
+        rows, mech = _rollout(env, pol, seed)
         return Recording(
-            time=np.arange(n) * env.ctrl_dt,
+            time=np.arange(len(rows["q"])) * env.ctrl_dt,
             command=np.clip(np.array(rows["command"]), *_command_range(mech)),
             q=np.array(rows["q"]),
             tension=np.array(rows["tension"]) if tensions else None,
             dq=np.array(rows["dq"]),
             source="simulator",
-            notes=notes,
+            notes=_notes(env.config, policy, seed),
         )
     finally:
         env.close()
+
+
+def _signal_overrides(config: EnvConfig | str | os.PathLike, signal: MultiSine) -> dict[str, Any]:
+    """The env's settings to track ``signal``: at rest at its start, with the arm's force limit."""
+    cfg = config if isinstance(config, EnvConfig) else EnvConfig.make(config)
+    start = [math.degrees(b) for b in signal.bias_rad]
+    return {
+        "reference": {"amp_deg": [0.0, 0.0], "bias_deg": start},
+        "mechanism": cfg.mechanism.to_dict(),  # the force limit resolved: the file's
+        "pd_gains": {"bandwidth_hz": signal.bandwidth_hz, "max_delay_phase": None},
+    }
+
+
+def _rollout(env: Any, pol: Any, seed: int) -> tuple[dict[str, list], Any]:
+    """Runs one episode of ``pol`` from ``reset(seed=seed)``; returns its rows (q, dq,
+    command in N, tension) and the episode's mechanism."""
+    obs, info = env.reset(seed=seed)
+    reset = getattr(pol, "reset", None)
+    if callable(reset):
+        reset(info)
+    mech = env.mechanism
+    gain, offset = mech.command_map
+    force = float(mech.max_tendon_force)
+    rows: dict[str, list] = {"q": [], "dq": [], "command": [], "tension": []}
+    tension = env.tendon_tensions()
+    for _ in range(env.config.max_episode_steps):
+        action, _ = pol.predict(obs, deterministic=True)
+        rows["q"].append(obs[Q])
+        rows["dq"].append(obs[DQ])
+        rows["tension"].append(tension)
+        obs, _, terminated, _, info = env.step(np.asarray(action, dtype=np.float32))
+        rows["command"].append(force * (gain * np.asarray(env.sent_command) + offset))
+        tension = env.tendon_tensions()
+        if terminated:
+            raise RuntimeError(f"the arm diverged at t = {info['time']:.3f} s")
+    return rows, mech
+
+
+def _notes(cfg: EnvConfig, policy: str | Policy, seed: int) -> dict[str, str]:
+    """The recording's notes: the simulated arm, policy and seed."""
+    return {
+        "recorded_on": "tendon2r_gym simulator",
+        "policy": policy if isinstance(policy, str) else type(policy).__name__,
+        "seed": str(seed),
+        "mechanism": str(cfg.mechanism.to_dict()),
+        "observation_noise": str(list(cfg.observation_noise)),
+        "observation_delay": str(cfg.observation_delay),
+    }
 
 
 def _command_range(mech: Any) -> tuple[float, float]:
