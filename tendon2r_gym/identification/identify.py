@@ -186,68 +186,219 @@ def _coarse_start(prob: Problem, d: int) -> tuple[np.ndarray, float]:
     return best, nominal
 
 
+class _Profiles:
+    """Each loop delay's fit on the subset's pieces, and its cost per piece and in all."""
+
+    def __init__(self, prob: Problem, start: np.ndarray) -> None:
+        self.prob, self.start = prob, start
+        self.fits: dict[int, np.ndarray] = {}
+        self.costs: dict[int, float] = {}
+        self.per_piece: dict[int, np.ndarray] = {}
+
+    def profile(self, k: int) -> None:
+        """Fits loop delay ``k`` from the coarse start, then from the nominal values and each
+        fit at another delay that fits delay k better before its fit than that fit does after;
+        the best fit is kept.  (A fit at another delay has absorbed that delay: from it, the fit
+        at k may stay in its basin, though it starts with a smaller miss than the coarse
+        start.)"""
+        prob, start, subset = self.prob, self.start, STAGES[0]
+        prob.pieces(k, start, subset)
+        self.fits[k] = prob.fit(start, subset, ROUNDS)
+        self.per_piece[k] = prob.piece_costs(self.fits[k])
+        others = [prob.x0, *[v for j, v in self.fits.items() if j != k]]
+        for y in [y for y in others if not np.array_equal(y, start)]:
+            prob.pieces(k, y, subset, 1)
+            if prob.cost(y) < self.per_piece[k].sum():
+                prob.rep.refine_starts(prob.arm(y), 1)  # the second pass of prob.pieces
+                z = prob.fit(y, subset, ROUNDS)
+                if (c := prob.piece_costs(z)).sum() < self.per_piece[k].sum():
+                    self.fits[k], self.per_piece[k] = z, c
+        self.costs[k] = float(self.per_piece[k].sum())
+
+
+def _scan_costs(prob: Problem, scan: range, x: np.ndarray) -> dict[int, float]:
+    """Returns each delay's cost at ``x`` on the subset's pieces, before any fit."""
+    scanned = {}
+    for k in scan:
+        prob.pieces(k, x, STAGES[0], 1)
+        scanned[k] = prob.cost(x)
+    return scanned
+
+
+def _walk(profiles: _Profiles, scan: range, best: int) -> int:
+    """Returns the delay of the least fitted residual, walking downhill from ``best``."""
+    while True:
+        for k in (best - 1, best + 1):
+            if k in scan and k not in profiles.costs:
+                profiles.profile(k)
+        better = min(profiles.costs, key=profiles.costs.get)
+        if better == best:
+            return best
+        best = better
+
+
+def _told_apart(profiles: _Profiles, scan: range, best: int) -> set[int]:
+    """Returns the delays not told apart from ``best`` (_worse), grown from it while a
+    neighbour is not worse."""
+    told = {best}
+    grow = True
+    while grow:
+        grow = False
+        for k in sorted(told):
+            for n in (k - 1, k + 1):
+                if n in scan and n not in told:
+                    if n not in profiles.costs:
+                        profiles.profile(n)
+                    if not _worse(profiles.per_piece[n], profiles.per_piece[best]):
+                        told.add(n)
+                        grow = True
+    return told
+
+
 def _search_delay(prob: Problem, scan: range, start: np.ndarray) -> _Delays:
     """Finds the loop delay among ``scan`` on the subset's pieces: a scan at ``start`` (the
     coarse start), a fit at the best delay, the scan again at that fit, then a walk to the
     least fitted residual (the lag, the cables' stretch and the delay trade off: each delay is
     fitted), and the delays around it that the pieces do not tell apart from it (_worse)."""
-    subset, x0 = STAGES[0], prob.x0
-    scanned = {}
-    for k in scan:
-        prob.pieces(k, start, subset, 1)
-        scanned[k] = prob.cost(start)
-    fits: dict[int, np.ndarray] = {}
-    costs: dict[int, float] = {}
-    per_piece: dict[int, np.ndarray] = {}
-
-    def profile(k: int) -> None:
-        # From the coarse start, then from the nominal values and each fit at another delay
-        # that fits delay k better before its fit than that fit does after; the best fit
-        # is kept.  (A fit at another delay has absorbed that delay: from it, the fit at k
-        # may stay in its basin, though it starts with a smaller miss than the coarse start.)
-        prob.pieces(k, start, subset)
-        fits[k] = prob.fit(start, subset, ROUNDS)
-        per_piece[k] = prob.piece_costs(fits[k])
-        others = [x0, *[v for j, v in fits.items() if j != k]]
-        for y in [y for y in others if not np.array_equal(y, start)]:
-            prob.pieces(k, y, subset, 1)
-            if prob.cost(y) < per_piece[k].sum():
-                prob.rep.refine_starts(prob.arm(y), 1)  # the second pass of prob.pieces
-                z = prob.fit(y, subset, ROUNDS)
-                if (c := prob.piece_costs(z)).sum() < per_piece[k].sum():
-                    fits[k], per_piece[k] = z, c
-        costs[k] = float(per_piece[k].sum())
-
-    several = len(scan) > 1
+    scanned = _scan_costs(prob, scan, start)
+    profiles = _Profiles(prob, start)
     best = min(scanned, key=scanned.get)
-    profile(best)
-    if several:  # the scan again at that fit: the nominal values may mislead it
-        for k in scan:
-            prob.pieces(k, fits[best], subset, 1)
-            scanned[k] = prob.cost(fits[best])
-        if (best := min(scanned, key=scanned.get)) not in costs:
-            profile(best)
-    while several:  # walk downhill to the least fitted residual
-        for k in (best - 1, best + 1):
-            if k in scanned and k not in costs:
-                profile(k)
-        better = min(costs, key=costs.get)
-        if better == best:
-            break
-        best = better
-    told = {best}  # grown while a neighbour is not worse
-    grow = several
-    while grow:
-        grow = False
-        for k in sorted(told):
-            for n in (k - 1, k + 1):
-                if n in scanned and n not in told:
-                    if n not in costs:
-                        profile(n)
-                    if not _worse(per_piece[n], per_piece[best]):
-                        told.add(n)
-                        grow = True
-    return _Delays(best, told, fits, costs)
+    profiles.profile(best)
+    told = {best}
+    if len(scan) > 1:  # the scan again at that fit: the nominal values may mislead it
+        scanned = _scan_costs(prob, scan, profiles.fits[best])
+        if (best := min(scanned, key=scanned.get)) not in profiles.costs:
+            profiles.profile(best)
+        best = _walk(profiles, scan, best)
+        told = _told_apart(profiles, scan, best)
+    return _Delays(best, told, profiles.fits, profiles.costs)
+
+
+def _delay_scan(config: EnvConfig, asked: list[str]) -> tuple[range, int]:
+    """Returns the loop delays (control steps) to search and the nominal loop delay.  With a
+    delay fitted, up to MAX_DELAY_S (or twice the nominal loop delay), else only the nominal
+    one; a delay left out of ``fit`` is known: it keeps its nominal value, and the loop delay
+    is at least that long (the other takes the rest)."""
+    kept = _kept(config)
+    nominal_steps = sum(kept.values())
+    max_d = max(round(MAX_DELAY_S / config.ctrl_dt), 2 * nominal_steps)
+    max_d = max_d if any(n in DELAYS for n in asked) else nominal_steps
+    return range(sum(kept[n] for n in DELAYS if n not in asked), max_d + 1), nominal_steps
+
+
+def _kept(config: EnvConfig) -> dict[str, int]:
+    """The nominal delays (control steps)."""
+    return {"motor_delay": config.delay_steps, "observation_delay": config.observation_delay_steps}
+
+
+def _final_fit(prob: Problem, d: int, x: np.ndarray) -> np.ndarray:
+    """Returns the fit on every piece at loop delay ``d`` from the subset's fit ``x``.  A fit
+    held at the integrator's limit may be stuck there (the optimizer cannot slide along it): it
+    is fitted again with the limiting fields (those check_stability names) from their nominal
+    values, and the better fit is kept."""
+    final, n = STAGES[1], len(prob.names)
+    prob.pieces(d, x, final)  # every piece, from the subset's fit
+    x = prob.fit(x, final, ROUNDS)
+    step = EDGE_STEP * np.eye(n)
+    limiting = {
+        prob.limiting(prob.arm(x + sign * step[i])) for i in range(n) for sign in (-1, 1)
+    } - {None}
+    pinned = [i for i, name in enumerate(prob.names) if name in limiting]
+    if not pinned:
+        return x
+    held = prob.cost(x)
+    retry = x.copy()
+    retry[pinned] = prob.x0[pinned]
+    prob.pieces(d, retry, final)
+    y = prob.fit(retry, final, ROUNDS)
+    if prob.cost(y) < held:
+        return y
+    prob.pieces(d, x, final)
+    return x
+
+
+def _covariance(prob: Problem, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Returns the residual at the fit ``x`` and the fields' cluster-robust covariance there
+    (scaled), from the Jacobian by forward differences."""
+    n = len(prob.names)
+    r = prob.residual(x)[0][0]
+    if not n:
+        return r, np.zeros((0, 0))
+    cols = np.tile(x[:, None], (1, n)) + 1e-6 * np.eye(n)
+    J = (prob.residual(cols)[0][0] - r[:, None]) / 1e-6
+    return r, cluster_covariance(J, r, len(prob.rep.pieces))
+
+
+def _estimates(prob: Problem, x: np.ndarray, cov: np.ndarray, spread: np.ndarray) -> list[Estimate]:
+    """Judges each field at the fit ``x`` (module docstring); ``spread``: its fits' largest
+    change over the delays not told apart (scaled), which widens its interval."""
+    from scipy import stats
+
+    k, P = len(prob.names), len(prob.rep.pieces)
+    tq = float(stats.t.ppf(1 - 0.025 / max(k, 1), max(P - k, 1)))
+    return [_estimate(prob, x, i, tq, cov[i, i], spread[i]) for i in range(k)]
+
+
+def _estimate(
+    prob: Problem, x: np.ndarray, i: int, tq: float, var: float, spread: float
+) -> Estimate:
+    """Judges field ``i`` of the fit ``x``: ``tq`` the t-quantile of its interval, ``var`` its
+    variance and ``spread`` its fits' spread over the delays (both scaled)."""
+    name = prob.names[i]
+    lo, hi, s = prob.box[name]
+    value = min(max(float(x[i] * s), lo), hi)
+    half = float(tq * math.sqrt(max(var, 0.0)) * s)
+    half = max(half, XTOL * abs(value)) + float(spread * s)  # no finer than the fit
+    at_bound = min(value - lo, hi - value) <= 1e-3 * (hi - lo)
+    at_limit = prob.at_limit(x, i)
+    ok = half <= IDENTIFIED_WITHIN * abs(value) and not (at_bound or at_limit)
+    why = _why_not(ok, at_bound, at_limit, f"+-{half:.3g} {FIELDS[name][0]}")
+    nominal = float(getattr(prob.mech, name))
+    # Too wide to identify, yet the recording rules the nominal value out: the fit is the
+    # better guess, and the identified arm takes it.
+    used = ok or not (at_bound or at_limit) and abs(nominal - value) > half
+    return Estimate(name, nominal, value, half, ok, why, used)
+
+
+def _why_not(ok: bool, at_bound: bool, at_limit: bool, width: str) -> str:
+    """Why a field is not identified ('' if it is): its bound, the integrator's limit, or its
+    interval's ``width``."""
+    if ok:
+        return ""
+    if at_bound:
+        return "at its bound"
+    if at_limit:
+        return "at the integrator's limit"
+    return width
+
+
+def _changes(
+    config: EnvConfig, asked: list[str], estimates: list[Estimate], noise: tuple, d: int
+) -> dict[str, Any]:
+    """Returns the identified arm's changes to the nominal experiment file: the fields it
+    takes, the sensors' noise, and with a delay fitted the loop delay ``d`` (steps) split as
+    the module docstring says (the best one, even if others are not told apart: the fields
+    fit it)."""
+    values = {e.field: e.value for e in estimates if e.used}
+    out: dict[str, Any] = {"mechanism": values}
+    speed = config.observation_noise[1] if noise[1] is None else noise[1]
+    out["observation_noise"] = [noise[0], speed]
+    if any(n in DELAYS for n in asked):
+        obs = round(_observation_steps(config, asked, d) * config.ctrl_dt, 12)
+        values["motor_delay"] = round(d * config.ctrl_dt - obs, 12)
+        out["observation_delay"] = obs
+    return out
+
+
+def _observation_steps(config: EnvConfig, asked: list[str], d: int) -> int:
+    """The sensor's share (steps) of the loop delay ``d``: its nominal one if not fitted, the
+    rest of the motor's nominal one if that is not fitted, else half (the motor the odd step)."""
+    kept = _kept(config)
+    if "observation_delay" not in asked:
+        return kept["observation_delay"]
+    if "motor_delay" not in asked:
+        return d - kept["motor_delay"]
+    return d // 2
 
 
 def identify(
@@ -258,123 +409,37 @@ def identify(
 ) -> Identification:
     """Fits the fields ``fit`` (default DEFAULT_FIT, less those the nominal arm's model
     cannot vary) of the arm of ``config`` to ``recordings`` (module docstring)."""
-    from scipy import stats
-
     began = time.perf_counter()
-    mech = config.mechanism
     asked = list(DEFAULT_FIT if fit is None else fit)
-    names, box, skipped = _fields(asked, mech, fit is not None)
-    fit_delay = any(n in DELAYS for n in asked)
+    names, box, skipped = _fields(asked, config.mechanism, fit is not None)
     if threads is not None:
         integer("threads", threads, 1, 1024)
     prob = Problem(recordings, config, names, box, threads or os.cpu_count() or 1)
-    x0 = prob.x0
-    kept = {"motor_delay": config.delay_steps, "observation_delay": config.observation_delay_steps}
-    nominal_steps = sum(kept.values())
-
-    max_d = max(round(MAX_DELAY_S / config.ctrl_dt), 2 * nominal_steps)
-    max_d = max_d if fit_delay else nominal_steps
-    prob.first = max(prob.first, max_d + 1)
+    scan, nominal_steps = _delay_scan(config, asked)
+    prob.first = max(prob.first, scan.stop)  # after the longest delay searched
     check_pieces(recordings, config, len(names), prob.first)
-    final = STAGES[1]
-    # A delay left out of ``fit`` is known: it keeps its nominal value, and the loop delay is
-    # at least that long (the other takes the rest; with neither fitted, only the nominal).
-    scan = range(sum(kept[n] for n in DELAYS if n not in asked), max_d + 1)
     start, before = _coarse_start(prob, nominal_steps)
     delays = _search_delay(prob, scan, start)
     d, told, fits = delays.best, delays.told, delays.fits
-    prob.pieces(d, fits[d], final)  # every piece, from the subset's fit
-    x = prob.fit(fits[d], final, ROUNDS)
-    # A fit held at the integrator's limit may be stuck there (the optimizer cannot slide
-    # along it): it is fitted again with the limiting fields (those check_stability names)
-    # from their nominal values, and the better fit is kept.
-    step = EDGE_STEP * np.eye(len(names))
-    limiting = {
-        prob.limiting(prob.arm(x + sign * step[i])) for i in range(len(names)) for sign in (-1, 1)
-    } - {None}
-    pinned = [i for i, n in enumerate(names) if n in limiting]
-    if pinned:
-        held = prob.cost(x)
-        retry = x.copy()
-        retry[pinned] = x0[pinned]
-        prob.pieces(d, retry, final)
-        y = prob.fit(retry, final, ROUNDS)
-        if prob.cost(y) < held:
-            x = y
-        else:
-            prob.pieces(d, x, final)
-    delay_ok = fit_delay and told == {d} and d < max_d
+    x = _final_fit(prob, d, fits[d])
+    fit_delay = any(n in DELAYS for n in asked)
+    delay_ok = fit_delay and told == {d} and d < scan.stop - 1
     # A field's fit at each delay not told apart widens its interval (the delay is a
     # nuisance the fields are conditional on).
     spread = np.max([np.abs(fits[k] - fits[d]) for k in told], axis=0)
-
-    # The Jacobian at the fit (forward differences), and the robust covariance.
-    P = len(prob.rep.pieces)
-    r = prob.residual(x)[0][0]
-    if names:
-        cols = np.tile(x[:, None], (1, len(names))) + 1e-6 * np.eye(len(names))
-        J = (prob.residual(cols)[0][0] - r[:, None]) / 1e-6
-        cov = cluster_covariance(J, r, P)
-    else:
-        cov = np.zeros((0, 0))
-    tq = float(stats.t.ppf(1 - 0.025 / max(len(names), 1), max(P - len(names), 1)))
-    estimates, values = [], {}
-    for i, n in enumerate(names):
-        lo, hi, s = box[n]
-        value = min(max(float(x[i] * s), lo), hi)
-        half = float(tq * math.sqrt(max(cov[i, i], 0.0)) * s)
-        half = max(half, XTOL * abs(value)) + float(spread[i] * s)  # no finer than the fit
-        at_bound = min(value - lo, hi - value) <= 1e-3 * (hi - lo)
-        at_limit = prob.at_limit(x, i)
-        ok = half <= IDENTIFIED_WITHIN * abs(value) and not (at_bound or at_limit)
-        why = (
-            ""
-            if ok
-            else "at its bound"
-            if at_bound
-            else "at the integrator's limit"
-            if at_limit
-            else f"+-{half:.3g} {FIELDS[n][0]}"
-        )
-        nominal = float(getattr(mech, n))
-        # Too wide to identify, yet the recording rules the nominal value out: the fit is
-        # the better guess, and the identified arm takes it.
-        used = ok or not (at_bound or at_limit) and abs(nominal - value) > half
-        estimates.append(Estimate(n, nominal, value, half, ok, why, used))
-        if used:
-            values[n] = value
-    loop = d * config.ctrl_dt
+    r, cov = _covariance(prob, x)
+    estimates = _estimates(prob, x, cov, spread)
     noise = prob.rep.noise(prob.arm(x))
-    out: dict[str, Any] = {"mechanism": values}
-    out["observation_noise"] = [
-        noise[0],
-        config.observation_noise[1] if noise[1] is None else noise[1],
-    ]
-    if fit_delay:  # the best one, even if others are not told apart: the fields fit it;
-        # only the sum shows, split as the module docstring says
-        obs_steps = (
-            kept["observation_delay"]
-            if "observation_delay" not in asked
-            else d - kept["motor_delay"]
-            if "motor_delay" not in asked
-            else d // 2
-        )
-        obs = round(obs_steps * config.ctrl_dt, 12)
-        values["motor_delay"] = round(loop - obs, 12)
-        out["observation_delay"] = obs
     return Identification(
         estimates=estimates,
-        loop_delay_s=loop,
+        loop_delay_s=d * config.ctrl_dt,
         delay_identified=bool(delay_ok),
         delay_range_s=(min(told) * config.ctrl_dt, max(told) * config.ctrl_dt),
-        changes=out,
+        changes=_changes(config, asked, estimates, noise, d),
         skipped=skipped,
         noise=noise,
-        pieces=P,
-        residual_rms_rad=(
-            before,
-            math.sqrt(float(np.sum(r**2)) / r.size) * ANGLE_UNIT,
-        ),
+        pieces=len(prob.rep.pieces),
+        residual_rms_rad=(before, math.sqrt(float(np.sum(r**2)) / r.size) * ANGLE_UNIT),
         seconds=time.perf_counter() - began,
         sources=[rec.source for rec in recordings],
         extras={

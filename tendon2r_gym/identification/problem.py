@@ -66,7 +66,7 @@ def bounds(name: str, mech: Mechanism) -> tuple[float, float, float] | str:
             return "the nominal arm's cables are rigid (tendon_elasticity: 0)"
         return v / 5, v * 5, v
     if name == "tendon_damping":
-        scale = v if v > 0 else (1.0 if mech.elastic else 0.01 * force)
+        scale = _damping_scale(v, mech)
         return 0.0, 10 * scale, scale
     if name == "tendon_friction":
         if mech.elastic and v == 0:
@@ -83,6 +83,16 @@ def bounds(name: str, mech: Mechanism) -> tuple[float, float, float] | str:
         scale = max(v, 1e-5)
         return 0.0, 10 * scale, scale
     raise invalid("fit", name, f"names from {list(FIELDS)}")
+
+
+def _damping_scale(v: float, mech: Mechanism) -> float:
+    """The cables' damping scale: the nominal value, else 1 N s/m on elastic cables, else 1% of
+    the force limit."""
+    if v > 0:
+        return v
+    if mech.elastic:
+        return 1.0
+    return 0.01 * float(mech.max_tendon_force)
 
 
 class Problem:
