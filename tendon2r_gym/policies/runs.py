@@ -58,6 +58,11 @@ STATS = "_vecnormalize.npz"
 LEGACY_STATS = "_vecnormalize.pkl"
 #: Beside the seed folders of a multi-seed command.
 SEEDS_SUMMARY = "seeds_summary.json"
+#: config.yaml opens with CONFIG_HEAD and ends with CONFIG_END, so that one cut short is told
+#: from a whole one (YAML cut at a line end still parses; JSON cut short does not).  One
+#: without CONFIG_HEAD was written by an earlier version, and is read as it is.
+CONFIG_HEAD = "# tendon2r_gym: the hyperparameters of this run, whole if its last line is:"
+CONFIG_END = "# end of config.yaml"
 #: The small files a bundle keeps (no checkpoints, no TensorBoard logs).
 BUNDLE_FILES = (
     f"{BEST}.zip",
@@ -153,6 +158,9 @@ def read_record(path: Path) -> Any:
         raise corrupt(path, "it is not UTF-8 text") from None
     if not text.strip():
         raise corrupt(path, "it is empty")
+    if path.name == CONFIG and text.startswith(CONFIG_HEAD):
+        if text.rstrip().splitlines()[-1] != CONFIG_END:
+            raise corrupt(path, f"it is cut short (its last line is not {CONFIG_END!r})")
     yaml_file = path.suffix == ".yaml"
     try:
         data = yaml.safe_load(text) if yaml_file else json.loads(text)
@@ -288,7 +296,8 @@ class RunFolder:
         self._write(name, json.dumps(data, indent=1) + "\n")
 
     def write_config(self, cfg: dict[str, Any]) -> None:
-        self._write(CONFIG, yaml.safe_dump(cfg, sort_keys=False))
+        text = yaml.safe_dump(cfg, sort_keys=False)
+        self._write(CONFIG, f"{CONFIG_HEAD}\n{text}{CONFIG_END}\n")
 
     def _write(self, name: str, text: str) -> None:
         self.path.mkdir(parents=True, exist_ok=True)
