@@ -223,13 +223,23 @@ def _closed_port() -> int:
         return s.getsockname()[1]
 
 
-@on_cluster
-def test_a_cluster_unreachable_or_without_cpus_is_refused_before_training(tmp_path, cluster):
-    config = _tiny(tmp_path)
-    address = f"127.0.0.1:{_closed_port()}"
+@needs_ray
+def test_a_cluster_that_cannot_be_reached_is_refused_before_anything_is_written(
+    tmp_path, monkeypatch
+):
+    """A named address, or the one RAY_ADDRESS gives --cluster auto, where nothing listens
+    (a closed port of 127.0.0.1)."""
+    config, address = _tiny(tmp_path), f"127.0.0.1:{_closed_port()}"
     with pytest.raises(ValueError, match=rf"^--cluster = '{address}' is invalid; .*unreachable"):
         _train(config, tmp_path / "run", "--cluster", address)
+    monkeypatch.setenv("RAY_ADDRESS", address)
+    with pytest.raises(ValueError, match=rf"^--cluster = 'auto' is invalid; .*{address} is unr"):
+        _train(config, tmp_path / "run", "--cluster", "auto")
     assert not (tmp_path / "run").exists()
+
+
+@on_cluster
+def test_a_cluster_without_the_cpus_of_a_job_is_refused_before_training(tmp_path, cluster):
     two_threads = _tiny(tmp_path, torch_threads=2)  # each job asks for 2 CPUs: no node has them
     with pytest.raises(ValueError, match=r"a node of at least 2 CPU.*have \['1', '1'\] CPUs"):
         _train(two_threads, tmp_path / "run", "--cluster", cluster.address)

@@ -1,6 +1,7 @@
 """PPO training: typed hyperparameters (hyperparams), SB3 callbacks (callbacks) and the run
 owner (manager).  The SB3 adapter of the native vector env is
-tendon2r_gym.training.vector_env_sb3."""
+tendon2r_gym.training.vector_env_sb3.  One seed's training as a job (jobs) runs in this
+process, on local worker processes or on a Ray cluster (executors)."""
 
 from typing import Any
 
