@@ -18,6 +18,7 @@ import tendon2r_gym
 from tendon2r_gym import EnvConfig, Tendon2REnv
 from tendon2r_gym.envs.env_config import COMPUTED
 from tendon2r_gym.task import observation as L
+from tendon2r_gym.task.rewards import TERMS
 
 
 def _rollout(env, seed, n=50):
@@ -460,6 +461,38 @@ def test_multiscale_tracking_reward_is_bounded_and_keeps_a_gradient_near_zero():
     assert all(a > b for a, b in itertools.pairwise(values)), values
     # From 0.05 to 0.01 deg the multiscale reward gains far more than the log form.
     assert r(task, 0.01) - r(task, 0.05) > 100 * (r(log, 0.01) - r(log, 0.05))
+
+
+@pytest.mark.parametrize("form", ["multiscale", "log", "quadratic"])
+def test_tracking_rate_is_the_tracking_kernel_of_the_error_ahead(form):
+    """tracking_rate is the tracking form's kernel of e + tracking_horizon de: at errors e
+    changing at de, it is the tracking term at the errors e + h de; unweighted, it is 0."""
+    from tendon2r_gym.envs.task import RAD_PER_DEG, Task
+    from tendon2r_gym.ops import SCALAR
+
+    def terms(e1, e2, de1=0.0, de2=0.0, weight=1.0, horizon=0.05):
+        cfg = EnvConfig.make(tracking_form=form, tracking_horizon=horizon,
+                             reward_scales={"tracking_rate": weight})  # fmt: skip
+        zero = [0.0, 0.0]
+        return Task(cfg).reward_terms(SCALAR, e1, e2, zero, zero, zero, False, de1, de2)
+
+    e1, e2, de1, de2 = (x * RAD_PER_DEG for x in (0.25, -0.5, 4.0, 1.0))
+    moving = terms(e1, e2, de1, de2)
+    there = terms(e1 + 0.05 * de1, e2 + 0.05 * de2)
+    assert moving["tracking_rate"] == pytest.approx(there["tracking"], rel=1e-12)
+    assert moving["tracking_rate"] != moving["tracking"]
+    assert terms(e1, e2, de1, de2, horizon=0.0)["tracking_rate"] == moving["tracking"]
+    assert terms(e1, e2, de1, de2, weight=0.0)["tracking_rate"] == 0.0
+
+
+def test_the_reward_is_the_sum_of_its_terms_with_tracking_rate():
+    env = gym.make("Tendon2R-v1", reward_scales={"tracking_rate": 0.5})
+    env.reset(seed=0)
+    for k in range(20):
+        _, reward, _, _, info = env.step(np.array([np.sin(k), 0.3], dtype=np.float32))
+        parts = [info[f"reward_{name}"] for name in TERMS]
+        assert reward == pytest.approx(sum(parts), rel=1e-12, abs=1e-15)
+        assert info["reward_tracking_rate"] != 0.0
 
 
 @pytest.mark.parametrize("preset", ["default", "pull_only"])

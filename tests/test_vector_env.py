@@ -56,7 +56,8 @@ def _native(n, **kw):
              "observe": ["feedforward", "arm"], "observation_delay": 0.002}),
      (3, 1, {"preset": "pull_only", "mechanism": REAL, "mechanism_ranges": ARMS}),
      (4, 1, {"preset": "real_arm", "mechanism_ranges": "real_arm", "observe": ["arm"]}),
-     (3, 1, {"preset": "real_arm", "mechanism_ranges": GAINS, "observe": ["arm"]})],
+     (3, 1, {"preset": "real_arm", "mechanism_ranges": GAINS, "observe": ["arm"]}),
+     (3, 1, {"reward_scales": {"tracking_rate": 1.0}, "observation_noise": [1e-3, 0.1]})],
 )  # fmt: skip
 @pytest.mark.parametrize("mode", ["NextStep", "SameStep"])
 def test_same_seeds_same_trajectories_as_single_envs_bit_for_bit(n, nthread, kwargs, mode):

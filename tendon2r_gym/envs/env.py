@@ -119,6 +119,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     | `reward_scales` | `{{'tracking': 1, 'tracking_quadratic': 0, 'ctrl': 0.001, 'action_rate': 0.1, 'action_rate_need': 0, 'divergence': 100}}` | weights |
     | `tracking_form` | `"multiscale"` | "multiscale", "log" (both bounded) or "quadratic" tracking reward |
     | `tracking_sigma_deg` | `1.0` | error scale of the "multiscale" and "log" tracking rewards (deg) |
+    | `tracking_horizon` | `0.05` | how far ahead (s) the ``tracking_rate`` term looks at the error, at its present rate |
     | `reset_noise_scale` | `0.001` | initial-state noise (rad, rad/s) |
     | `preview_steps` | `3` | number of future reference samples observed |
     | `preview_dt` | `0.01` | spacing of the future reference samples (s) |
@@ -398,7 +399,10 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         """Returns (reward, scaled terms) from the observation's entries of the true state; the
         reward is the sum of the terms."""
         e1, e2 = entries[self._err]
-        terms = self.task.reward_terms(SCALAR, e1, e2, action, last, self._rate_inv, diverged)
+        (w1, w2), (v1, v2) = entries[obs_layout.DQ], entries[obs_layout.DQ_DES]
+        terms = self.task.reward_terms(
+            SCALAR, e1, e2, action, last, self._rate_inv, diverged, v1 - w1, v2 - w2
+        )
         return self.task.scale(terms)
 
     def _get_info(self, obs: np.ndarray, terms: dict[str, float], diverged: bool) -> dict[str, Any]:

@@ -91,6 +91,8 @@ class EnvConfig:
     reward_scales: Mapping[str, float] = field(default_factory=lambda: dict(REWARD_SCALES))
     tracking_form: str = "multiscale"
     tracking_sigma_deg: float = 1.0
+    #: How far ahead (s) the ``tracking_rate`` reward term looks: e + tracking_horizon de.
+    tracking_horizon: float = 0.05
     reset_noise_scale: float = 0.001
     preview_steps: int = 3
     preview_dt: float = 0.01
@@ -196,6 +198,7 @@ class EnvConfig:
             "tracking_sigma_deg",
             number("tracking_sigma_deg", self.tracking_sigma_deg, 0.0, 90.0, lo_open=True),
         )
+        set_("tracking_horizon", number("tracking_horizon", self.tracking_horizon, 0.0, 10.0))
         set_("reset_noise_scale", number("reset_noise_scale", self.reset_noise_scale, 0.0, 0.5))
         set_("preview_steps", integer("preview_steps", self.preview_steps, 0, 100))
         set_("preview_dt", number("preview_dt", self.preview_dt, 0.0, 1.0, lo_open=True))

@@ -136,6 +136,7 @@ class Task:
             for k in MULTISCALE
         ]
         self.form = config.tracking_form
+        self.horizon = config.tracking_horizon
         self.alpha = config.action_filter_alpha
         # The effort term charges the commanded tension as a fraction of the force limit
         # (Mechanism.command_map: (command + 1) / 2 for pull-only motors, whose -1 is slack) in
@@ -362,24 +363,21 @@ class Task:
         last_action: Sequence[Any],
         rate_need_inverse: Sequence[Any],
         diverged: Any,
+        de1: Any = 0.0,
+        de2: Any = 0.0,
     ) -> dict[str, Any]:
         """Returns the unscaled reward terms (keys of TERMS) from the tracking errors (rad), the
         clipped action and the one before it (one value, or one column of N values, per action
-        dimension), :meth:`rate_need_inverse` of the arm (per action dimension) and
-        divergence."""
+        dimension), :meth:`rate_need_inverse` of the arm (per action dimension), divergence
+        and the errors' rates (rad/s; read only when ``tracking_rate`` is weighed)."""
         e1, e2 = e1 / RAD_PER_DEG, e2 / RAD_PER_DEG
         quadratic = -(e1 * e1 + e2 * e2)
-        if self.form == "log":
-            u1, u2 = e1 / self.sigma, e2 / self.sigma
-            tracking = -(ops.log1p(u1 * u1) + ops.log1p(u2 * u2)) / self.log_norm
-        elif self.form == "multiscale":
-            tracking = 0.0
-            log1p = ops.log1p
-            for inv, norm in self.kernels:
-                u1, u2 = e1 * inv, e2 * inv
-                tracking -= (log1p(u1 * u1) + log1p(u2 * u2)) / norm
-        else:
-            tracking = quadratic
+        tracking = self._tracking(ops, e1, e2, quadratic)
+        ahead = 0.0 * quadratic  # a zero per arm, unless weighed
+        if self.scales["tracking_rate"] != 0.0:  # the error tracking_horizon s ahead (deg)
+            h = self.horizon / RAD_PER_DEG
+            a1, a2 = e1 + h * de1, e2 + h * de2
+            ahead = self._tracking(ops, a1, a2, -(a1 * a1 + a2 * a2))
         effort = rate = rate_need = 0.0  # in action order, as numpy's sum over a few entries
         gain, offset, mapped = self.effort_gain, self.effort_offset, self._effort_mapped
         for x, x0, inv in zip(action, last_action, rate_need_inverse, strict=False):
@@ -392,11 +390,26 @@ class Task:
         return {
             "tracking": tracking,
             "tracking_quadratic": quadratic,
+            "tracking_rate": ahead,
             "ctrl": -effort,
             "action_rate": -rate,
             "action_rate_need": -rate_need,
             "divergence": ops.where(diverged, -1.0, 0.0),
         }
+
+    def _tracking(self, ops: Ops, e1: Any, e2: Any, quadratic: Any) -> Any:
+        """Returns the ``tracking_form`` kernel of the errors (deg; ``quadratic``: -sum e^2)."""
+        if self.form == "log":
+            u1, u2 = e1 / self.sigma, e2 / self.sigma
+            return -(ops.log1p(u1 * u1) + ops.log1p(u2 * u2)) / self.log_norm
+        if self.form == "multiscale":
+            tracking = 0.0
+            log1p = ops.log1p
+            for inv, norm in self.kernels:
+                u1, u2 = e1 * inv, e2 * inv
+                tracking -= (log1p(u1 * u1) + log1p(u2 * u2)) / norm
+            return tracking
+        return quadratic
 
     def scale(self, terms: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
         """Returns (reward, scaled terms): each term times its weight, keyed ``reward_<name>``

@@ -401,8 +401,10 @@ class Tendon2RVectorEnv(VectorEnv):
         self, obs: np.ndarray, a: np.ndarray, last: np.ndarray, diverged: np.ndarray
     ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         e = obs[:, obs_layout.ERROR]
+        de = obs[:, obs_layout.DQ_DES] - obs[:, obs_layout.DQ]
         terms = self.task.reward_terms(
-            BATCH, e[:, 0], e[:, 1], list(a.T), list(last.T), self._rate_inv, diverged
+            BATCH, e[:, 0], e[:, 1], list(a.T), list(last.T), self._rate_inv, diverged,
+            de[:, 0], de[:, 1],
         )
         return self.task.scale(terms)
 

@@ -4,7 +4,8 @@ An id's contract is its resolved config (the default arm, reference, timing, res
 observation options, reward form and weights: EnvConfig.to_dict, with ``observe`` written as
 the four flags it replaced, tendon2r_gym.task.observation.as_flags, so that an id whose
 behaviour did not change keeps its hash), its observation layout, its
-reward terms with their default weights, its action space, its episode length and a short
+reward terms with their default weights, its action space, its episode length, what its entry
+point adds around the env (``wrapper``: a residual id's PD and the correction's scale) and a short
 seeded rollout's observations and rewards (six significant digits): the behaviour, not only
 the settings.  ``tendon2r_gym/data/contracts.yaml`` holds each id's hash; tests/test_contract.py
 fails when a contract changes until the id's version is raised (tendon2r_gym.VERSIONS) and
@@ -26,6 +27,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from tendon2r_gym.envs.env_config import arguments
 from tendon2r_gym.policies.registry import contract_hash
 from tendon2r_gym.presets import DATA_DIR, load_yaml
 from tendon2r_gym.task import observation
@@ -57,7 +59,10 @@ def env_contract(env_id: str) -> dict[str, Any]:
         seen.append(_sig(obs))
         rewards.append(float(f"{reward:.6g}"))
     env.close()
+    # What the entry point takes besides the env's own arguments (a residual id's PD wrapper).
+    wrapper = {k: v for k, v in gym.spec(env_id).kwargs.items() if k not in arguments()}
     return {
+        **({"wrapper": wrapper} if wrapper else {}),
         "config": observation.as_flags(config.to_dict()),
         "observation": config.observation.layout(),
         "reward_terms": {name: weight for name, (weight, _) in TERMS.items()},

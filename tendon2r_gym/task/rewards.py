@@ -32,6 +32,15 @@ TERMS: dict[str, tuple[float, str]] = {
         "reset's offset, most of a precise policy's RMS, are a few percent of its reward "
         "(research/results/transient.md)",
     ),
+    "tracking_rate": (
+        0.0,
+        "the ``tracking`` form's kernels on e + ``tracking_horizon`` de, the error that each "
+        "joint will have ``tracking_horizon`` s ahead at its present rate de = dq_des - dq "
+        "(deg): an action changes it on the very next step, where it changes the error itself "
+        "only over many steps, so that a learner with a short discount horizon (gamma 0.9 at 1 "
+        "kHz looks 10 ms ahead) sees what its action did.  Driving it to 0 closes the error "
+        "with time constant ``tracking_horizon``",
+    ),
     "ctrl": (
         0.001,
         "``-sum(f^2)``, f the applied command as a fraction of the force limit: the tension "
