@@ -9,10 +9,12 @@ and CT.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
+from tendon2r_gym.app import markdown
 from tendon2r_gym.evaluation.evaluator import BASELINE, JITTER, REPRO_RUNS, names
 from tendon2r_gym.evaluation.metrics import beats, smoothness_x_pd
 from tendon2r_gym.policies.model_env import MODEL_SETTINGS
@@ -29,12 +31,12 @@ PRINTED = 5e-5
 
 def fmt(pair: list[float] | None, digits: int = 4) -> str:
     """Returns per-joint figures as "A / B" with ``digits`` decimals ("-" for none)."""
-    return "-" if pair is None else " / ".join(f"{v:.{digits}f}" for v in pair)
+    return markdown.pair(pair, f".{digits}f")
 
 
 def tol(pair: list[float] | None) -> str:
     """Returns a reproducibility tolerance per joint, to two significant digits."""
-    return "-" if pair is None else " / ".join(f"{v:.2g}" for v in pair)
+    return markdown.pair(pair, ".2g")
 
 
 def unsure(cell: dict[str, Any]) -> str:
@@ -87,35 +89,83 @@ def _beat(value: Any) -> str:
     return "never" if value is None else f"{value['timesteps']} / {value['wall_time_s']} s"
 
 
-def table(rows: list[dict[str, Any]], quoted: dict[str, tuple] | None = None) -> list[str]:
-    """Returns the markdown table of benchmark rows."""
-    lines = [
-        "| env | policy | RMS error A / B (deg) | reproducible to (deg) | max error (deg) | RMS "
-        "tension (N) | peak tension (N) | RMS tension rate (N/s) | steps pushing | saturated | "
-        "train steps | train wall (s) | first beat PD (steps / wall) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
+def _by_env(rows: list[dict[str, Any]]):
+    """Yields (env, its rows) in the rows' order."""
     for name in dict.fromkeys(r["env"] for r in rows):
-        for r in (r for r in rows if r["env"] == name):
+        yield name, [r for r in rows if r["env"] == name]
+
+
+def tracking_table(
+    rows: list[dict[str, Any]],
+    quoted: dict[str, tuple] | None = None,
+    plots: Callable[[dict[str, Any]], str] | None = None,
+) -> list[str]:
+    """Returns the table of the rows' tracking errors (and, with ``plots``, a column of the
+    links it gives each row: its figures)."""
+    head = ["env", "policy", "RMS error A / B (deg)", "reproducible to (deg)", "max error (deg)"]
+    out = []
+    for name, group in _by_env(rows):
+        for r in group:
             if "missing" in r:
-                lines.append(f"| {name} | {r['policy']} | {r['missing']} |" + " |" * 10)
-                continue
-            std = f" ± {fmt(r['rms_deg_std'])}" if "rms_deg_std" in r else ""
-            learned = "train_steps" in r
-            lines.append(
-                f"| {name} | {shown_policy(r)} | {fmt(r['rms_deg'])}{std} | "
-                f"{tol(r.get('reproducible_to'))} | {fmt(r['max_deg'], 3)} "
-                f"| {fmt(r.get('rms_tension_N'))} | {fmt(r.get('max_tension_N'))} | "
-                f"{fmt(r.get('rms_tension_rate_N_per_s'), 2)} | "
-                f"{r.get('negative_tension_steps', '')} | {fmt(r.get('saturated_fraction'), 3)} | "
-                f"{r.get('train_steps', '')} | {r.get('train_wall_s', '')} | "
-                f"{_beat(r.get('first_beat_pd')) if learned else ''} |"
-            )
+                cells = [name, r["policy"], r["missing"], "", ""]
+            else:
+                std = f" ± {fmt(r['rms_deg_std'])}" if "rms_deg_std" in r else ""
+                cells = [name, shown_policy(r), f"{fmt(r['rms_deg'])}{std}",
+                         tol(r.get("reproducible_to")), fmt(r["max_deg"], 3)]  # fmt: skip
+            out.append([*cells, plots(r)] if plots else cells)
         if quoted and name in quoted:
             label, rms, mx = quoted[name]
-            lines.append(
-                f"| {name} | *quoted: {label}* | {fmt(rms, 2)} | | {fmt(mx, 2)} |" + " |" * 8
-            )
+            quote = [name, f"*quoted: {label}*", fmt(rms, 2), "", fmt(mx, 2)]
+            out.append([*quote, ""] if plots else quote)
+    return markdown.table([*head, "plots"] if plots else head, out)
+
+
+#: The tracking table under its earlier name.
+table = tracking_table
+
+
+def effort_table(rows: list[dict[str, Any]]) -> list[str]:
+    """Returns the table of the rows' tensions per tendon: RMS, peak, RMS rate of change, the
+    steps with a pushing tendon and the fraction of saturated steps."""
+    head = ["env", "policy", "RMS tension (N)", "peak tension (N)", "RMS tension rate (N/s)",
+            "steps pushing", "saturated"]  # fmt: skip
+    out = [
+        [name, shown_policy(r), fmt(r.get("rms_tension_N")), fmt(r.get("max_tension_N")),
+         fmt(r.get("rms_tension_rate_N_per_s"), 2), r.get("negative_tension_steps", ""),
+         fmt(r.get("saturated_fraction"), 3)]
+        for name, group in _by_env(rows)
+        for r in group
+        if "rms_tension_N" in r
+    ]  # fmt: skip
+    return markdown.table(head, out)
+
+
+def training_table(rows: list[dict[str, Any]]) -> list[str]:
+    """Returns the table of the learned rows' training cost: steps, wall time and the first
+    evaluation that beat PD."""
+    head = ["env", "policy", "train steps", "train wall (s)", "first beat PD (steps / wall)"]
+    out = [
+        [name, shown_policy(r), r["train_steps"], r.get("train_wall_s", ""),
+         _beat(r.get("first_beat_pd"))]
+        for name, group in _by_env(rows)
+        for r in group
+        if "train_steps" in r
+    ]  # fmt: skip
+    return markdown.table(head, out)
+
+
+def tables(
+    rows: list[dict[str, Any]],
+    quoted: dict[str, tuple] | None = None,
+    plots: Callable[[dict[str, Any]], str] | None = None,
+    h: str = "###",
+) -> list[str]:
+    """Returns the rows' three tables under their ``h`` headings: tracking, effort and (if a
+    row was trained) training."""
+    lines = [f"{h} Tracking", "", *tracking_table(rows, quoted, plots), "",
+             f"{h} Effort", "", *effort_table(rows)]  # fmt: skip
+    if any("train_steps" in r for r in rows):
+        lines += ["", f"{h} Training cost", "", *training_table(rows)]
     return lines
 
 
@@ -178,14 +228,22 @@ def tension_comparison(rows: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
-def bundled_sections(result: dict[str, Any], level: int = 2) -> list[str]:
+def bundled_sections(
+    result: dict[str, Any],
+    level: int = 2,
+    notes: list[str] = NOTES,
+    plots: Callable[[dict[str, Any]], str] | None = None,
+) -> list[str]:
     """Returns the sections of the bundled presets' report (``tendon2r-benchmark``) from its
-    JSON record, their headings at ``level``."""
+    JSON record, their headings at ``level``: ``notes`` on how to read it, its tables (with
+    ``plots``, each row's links to its figures) and the verdicts."""
     rows, h = result["rows"], "#" * level
     lines = [
-        *NOTES,
+        *notes,
         "",
-        *table(rows, REPORT_ROWS),
+        *tables(rows, REPORT_ROWS, plots, h + "#"),
+        "",
+        f"{h}# Against PD and computed torque",
         "",
         "Learned rows against PD (RMS <= PD on both joints?) and against computed torque:",
         "",
@@ -203,13 +261,17 @@ def bundled_sections(result: dict[str, Any], level: int = 2) -> list[str]:
             "PD and the residual trained on random references (`random_reference`) on fixed",
             "references it never trained on (`tendon2r_gym.app.benchmark.HELD_OUT`):",
             "",
-            "| policy | mean RMS error A / B (deg) | reproducible to (deg) |",
-            "|---|---|---|",
-            *(
-                f"| {r['policy']} | {r.get('missing') or fmt(r['rms_deg_mean'])} | "
-                f"{tol(r.get('reproducible_to'))} |"
-                for r in held
-            ),
+            *markdown.table(
+                ["policy", "mean RMS error A / B (deg)", "reproducible to (deg)"],
+                (
+                    [
+                        r["policy"],
+                        r.get("missing") or fmt(r["rms_deg_mean"]),
+                        tol(r.get("reproducible_to")),
+                    ]
+                    for r in held
+                ),
+            ),  # fmt: skip
         ]
     return lines
 
@@ -217,7 +279,7 @@ def bundled_sections(result: dict[str, Any], level: int = 2) -> list[str]:
 def bundled_page(result: dict[str, Any]) -> list[str]:
     """Returns results/benchmark.md."""
     return [
-        "# Benchmark: PD vs computed torque vs PPO on Tendon2R-v0",
+        "# Benchmark: PD vs computed torque vs PPO on the bundled presets",
         "",
         f"Produced by `{result['command']}`; every figure comes from that run except the rows",
         "marked *quoted*, which are the lab reports' own figures.",
@@ -227,14 +289,21 @@ def bundled_page(result: dict[str, Any]) -> list[str]:
 
 
 def without_partial_smoothness(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Returns rows for :func:`verdicts`, which compares tensions when a row has
+    """Returns rows for `verdicts`, which compares tensions when a row has
     ``rms_tension_N``: a row recorded without its tension rate keeps its errors only."""
     rate, tension = "rms_tension_rate_N_per_s", "rms_tension_N"
     return [r if rate in r else {k: v for k, v in r.items() if k != tension} for r in rows]
 
 
-def own_arm_sections(result: dict[str, Any]) -> list[str]:
-    """Returns an own-arm report's body (``tendon2r-benchmark --env-config FILE``)."""
+def own_arm_sections(
+    result: dict[str, Any],
+    notes: list[str] = NOTES,
+    plots: Callable[[dict[str, Any]], str] | None = None,
+    level: int = 2,
+) -> list[str]:
+    """Returns an own-arm report's body (``tendon2r-benchmark --env-config FILE``): ``notes``,
+    its tables under headings at ``level`` (with ``plots``, each row's links to its figures)
+    and the verdicts."""
     rows = result["rows"]
     mech = result.get("env_config", {}).get("mechanism", {})
     lines = [f"Produced by `{result['command']}`."]
@@ -243,7 +312,8 @@ def own_arm_sections(result: dict[str, Any]) -> list[str]:
             f"Force limit {mech['max_tendon_force']:g} N; inverse dynamics of the reference "
             f"needs {result['force_need_N']:.3g} N."
         )
-    return [*lines, "", *NOTES, "", *table(rows), "", *verdicts(without_partial_smoothness(rows))]
+    return [*lines, "", *notes, "", *tables(rows, plots=plots, h="#" * level), "",
+            *verdicts(without_partial_smoothness(rows))]  # fmt: skip
 
 
 def own_arm_page(result: dict[str, Any], env_config: str) -> list[str]:
