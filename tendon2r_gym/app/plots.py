@@ -72,3 +72,34 @@ def save_video(frames: list[np.ndarray], path: str | Path, fps: int) -> Path:
     else:
         imageio.mimsave(path, frames, fps=fps, macro_block_size=1)
     return path
+
+
+def plot_performance_profile(
+    profile: dict, path: str | Path, title: str = "Performance profile"
+) -> Path:
+    """Writes a performance profile (tendon2r_gym.evaluation.statistics.performance_profile's
+    data) as a PNG: per policy, the fraction of runs whose worst-joint RMS ratio to PD is <=
+    tau, against tau on a log axis, with its bootstrap band; PD's own ratio (tau = 1) marked.
+    The file's bytes depend only on the data (no software version in its metadata)."""
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tau = np.asarray(profile["tau"], dtype=float)
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    for policy, curve in profile["curves"].items():
+        (line,) = ax.step(tau, curve["fraction"], where="post", lw=1.4,
+                          label=f"{policy} ({curve['runs']} runs)")  # fmt: skip
+        if curve.get("low") is not None:
+            ax.fill_between(tau, curve["low"], curve["high"], step="post", alpha=0.2,
+                            color=line.get_color(), lw=0)  # fmt: skip
+    ax.axvline(1.0, color="k", lw=0.6, ls=":")
+    confidence = profile.get("confidence")
+    band = f", {confidence:.0%} bootstrap bands" if confidence is not None else ""
+    ax.set(xscale="log", ylim=(-0.02, 1.02), title=f"{title}{band}",
+           xlabel="tau: worst-joint RMS / PD's", ylabel="fraction of runs <= tau")  # fmt: skip
+    ax.legend(loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, metadata={"Software": None})
+    plt.close(fig)
+    return path
