@@ -1,55 +1,71 @@
-"""Writes the docs' generated pages from the code and the results' JSON files.
+"""Writes the docs' generated pages from the code, the results' JSON and the studies' Markdown.
 
-    python scripts/gen_docs.py          # writes docs/env.md, docs/models.md, docs/results.md
-    python scripts/gen_docs.py --check  # exits 1, naming each page that differs from its source
+    python scripts/gen_docs.py          # writes the stale figures, then every generated page
+    python scripts/gen_docs.py --check  # exits 1, naming each page or figure that is stale
 
 - ``env.md``, the env card: the Tendon2REnv docstring's sections, its observation and reward
-  tables (tendon2r_gym.task.observation, tendon2r_gym.task.rewards.TERMS), the arguments with their
-  EnvConfig defaults, the registered ids with their env-contract hashes, and the version
-  history (CHANGELOG.md if the repository has one, else the docstring's).
-- ``models.md``: one card per shipped model (tendon2r_gym.policies.registry) from its bundle's
-files,
-  and the benchmark rows that ran it.
-- ``results.md``: the benchmark tables of ``results/benchmark.json`` and of each own-arm
-  report ``results/<name>/benchmark.json``, by tendon2r_gym.app.benchmark's own row formatting.
+  tables (tendon2r_gym.task.observation, tendon2r_gym.task.rewards.TERMS), the arguments with
+  their descriptions (the ``#:`` comment above each EnvConfig field; the docstring's ``Args:``
+  for the env's own) and defaults, the registered ids and one line per version
+  (tendon2r_gym.VERSIONS).  ``changelog.md`` is CHANGELOG.md.
+- ``models.md``: the shipped models' overview (tendon2r_gym.policies.registry), and
+  ``models/<name>.md`` one card per model from its bundle's files.
+- ``results.md``: the benchmark's chart and tables (``results/*.json``, by
+  tendon2r_gym.app.report), and ``studies/<name>.md`` each study's own Markdown
+  (``research/results/<name>.md``, as the study writes it: no research code is imported).
+- The figures are scripts/gen_figures.py's; ``--check`` checks them too.
 
-Every figure comes from a JSON file or from the code; no page is edited by hand.
+No page is edited by hand.
 """
 
 from __future__ import annotations
 
 import ast
+import contextlib
 import dataclasses
 import inspect
 import json
+import posixpath
 import re
 import string
 import sys
-from collections.abc import Callable, Iterable, Sequence
+import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+from markdown.extensions.toc import slugify
 
-import tendon2r_gym  # noqa: F401  (registers the env ids)
+import tendon2r_gym
 from tendon2r_gym.app import report
+from tendon2r_gym.app.markdown import code, code_block, indented, page, pair, table
 from tendon2r_gym.envs.env import CARD_SECTIONS, Tendon2REnv
 from tendon2r_gym.envs.env_config import EnvConfig, arguments
 from tendon2r_gym.policies import registry
 from tendon2r_gym.policies.bundle import MODELS_DIR, bundle_meta, bundled_model
 from tendon2r_gym.policies.runs import BEST_METRICS, SUMMARY, RunFolder
 from tendon2r_gym.task import observation
-from tendon2r_gym.task.rewards import TERMS
+from tendon2r_gym.task.rewards import MULTISCALE, TERMS
 
 ROOT = Path(__file__).resolve().parent.parent
-if str(ROOT) not in sys.path:  # the research studies render their own results
-    sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "scripts"))
+import gen_figures  # noqa: E402  (scripts/gen_figures.py, beside this file)
+
 DOCS = "docs"
-GENERATED = ("env.md", "models.md", "results.md")
 #: The env card's sections, in Gymnasium's order (the Tendon2REnv docstring's ``##`` headings).
 ENV_SECTIONS = CARD_SECTIONS
 ENV_NAME = "Tendon2R"  # the registered ids' name: Tendon2R-v<N>
+#: The studies whose results have a page (``research/results/<name>.md``, where it exists),
+#: linked from the results page in this order.  A study that writes its Markdown there needs
+#: only its name here.
+STUDIES = ("realism", "identification", "envelope", "envelope_generalists", "clients")
+#: Where the site serves the repository's own files (scripts/mkdocs_hooks.py): the benchmark's
+#: plots under ``results/`` and the arm's picture.
+ASSETS = "assets"
+#: The arm's picture (``make view``).
+ARM_PICTURE = "results/default.png"
 
 
 def header(sources: str) -> str:
@@ -60,7 +76,6 @@ def header(sources: str) -> str:
     )
 
 
-# -- formatting ----------------------------------------------------------------------------------
 def shown(value: Any) -> str:
     """Returns a value as Python writes it, strings in double quotes."""
     if isinstance(value, bool) or value is None:
@@ -76,33 +91,23 @@ def shown(value: Any) -> str:
     return str(value)
 
 
-def per_joint(values: Sequence[float] | None, fmt: str = ".3g") -> str:
-    """Returns per-joint (or per-tendon) values as ``A / B``."""
-    return "-" if values is None else " / ".join(f"{v:{fmt}}" for v in values)
+def asset(path: str, prefix: str = "") -> str:
+    """Returns the site's link to a repository file that the site serves (``ASSETS``)."""
+    return f"{prefix}{ASSETS}/{path}"
 
 
-def table(head: Sequence[str], rows: Iterable[Sequence[Any]]) -> list[str]:
-    """Returns a Markdown table."""
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    return lines + ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
-
-
-def code(text: Any) -> str:
-    return f"`{text}`"
-
-
-def page(lines: Iterable[str]) -> str:
-    """Returns a page's text: its lines, runs of blank lines collapsed, one final newline."""
-    text = "\n".join(lines)
-    return re.sub(r"\n{3,}", "\n\n", text).strip("\n") + "\n"
+def figure(name: str, alt: str, prefix: str = "") -> str:
+    """Returns the Markdown image of a generated figure (docs/images/<name>)."""
+    return f"![{alt}]({prefix}{gen_figures.IMAGES}/{name})"
 
 
 # -- the env card --------------------------------------------------------------------------------
 def env_contract_hash(env_id: str) -> str:
-    """Returns the pinned contract hash of a registered id (tendon2r_gym.policies.contract)."""
+    """Returns the pinned contract hash of a registered id (tendon2r_gym.policies.contract),
+    or "not pinned" for an id not pinned yet."""
     from tendon2r_gym.policies.contract import pinned
 
-    return pinned()[env_id]
+    return pinned().get(env_id, "not pinned")
 
 
 def env_ids() -> list[str]:
@@ -138,23 +143,41 @@ def markdown_indent(text: str) -> str:
     return re.sub(r"^( +)", lambda m: m.group(1) * 2, text, flags=re.M)
 
 
-def reward_table() -> list[str]:
-    """Returns the table of the reward terms (tendon2r_gym.task.rewards.TERMS)."""
-    return table(
-        ("term", "default weight", "the unscaled term"),
-        ((code(k), f"{w:g}", doc) for k, (w, doc) in TERMS.items()),
-    )
+ARGS_BLOCK = re.compile(r"^Args:\n((?:(?: {4}.*)?\n)+?)(?=\S|\Z)", re.M)
 
 
-def layout_table(config: EnvConfig) -> list[str]:
-    """Returns the table of one config's observation layout, index by index."""
-    units = {name: unit for name, _, unit in (*observation.FIXED, *observation.OPTIONAL)}
-    units |= {"preview": "rad", "last_action": "1", "arm": "1"}
-    rows, start = [], 0
-    for name, n in config.observation.layout():
-        rows.append((f"{start}-{start + n - 1}", code(name), n, units[name]))
-        start += n
-    return table(("index", "entry", "size", "unit"), rows)
+def own_arguments(template: str) -> tuple[str, dict[str, str]]:
+    """Returns the docstring with its Google-style ``Args:`` block (the env's own arguments:
+    the preset and rendering) replaced by ``{arguments}``, and that block's descriptions."""
+    found = ARGS_BLOCK.search(template)
+    if found is None:
+        raise ValueError("the Tendon2REnv docstring has no Args: block for its own arguments")
+    described: dict[str, str] = {}
+    for line in found.group(1).splitlines():
+        if m := re.match(r" {4}(\w+): (.*)", line):
+            described[m.group(1)] = m.group(2).strip()
+        elif line.strip():
+            last = next(reversed(described))
+            described[last] += " " + line.strip()
+    return template[: found.start()] + "{arguments}\n\n" + template[found.end() :], described
+
+
+def field_comments(cls: type = EnvConfig) -> dict[str, str]:
+    """Returns each field's description: the ``#:`` comment lines right above it in the
+    class's source, joined (Sphinx's convention)."""
+    lines = Path(inspect.getsourcefile(cls)).read_text().splitlines()
+    tree = ast.parse("\n".join(lines))
+    node = next(n for n in ast.walk(tree) if isinstance(n, ast.ClassDef) and n.name == cls.__name__)
+    out = {}
+    for item in node.body:
+        if isinstance(item, ast.AnnAssign) and isinstance(item.target, ast.Name):
+            above, k = [], item.lineno - 2
+            while k >= 0 and lines[k].strip().startswith("#:"):
+                above.insert(0, lines[k].strip()[2:].strip())
+                k -= 1
+            if above:
+                out[item.target.id] = " ".join(above)
+    return out
 
 
 def argument_defaults() -> dict[str, Any]:
@@ -177,61 +200,146 @@ def argument_defaults() -> dict[str, Any]:
     return out
 
 
-def arguments_table(documented: str) -> list[str]:
-    """Returns the arguments table: each argument of :func:`argument_defaults` with its
-    default, described by the docstring's table ``documented`` (in that table's order).
-    Raises if the two name different arguments."""
-    descriptions = {}
-    for line in documented.splitlines():
-        cells = [c.strip() for c in line.strip().strip("|").split("|")]
-        if len(cells) >= 3 and cells[0].startswith("`"):
-            descriptions[cells[0].strip("`")] = " | ".join(cells[2:])
+def argument_descriptions(own: dict[str, str]) -> dict[str, str]:
+    """Returns each argument's description, in the table's order: the preset, EnvConfig's
+    fields, then rendering.  Raises naming an argument without one, or one that the env does
+    not take."""
+    comments = field_comments()
+    config = {k: comments.get(k, "") for k in arguments()}
+    rendering = {k: v for k, v in own.items() if k != "preset"}
+    described = {"preset": own.get("preset", ""), **config, **rendering}
     defaults = argument_defaults()
-    if set(descriptions) != set(defaults):
+    missing = sorted(k for k in defaults if not described.get(k))
+    unknown = sorted(set(described) - set(defaults))
+    if missing or unknown:
         raise ValueError(
-            "the Tendon2REnv docstring's arguments table names "
-            f"{sorted(set(descriptions) - set(defaults))} that the env does not take and "
-            f"misses {sorted(set(defaults) - set(descriptions))}: update its table"
+            f"arguments without a description: {missing} (a #: comment above the EnvConfig "
+            f"field, or the Tendon2REnv docstring's Args:); described but not taken: {unknown}"
         )
-    rows = ((code(k), code(shown(defaults[k])), d) for k, d in descriptions.items())
+    return described
+
+
+def arguments_table(own: dict[str, str]) -> list[str]:
+    """Returns the arguments table: every argument, its default and its description."""
+    defaults = argument_defaults()
+    rows = ((code(k), code(shown(defaults[k])), d) for k, d in argument_descriptions(own).items())
     return table(("argument", "default", "description"), rows)
 
 
-def version_history(root: Path, documented: str) -> str:
-    """Returns CHANGELOG.md's text if the repository has one, else the docstring's."""
-    changelog = root / "CHANGELOG.md"
-    if changelog.is_file():
-        return re.sub(r"^#[^\n]*\n", "", changelog.read_text()).strip()
-    return documented
+#: Each reward term as math (KaTeX): e_j the tracking error of joint j (deg), a_i the applied
+#: command's entry i.  A term without a formula here shows "see below".
+FORMULAS = {
+    "tracking": rf"\frac{{1}}{{{len(MULTISCALE)}}}\sum_{{m}} k_{{m\sigma}}(e),\ m \in "
+    rf"\{{{', '.join(f'{m:g}' for m in MULTISCALE)}\}}",
+    "tracking_quadratic": r"-\sum_j e_j^2",
+    "tracking_rate": r"\text{tracking}(e + h\,\dot e),\ h = \texttt{tracking\_horizon}",
+    "ctrl": r"-\sum_i f_i^2",
+    "action_rate": r"-\sum_i (a_i - a_i^{\text{last}})^2",
+    "action_rate_need": r"-\sum_i \ln\!\left(1 + \left(\frac{a_i - a_i^{\text{last}}}{s_i}"
+    r"\right)^2\right)",
+    "divergence": r"-1 \text{ on the step that diverges, else } 0",
+}  # fmt: skip
+KERNEL = (
+    r"k_\sigma(e) = -\frac{\sum_j \ln\left(1 + (e_j / \sigma)^2\right)}"
+    r"{2 \ln\left(1 + (180 / \sigma)^2\right)}"
+)
+
+
+def reward_table() -> list[str]:
+    """Returns the reward terms' table (weight and formula), the kernel they use, and below
+    them each term's meaning (tendon2r_gym.task.rewards.TERMS)."""
+    rows = (
+        (code(k), f"{w:g}", f"${FORMULAS[k]}$" if k in FORMULAS else "see below")
+        for k, (w, _) in TERMS.items()
+    )
+    return [
+        *table(("term", "default weight", "unscaled term"), rows),
+        "",
+        f"with the log kernel ${KERNEL}$ (quadratic below sigma, logarithmic far from it), "
+        "e the joints' tracking errors (deg), sigma = `tracking_sigma_deg`, f the applied "
+        "command as a fraction of the force limit, a the action.",
+        "",
+        '??? note "What each term is for (tendon2r_gym.task.rewards.TERMS)"',
+        "",
+        *indented(f"- `{k}`: {doc}." for k, (_, doc) in TERMS.items()),
+    ]
+
+
+def layout_table(config: EnvConfig) -> list[str]:
+    """Returns the table of one config's observation layout, index by index."""
+    units = {name: unit for name, _, unit in (*observation.FIXED, *observation.OPTIONAL)}
+    units |= {"preview": "rad", "last_action": "1", "arm": "1"}
+    rows, start = [], 0
+    for name, n in config.observation.layout():
+        rows.append((f"{start}-{start + n - 1}", code(name), n, units[name]))
+        start += n
+    return table(("index", "entry", "size", "unit"), rows)
 
 
 def ids_table() -> list[str]:
     """Returns the table of the registered ids: spaces of the default env, contract hash."""
     rows = []
     for env_id in env_ids():
-        env = gym.make(env_id)
-        spec = gym.spec(env_id)
+        with _quiet():
+            env = gym.make(env_id)
         rows.append(
             (
                 code(env_id),
                 code(repr(env.action_space)),
                 code(repr(env.observation_space)),
-                code(spec.vector_entry_point or "-"),
                 code(env_contract_hash(env_id)),
             )
         )
         env.close()
-    head = ("id", "action space", "observation space", "vector env", "env contract")
-    return table(head, rows)
+    return table(("id", "action space", "observation space", "env contract"), rows)
+
+
+@contextlib.contextmanager
+def _quiet():
+    """Silences Gymnasium's "out of date" warning for the older ids."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        yield
+
+
+def changelog_headings(root: Path) -> list[str]:
+    """Returns CHANGELOG.md's ``##`` headings."""
+    path = root / "CHANGELOG.md"
+    return re.findall(r"^## +(.+?) *$", path.read_text(), flags=re.M) if path.is_file() else []
+
+
+def version_lines(root: Path) -> list[str]:
+    """Returns one line per version of tendon2r_gym.VERSIONS: its id, contract, what its
+    defaults change over the version before, and its changelog entry."""
+    headings = changelog_headings(root)
+    rows, before = [], None
+    for version, defaults in tendon2r_gym.VERSIONS.items():
+        env_id = f"{ENV_NAME}-{version}"
+        config = EnvConfig.make("default", **defaults)
+        if before is None:
+            change = "the first id: each preset's values"
+        else:
+            changed = [
+                f"{code(k)} {shown(getattr(before, k))} → {shown(getattr(config, k))}"
+                for k in defaults
+                if getattr(before, k) != getattr(config, k)
+            ]
+            change = ", ".join(changed) or "no default changed"
+        entry = next((h for h in headings if re.search(rf"\b{re.escape(env_id)}\b", h)), None)
+        link = f"[{entry}](changelog.md#{slugify(entry, '-')})" if entry else "-"
+        rows.append((code(env_id), code(env_contract_hash(env_id)), change, link))
+        before = config
+    return table(("version", "env contract", "defaults over the version before", "changelog"), rows)
 
 
 def env_page(root: Path = ROOT) -> str:
     """Returns docs/env.md."""
-    template = docstring_template(Tendon2REnv)
+    template, own = own_arguments(docstring_template(Tendon2REnv))
     fields = {f for _, f, _, _ in string.Formatter().parse(template) if f}
     fills = {
         "obs_table": observation.table(),
         "rewards": "\n".join(reward_table()),
+        "arguments": "\n".join(arguments_table(own)),
     }
     if unknown := fields - set(fills):
         raise ValueError(f"the Tendon2REnv docstring has fields {sorted(unknown)} to fill")
@@ -241,52 +349,56 @@ def env_page(root: Path = ROOT) -> str:
     default = EnvConfig.make()
     found["Observation Space"] += "\n\n" + "\n".join(
         [
-            f"The default env's layout ({code(f'gym.make({newest_id()!r})')}: "
-            f"{default.observation.size} entries):",
+            f'??? example "The default env\'s layout ({code(f"gym.make({newest_id()!r})")}: '
+            f'{default.observation.size} entries)"',
             "",
-            *layout_table(default),
+            *indented(layout_table(default)),
         ]
     )
-    args = found["Arguments"].splitlines()
-    rows = [i for i, x in enumerate(args) if x.startswith("|")]
-    if not rows:
-        raise ValueError("the Tendon2REnv docstring's Arguments section has no table")
-    found["Arguments"] = "\n".join(
+    found["Version History"] = "\n".join(
         [
-            *args[: rows[0]],
-            *arguments_table("\n".join(args[rows[0] : rows[-1] + 1])),
-            *args[rows[-1] + 1 :],
+            "Each id's contract is frozen and pinned (tendon2r_gym.policies.contract): a change "
+            "that can change learning results is a new version. Each version's defaults, over "
+            "the preset's values; the [changelog](changelog.md) has every release's details.",
+            "",
+            *version_lines(root),
         ]
     )
-    found["Version History"] = version_history(root, found["Version History"])
     lines = [
-        header(
-            "the Tendon2REnv docstring, tendon2r_gym.task.observation, tendon2r_gym.envs.task "
-            "and EnvConfig"
-        ),
+        header("the Tendon2REnv docstring, EnvConfig, tendon2r_gym.task and tendon2r_gym.VERSIONS"),
         "",
         "# The env: Tendon2R",
         "",
+        f"![The default arm, rendered by MuJoCo]({asset(ARM_PICTURE)}){{ width=480 }}",
+        "",
         summary,
         "",
-        "```python",
-        "import gymnasium as gym",
-        "import tendon2r_gym  # registers the ids",
+        *code_block(
+            [
+                "import gymnasium as gym",
+                "import tendon2r_gym  # registers the ids",
+                "",
+                f'env = gym.make("{newest_id()}")  # or preset="my_arm.yaml"',
+            ],
+            "python",
+        ),
         "",
-        f'env = gym.make("{newest_id()}")  # or gym.make("{newest_id()}", preset="my_arm.yaml")',
-        "```",
-        "",
-        "The registered ids, each made with its default arguments. Env contract: the hash of the",
-        "env config that `gym.make(id)` builds",
-        "(`tendon2r_gym.policies.registry.contract_hash`), as a",
-        "training run records it; each shipped model names the contract of the env it was",
-        "trained on ([Shipped models](models.md)).",
+        "The registered ids, each made with its default arguments. Env contract: the hash of "
+        "the env config that `gym.make(id)` builds, which a training run records and each "
+        "[shipped model](models.md) names.",
         "",
         *ids_table(),
     ]
     for name in (*ENV_SECTIONS, *(s for s in found if s not in ENV_SECTIONS)):
         lines += ["", f"## {name}", "", found[name]]
     return page(lines)
+
+
+def changelog_page(root: Path = ROOT) -> str:
+    """Returns docs/changelog.md: CHANGELOG.md as it is."""
+    path = root / "CHANGELOG.md"
+    text = path.read_text() if path.is_file() else "# Changelog\n\nNo CHANGELOG.md yet.\n"
+    return page([header("CHANGELOG.md"), "", text])
 
 
 # -- the shipped models --------------------------------------------------------------------------
@@ -318,7 +430,7 @@ def benchmark_rows(model: str, reports: dict[str, dict[str, Any]]) -> list[list[
                 worst = f"{worst_ratio(r['rms_deg'], pd['rms_deg']):.2f}x"
                 if "rms_tension_rate_N_per_s" in r and "rms_tension_rate_N_per_s" in pd:
                     rate = f"{smoothness_x_pd(r, pd)[1]:.2f}x"
-            out.append([code(path), r["env"], r["policy"], per_joint(r["rms_deg"]), worst, rate])
+            out.append([code(path), r["env"], r["policy"], pair(r["rms_deg"], ".3g"), worst, rate])
     return out
 
 
@@ -332,9 +444,8 @@ def non_default_settings(model: Path) -> dict[str, Any]:
 
 
 #: The experiment file the CLI runs a model of each registry group on
-#: (tendon2r_gym.policies.registry
-#: GROUPS): its own preset ({env}), or your arm for a generalist; a model of another group
-#: needs its recorded env kwargs (the Python example).
+#: (tendon2r_gym.policies.registry GROUPS): its own preset ({env}), or your arm for a
+#: generalist; a model of another group needs its recorded env kwargs (the Python example).
 CLI_ENV = {"preset": "{env}", "realism": "{env}", "generalist": "my_arm.yaml"}
 
 
@@ -344,14 +455,9 @@ def use_it(line: registry.Shipped, shown_settings: str) -> list[str]:
     lines = []
     if (env := CLI_ENV.get(line.group)) is not None:
         env = env.format(env=line.env)
-        lines += [
-            "```bash",
-            f"tendon2r-evaluate --policy ppo --bundle {name} --env-config {env}",
-            "```",
-            "",
-        ]
-    lines += [
-        "```python",
+        command = f"tendon2r-evaluate --policy ppo --bundle {name} --env-config {env}"
+        lines += [*code_block([command], "bash"), ""]
+    python = [
         "import gymnasium as gym",
         "import tendon2r_gym  # registers the ids",
         "from tendon2r_gym.policies.bundle import bundled_model",
@@ -368,18 +474,20 @@ def use_it(line: registry.Shipped, shown_settings: str) -> list[str]:
         "",
         "# on your own arm: the model's settings over your experiment file",
         f'env = gym.make("{env_id}", preset="my_arm.yaml", **model_settings(model))',
-        "```",
+    ]
+    return [
+        *lines,
+        *code_block(python, "python"),
         "",
         "`model_settings(model)` holds what the model's actions and observation need",
         f"({shown_settings}). `PPOPolicy.load` accepts your arm if the model covers it: a",
         "generalist, an arm inside its training ranges; any other model, the arm it trained on.",
-        "To fine-tune a model on your arm: [Training](training.md).",
+        "To fine-tune a model on your arm: [Training](../training.md).",
     ]
-    return lines
 
 
 def model_card(line: registry.Shipped, reports: dict[str, dict[str, Any]]) -> list[str]:
-    """Returns one shipped model's card."""
+    """Returns one shipped model's page."""
     name = line.name
     meta = bundle_meta(name)
     run = primary_run(name)
@@ -414,15 +522,15 @@ def model_card(line: registry.Shipped, reports: dict[str, dict[str, Any]]) -> li
                 s["wall_time_s"],
                 s["best_timesteps"],
                 "never" if beat is None else f"{beat['timesteps']} / {beat['wall_time_s']} s",
-                per_joint(s["best_rms_deg"]),
+                pair(s["best_rms_deg"], ".3g"),
             )
         )
     measured = [
-        ("RMS error A / B (deg)", per_joint(best["rms_deg"])),
-        ("max error A / B (deg)", per_joint(best["max_deg"])),
-        ("PD's RMS error A / B (deg), same episodes", per_joint(summary.get("pd_eval_rms_deg"))),
-        ("RMS tension per tendon (N)", per_joint(best.get("rms_tension_N"))),
-        ("RMS tension rate per tendon (N/s)", per_joint(best.get("rms_tension_rate_N_per_s"))),
+        ("RMS error A / B (deg)", pair(best["rms_deg"], ".3g")),
+        ("max error A / B (deg)", pair(best["max_deg"], ".3g")),
+        ("PD's RMS error A / B (deg), same episodes", pair(summary.get("pd_eval_rms_deg"), ".3g")),
+        ("RMS tension per tendon (N)", pair(best.get("rms_tension_N"), ".3g")),
+        ("RMS tension rate per tendon (N/s)", pair(best.get("rms_tension_rate_N_per_s"), ".3g")),
         ("diverged episodes", f"{best['diverged_episodes']} of {best['episodes']}"),
     ]
     if "tension_rate_x_pd" in evaluation:
@@ -432,32 +540,29 @@ def model_card(line: registry.Shipped, reports: dict[str, dict[str, Any]]) -> li
         )
     ran = benchmark_rows(model, reports)
     shown_settings = ", ".join(f"{k}={shown(v)}" for k, v in settings.items()) or "the defaults"
+    curve = gen_figures.model_figure(name)
     lines = [
-        f"## {name}",
+        header(f"tendon2r_gym/data/shipped.yaml and the bundle tendon2r_gym/data/models/{name}"),
         "",
-        f"{line.role[:1].upper()}{line.role[1:]}.",
+        f"# {name}",
+        "",
+        f"{line.role[:1].upper()}{line.role[1:]}. [All shipped models](../models.md).",
+        "",
+        figure(curve, f"{name}: RMS error per joint during training, beside PD's", "../"),
         "",
         *table(("", "value"), facts),
         "",
-        "### Training",
+        "## Training",
         "",
-        "```bash",
-        *dict.fromkeys((meta["train_command"], meta["command"])),  # a training that bundled
-        "```",
+        *code_block(dict.fromkeys((meta["train_command"], meta["command"])), "bash"),
         "",
         *table(
-            (
-                "seed",
-                "steps",
-                "wall time (s)",
-                "best at step",
-                "first beat PD (steps / wall)",
-                "best RMS A / B (deg)",
-            ),
+            ("seed", "steps", "wall time (s)", "best at step", "first beat PD (steps / wall)",
+             "best RMS A / B (deg)"),
             per_seed,
-        ),
+        ),  # fmt: skip
         "",
-        "### Evaluation",
+        "## Evaluation",
         "",
         f"The primary seed's best checkpoint (step {best['timesteps']}) on its training env's "
         f"evaluation episodes (seeds {', '.join(map(str, best['seeds']))}; best_metrics.json):",
@@ -466,75 +571,64 @@ def model_card(line: registry.Shipped, reports: dict[str, dict[str, Any]]) -> li
     ]
     if ran:
         head = ("report", "env", "row", "RMS A / B (deg)", "worst joint x PD", "tension rate x PD")
-        lines += ["", "Benchmark rows that run it ([Results](results.md)):", "", *table(head, ran)]
-    lines += [
-        "",
-        "### Use it",
-        "",
-        *use_it(line, shown_settings),
-    ]
-    return lines
+        lines += ["", "Benchmark rows that run it ([Results](../results.md)):", ""]
+        lines += table(head, ran)
+    return [*lines, "", "## Use it", "", *use_it(line, shown_settings)]
 
 
 def models_page(root: Path = ROOT) -> str:
-    """Returns docs/models.md."""
-    shipped = registry.shipped()
-    reports = benchmark_reports(root)
+    """Returns docs/models.md: the overview of every shipped model."""
     rows = []
-    for name, line in shipped.items():
+    for name, line in registry.shipped().items():
         run = primary_run(name)
         best = run.read_json(BEST_METRICS)
         summary = run.read_json(SUMMARY)
         rows.append(
             (
-                f"[{name}](#{name})",
+                f"[{name}](models/{name}.md)",
                 line.role,
                 code(line.env),
-                code(line.contract),
                 len(line.seeds),
                 summary["timesteps"],
-                per_joint(best["rms_deg"]),
-                per_joint(summary.get("pd_eval_rms_deg")),
+                pair(best["rms_deg"], ".3g"),
+                pair(summary.get("pd_eval_rms_deg"), ".3g"),
             )
         )
-    head = (
-        "model",
-        "role",
-        "preset",
-        "env contract",
-        "seeds",
-        "steps",
-        "RMS A / B (deg)",
-        "PD's RMS A / B (deg)",
+    head = ("model", "role", "preset", "seeds", "steps", "RMS A / B (deg)", "PD's (deg)")
+    return page(
+        [
+            header("tendon2r_gym/data/shipped.yaml and the bundles under tendon2r_gym/data/models"),
+            "",
+            "# Shipped models",
+            "",
+            "Every model the package ships, from one registry (`tendon2r_gym/data/shipped.yaml`).",
+            f"Each is a bundle under `tendon2r_gym/data/{MODELS_DIR.name}/<name>/` of its",
+            "training seeds (the first is the primary one, which `tendon2r-evaluate` and",
+            "`bundled_model` use). A model loads only into an env of the contract it was trained",
+            "on, up to the arm. RMS: the primary seed's best checkpoint on its evaluation",
+            "episodes, beside PD's on the same episodes. Each model's page has its learning",
+            "curve, training, evaluation and use.",
+            "",
+            *table(head, rows),
+        ]
     )
-    lines = [
-        header(
-            "tendon2r_gym/data/shipped.yaml, the bundles under tendon2r_gym/data/models and "
-            "results/*.json"
-        ),
-        "",
-        "# Shipped models",
-        "",
-        "Every model the package ships, from one registry (`tendon2r_gym/data/shipped.yaml`,",
-        "`tendon2r_gym.policies.registry.shipped()`). Each is a bundle under",
-        f"`tendon2r_gym/data/{MODELS_DIR.name}/<name>/`: its training seeds (the first is the",
-        "primary one, which `tendon2r-evaluate` and `bundled_model` use), each with the model, its",
-        "VecNormalize statistics and its run's records. The env contract is the hash of the env",
-        "config the runs recorded; a model loads only into an env of the same contract, up to",
-        "the arm (`PPOPolicy.load` raises otherwise). RMS: the primary seed's best checkpoint on",
-        "its evaluation episodes, beside PD's on the same episodes.",
-        "",
-        *table(head, rows),
-    ]
-    for line in shipped.values():
-        lines += ["", *model_card(line, reports)]
-    return page(lines)
+
+
+def model_pages(root: Path = ROOT) -> dict[str, str]:
+    """Returns docs/models/<name>.md for every shipped model."""
+    reports = benchmark_reports(root)
+    return {
+        f"models/{name}.md": page(model_card(line, reports))
+        for name, line in registry.shipped().items()
+    }
 
 
 # -- the results ---------------------------------------------------------------------------------
 #: A model path recorded as the machine's absolute path of the package: shown relative to it,
 #: as tendon2r_gym.app.benchmark.shown_path records paths.
 ABSOLUTE_PACKAGE_PATH = re.compile(r"(?<![\w.])/\S*?/(tendon2r_gym/data/)")
+#: A benchmark row's plots (tendon2r_gym.app.plots.plot_trace), by the link's label.
+PLOTS = {"tracking": "tracking.png", "tensions": "forces.png", "path": "effector_path.png"}
 
 
 def relative_paths(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -545,54 +639,110 @@ def relative_paths(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     ]
 
 
-def bundled_section(result: dict[str, Any]) -> list[str]:
+def plot_links(root: Path, plots_dir: str, prefix: str = "") -> Callable[[dict[str, Any]], str]:
+    """Returns the function that gives a row of a report its plots' links: the files that the
+    benchmark wrote under ``plots_dir/<env>/<policy>/`` (links from a page ``prefix`` deep)."""
+
+    def links(row: dict[str, Any]) -> str:
+        folder = f"{plots_dir}/{row['env']}/{row['policy'].replace(' ', '_')}"
+        return " · ".join(
+            f"[{label}]({asset(f'{folder}/{file}', prefix)})"
+            for label, file in PLOTS.items()
+            if (root / folder / file).is_file()
+        )
+
+    return links
+
+
+#: The results page's "how to read", above its chart; the rest is in a collapsed note.
+HOW_TO_READ = [
+    "PD, computed torque (CT) and PPO, plain and residual on PD, on the same episodes of each",
+    "bundled preset: RMS tracking error per joint, lower is better (log scale; dots: each",
+    "training seed). Each table row links its tracking, tension and path plots.",
+]
+
+
+def bundled_section(root: Path, result: dict[str, Any]) -> list[str]:
     """Returns the bundled presets' section (``tendon2r-benchmark``, results/benchmark.json)."""
     result = {**result, "rows": relative_paths(result["rows"])}
     return [
         "## The bundled presets",
         "",
-        f"`results/benchmark.json`, produced by `{result['command']}` (`make benchmark`); every",
-        "figure comes from that run except the rows marked *quoted*, the lab reports' own.",
+        f"`results/benchmark.json`, produced by `{result['command']}` (`make benchmark`); the",
+        "rows marked *quoted* are the [lab reports'](background.md) own figures.",
         "",
-        *report.bundled_sections(result, level=3),
+        *report.bundled_sections(
+            result, level=3, notes=[], plots=plot_links(root, "results/plots")
+        ),
     ]
 
 
-def own_arm_section(path: str, result: dict[str, Any]) -> list[str]:
-    """Returns one own-arm report's section (``tendon2r-benchmark --env-config FILE``)."""
-    result = {**result, "rows": relative_paths(result["rows"])}
-    return [f"### {Path(path).parent.name}", "", f"`{path}`:", *report.own_arm_sections(result)]
+def report_name(path: str) -> str:
+    """Returns an own-arm report's name: its folder under results/."""
+    return Path(path).parent.name
 
 
-def realism_section(root: Path) -> list[str]:
-    """Returns the real-arm study's section (research/results/realism.json), if it ran."""
-    path = root / "research" / "results" / "realism.json"
-    if not path.is_file():
+def own_arm_pages(root: Path = ROOT) -> dict[str, str]:
+    """Returns docs/reports/<name>.md for each own-arm report results/<name>/benchmark.json
+    (``tendon2r-benchmark --env-config FILE``): its tables, each row linking its plots."""
+    out = {}
+    for path, result in benchmark_reports(root).items():
+        if path == "results/benchmark.json":
+            continue
+        result = {**result, "rows": relative_paths(result["rows"])}
+        plots = plot_links(root, f"{Path(path).parent.as_posix()}/plots", "../")
+        out[f"reports/{report_name(path)}.md"] = page(
+            [
+                header(path),
+                "",
+                f"# Your own arm: {report_name(path)}",
+                "",
+                f"`{path}`. How to read it: the [results](../results.md) page's note; the",
+                "commands: [your own arm](../your_arm.md).",
+                "",
+                *report.own_arm_sections(result, notes=[], plots=plots, level=2),
+            ]
+        )
+    return out
+
+
+def study_pages(root: Path = ROOT) -> dict[str, str]:
+    """Returns docs/studies/<name>.md for each study of STUDIES whose Markdown
+    (research/results/<name>.md) exists: that file's text as the study wrote it."""
+    out = {}
+    for name in STUDIES:
+        path = root / "research" / "results" / f"{name}.md"
+        if path.is_file():
+            text = path.read_text()
+            out[f"studies/{name}.md"] = page(
+                [header(f"research/results/{name}.md"), "", text, "", "[Results](../results.md)"]
+            )
+    return out
+
+
+def study_title(text: str) -> str:
+    """Returns a study page's title: its first ``#`` heading."""
+    found = re.search(r"^# +(.+?) *$", text, flags=re.M)
+    return found.group(1) if found else "(untitled)"
+
+
+def studies_section(root: Path) -> list[str]:
+    """Returns the results page's list of the studies' pages."""
+    pages = study_pages(root)
+    if not pages:
         return []
-    from research.studies.realism import realism_lines
-
-    result = json.loads(path.read_text())
-    title, *body = realism_lines(result["rows"])
+    rows = []
+    for file, text in pages.items():
+        name = Path(file).stem
+        command = f"python -m research.studies.{name}"
+        rows.append((f"[{study_title(text)}]({file})", code(command)))
     return [
-        title,
+        "## Studies",
         "",
-        f"`research/results/realism.json`, produced by `{result['command']}`.",
-        *body,
+        "Each study's own report (`research/results/<name>.md`), on a page of its own:",
+        "",
+        *table(("study", "command"), rows),
     ]
-
-
-def study_section(root: Path, name: str) -> list[str]:
-    """Returns a study's section of the results page, from research/results/<name>.json by
-    the study's own ``lines`` (research.studies.<name>), if it ran."""
-    import importlib
-
-    path = root / "research" / "results" / f"{name}.json"
-    if not path.is_file():
-        return []
-    lines = importlib.import_module(f"research.studies.{name}").lines
-    title, *body = lines(json.loads(path.read_text()))
-    body = ["#" + line if line.startswith("## ") else line for line in body]
-    return ["## " + title.lstrip("# "), *body]
 
 
 def results_page(root: Path = ROOT) -> str:
@@ -600,61 +750,75 @@ def results_page(root: Path = ROOT) -> str:
     reports = benchmark_reports(root)
     main = reports.pop("results/benchmark.json", None)
     lines = [
-        header(
-            "results/benchmark.json, results/*/benchmark.json, research/results/realism.json, "
-            "research/results/identification.json, research/results/envelope.json and "
-            "research/results/envelope_generalists.json"
-        ),
+        header("results/benchmark.json, results/*/benchmark.json and research/results/*.md"),
         "",
         "# Results",
         "",
-        "PD, computed torque (CT) and PPO, plain and residual on PD, on the same episodes. Each",
-        "report is a JSON file under `results/`, written with its Markdown twin by",
-        "`tendon2r-benchmark`; this page shows the JSON's rows as the benchmark formats them.",
-        "Each shipped model's own figures are on [Shipped models](models.md); the studies behind",
-        "the env's and training's settings are in [Research](research.md).",
+        *HOW_TO_READ,
         "",
     ]
     if main is None:
         lines += ["`results/benchmark.json` is missing: `make benchmark` writes it."]
     else:
-        lines += bundled_section(main)
-    if real := realism_section(root):
-        lines += ["", *real]
-    for name in ("identification", "envelope", "envelope_generalists"):
-        if section := study_section(root, name):
-            lines += ["", *section]
+        lines += [
+            figure(gen_figures.RESULTS_FIGURE, "RMS error per joint by policy and preset"),
+            "",
+            '??? note "How to read the tables"',
+            "",
+            *indented(report.NOTES),
+            "",
+            *bundled_section(root, main),
+        ]
+    lines += ["", *studies_section(root)]
     if reports:
+        rows = [
+            (f"[{report_name(path)}](reports/{report_name(path)}.md)", code(result["command"]))
+            for path, result in reports.items()
+        ]
         lines += [
             "",
             "## Your own arm",
             "",
             "`tendon2r-benchmark --env-config FILE` trains both PPO variants on an experiment",
-            "file and compares them with PD, CT and the generalists ([Your own arm](your_arm.md)):",
+            "file and compares them with PD, CT and the generalists ([Your own arm](your_arm.md)).",
+            "The example arms' reports:",
+            "",
+            *table(("report", "command"), rows),
         ]
-        for path, result in reports.items():
-            lines += ["", *own_arm_section(path, result)]
     return page(lines)
 
 
 # -- main ----------------------------------------------------------------------------------------
 PAGES: dict[str, Callable[[Path], str]] = {
     "env.md": env_page,
+    "changelog.md": changelog_page,
     "models.md": models_page,
     "results.md": results_page,
 }
+#: The folders whose every page is generated (a page there that is not is stale).
+GENERATED_DIRS = ("models", "studies", "reports")
 
 
 def generate(root: Path = ROOT) -> dict[str, str]:
-    """Returns every generated page's text, by file name."""
-    return {name: make(root) for name, make in PAGES.items()}
+    """Returns every generated page's text, by its path under docs/."""
+    pages = {name: make(root) for name, make in PAGES.items()}
+    return {**pages, **model_pages(root), **study_pages(root), **own_arm_pages(root)}
 
 
 def stale(pages: dict[str, str], docs: Path) -> list[str]:
-    """Returns the pages whose file under ``docs`` is missing or differs."""
-    return [
+    """Returns the pages whose file under ``docs`` is missing or differs, and the pages of a
+    generated folder that are not generated any more."""
+    out = [
         n for n, text in pages.items() if not (docs / n).is_file() or (docs / n).read_text() != text
     ]
+    for folder in GENERATED_DIRS:
+        if any(n.startswith(f"{folder}/") for n in pages):
+            out += [
+                p.relative_to(docs).as_posix()
+                for p in sorted((docs / folder).glob("*.md"))
+                if p.relative_to(docs).as_posix() not in pages
+            ]
+    return out
 
 
 def report_pages(root: Path = ROOT) -> dict[Path, str]:
@@ -678,8 +842,8 @@ def readme_block(root: Path = ROOT) -> str:
     keep = [r for r in rows if r["policy"] in ("pd", "ct", "ppo scratch", "ppo residual")]
     body = table(
         ["arm", "policy", "RMS error A / B (deg)", "RMS tension rate (N/s)"],
-        [[r["env"], r["policy"], per_joint(r["rms_deg"], ".4f"),
-          per_joint(r["rms_tension_rate_N_per_s"], ".3g")] for r in keep],
+        [[r["env"], r["policy"], pair(r["rms_deg"], ".4f"),
+          pair(r["rms_tension_rate_N_per_s"], ".3g")] for r in keep],
     )  # fmt: skip
     source = "Generated by scripts/gen_docs.py from results/benchmark.json (`make benchmark`)."
     return "\n".join([README_BEGIN, *body, "", f"_{source}_", README_END])
@@ -706,11 +870,29 @@ def with_readme_block(
     return readme[:a] + block + readme[b:]
 
 
+def missing_images(pages: dict[str, str], docs: Path, root: Path) -> list[str]:
+    """Returns each image a page references that does not exist: a generated figure under
+    docs/, or a repository file the site serves under ``ASSETS``."""
+    names = {*pages, *(p.relative_to(docs).as_posix() for p in docs.rglob("*.md"))}
+    out = []
+    for name in sorted(names):
+        text = pages[name] if name in pages else (docs / name).read_text()
+        for src in re.findall(r"!\[[^\]]*\]\(([^)\s]+)", text):
+            target = posixpath.normpath(posixpath.join(posixpath.dirname(name), src))
+            if target.startswith(f"{ASSETS}/"):
+                path = root / target.removeprefix(f"{ASSETS}/")
+            else:
+                path = docs / target
+            if not path.is_file():
+                out.append(f"{name}: {src}")
+    return out
+
+
 @dataclass
 class Args:
-    """Writes the generated docs pages, README's headline table and results/benchmark.md."""
+    """Writes the generated docs pages and figures, README's tables and results/benchmark.md."""
 
-    check: bool = False  # exit 1 if a page (or README's table) is out of date
+    check: bool = False  # exit 1 if a page, a figure or README's tables are out of date
     root: Path = ROOT  # the repository
 
 
@@ -719,26 +901,35 @@ def main(argv: list[str] | None = None) -> int:
 
     args = tyro.cli(Args, args=argv)
     docs = args.root / DOCS
+    if not args.check:
+        gen_figures.write(args.root)
     pages = generate(args.root)
     readme = args.root / "README.md"
     text = with_readme_block(readme.read_text(), readme_block(args.root))
     text = with_readme_block(text, readme_models_block(), MODELS_BEGIN, MODELS_END)
     reports = report_pages(args.root)
     if args.check:
-        out = [docs / n for n in stale(pages, docs)]
-        out += [p for p, page_text in reports.items() if p.read_text() != page_text]
+        out = [str(docs / n) for n in stale(pages, docs)]
+        out += [str(p) for p, page_text in reports.items() if p.read_text() != page_text]
+        images = docs / gen_figures.IMAGES
+        out += [f"{images / f} (scripts/gen_figures.py)" for f in gen_figures.stale(args.root)]
+        out += [f"{docs}/{m} (no such image)" for m in missing_images(pages, docs, args.root)]
         if readme.read_text() != text:
-            out.append(readme)
+            out.append(str(readme))
         if out:
             print("out of date (run python scripts/gen_docs.py):", *out, sep="\n  ",
                   file=sys.stderr)  # fmt: skip
             return 1
         print("docs up to date:", ", ".join([*pages, "README.md"]))
         return 0
-    docs.mkdir(exist_ok=True)
+    for name in stale(pages, docs):
+        if name not in pages:
+            (docs / name).unlink()
+            print("removed", docs / name)
     for name, page_text in pages.items():
+        (docs / name).parent.mkdir(parents=True, exist_ok=True)
         (docs / name).write_text(page_text)
-        print("wrote", docs / name)
+    print("wrote", len(pages), "pages under", docs)
     for path, page_text in reports.items():
         path.write_text(page_text)
         print("wrote", path)

@@ -241,9 +241,9 @@ def bundled_sections(
     lines = [
         *notes,
         "",
-        *tables(rows, REPORT_ROWS, plots, h + "#"),
+        *tables(rows, REPORT_ROWS, plots, h),
         "",
-        f"{h}# Against PD and computed torque",
+        f"{h} Against PD and computed torque",
         "",
         "Learned rows against PD (RMS <= PD on both joints?) and against computed torque:",
         "",

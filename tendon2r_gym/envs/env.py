@@ -1,4 +1,5 @@
-"""Tendon2R-v0: track sinusoidal joint references with two tendon motors."""
+"""Tendon2REnv, the env of every Tendon2R id: track sinusoidal joint references with tendon
+motors."""
 
 from __future__ import annotations
 
@@ -101,46 +102,25 @@ class Tendon2REnv(MujocoEnv, EzPickle):
       integrate (tendon2r_gym.simulation.stability).
 
     ## Arguments
+    ``gym.make(id, **kwargs)`` takes the env's own arguments below and every EnvConfig field,
+    each described by the ``#:`` comment above it (tendon2r_gym/envs/env_config.py); an
+    argument left out keeps the id's default, over the preset's values.  The env card lists
+    them all with their defaults.
 
-    | argument | default | description |
-    |----------|---------|-------------|
-    | `preset` | `"default"` | a bundled preset name or an experiment-file path (.yaml) |
-    | `mechanism` | `None` | dict of Mechanism fields overriding the preset, or a Mechanism |
-    | `reference` | `None` | dict of Reference fields overriding the preset, or a Reference |
-    | `reference_ranges` | `None` | dict of ReferenceRanges: draw a new reference every reset |
-    | `mechanism_ranges` | `None` | {{field: [lo, hi]}} of Mechanism, sensor or PD gain fields, "course", "real_arm", or a list of these: a new arm every reset |
-    | `observe` | `()` | the optional observation entries to add, by the names of the Observation Space table (e.g. ``["error_rate"]``) |
-    | `arm_feature_ranges` | `None` | ranges the ``arm`` slice is normalized over, if not mechanism_ranges (a generalist fine-tuned on one arm) |
-    | `fit_to_workspace` | `False` | scale the amplitudes down (with a warning) instead of raising |
-    | `ctrl_dt` | `0.001` | control period (s), an integer multiple of the mechanism's sim_dt |
-    | `episode_duration` | `2.0` | seconds per episode |
-    | `action_mode` | `"tension"` | "tension" (one command per tendon) or "joint_torque" |
-    | `action_filter_tau` | `0.0` | time constant (s) of a first-order filter on the command |
-    | `reward_scales` | `{{'tracking': 1, 'tracking_quadratic': 0, 'ctrl': 0.001, 'action_rate': 0.1, 'action_rate_need': 0, 'divergence': 100}}` | weights |
-    | `tracking_form` | `"multiscale"` | "multiscale", "log" (both bounded) or "quadratic" tracking reward |
-    | `tracking_sigma_deg` | `1.0` | error scale of the "multiscale" and "log" tracking rewards (deg) |
-    | `tracking_horizon` | `0.05` | how far ahead (s) the ``tracking_rate`` term looks at the error, at its present rate |
-    | `reset_noise_scale` | `0.001` | initial-state noise (rad, rad/s) |
-    | `preview_steps` | `3` | number of future reference samples observed |
-    | `preview_dt` | `0.01` | spacing of the future reference samples (s) |
-    | `error_units` | `"rad"` | what error_log and error_rate_log log-scale: the error and its rate (``"rad"``), or the normalized joint torques that close the error and cancel its rate on the arm (``"action"``, ``rate_to_action``) |
-    | `observation_noise` | `(0.0, 0.0)` | std of the measured angles (rad) and speeds (rad/s) |
-    | `observation_delay` | `0.0` | age of the measurements (s), a multiple of ctrl_dt |
-    | `pd_gains` | `None` | PD / CT gains on this arm (tendon2r_gym.task.gains; None: data/pd.yaml) |
-    | `render_mode` | `None` | "human", "rgb_array" or "depth_array" |
-    | `width` | `480` | render width (px) |
-    | `height` | `480` | render height (px) |
-    | `camera_name` | `"side"` | camera that frames the whole arm |
+    Args:
+        preset: A bundled preset name or an experiment-file path (.yaml).
+        render_mode: "human", "rgb_array" or "depth_array" (None: no rendering).
+        width: The render width (px).
+        height: The render height (px).
+        camera_name: The camera that frames the whole arm ("side"), or None for a free one.
 
     Real tendons and motors (``mechanism``: ``tendon_elasticity``, ``motor_mass``,
     ``tendon_friction``, ``motor_tau``, ``motor_delay``) and the nominal model's errors
-    (``density_scale``, ``extra_joint_damping``), all off by default: tendon2r_gym.simulation
-    .realism; PD and CT keep the nominal model.  Random arms (``mechanism_ranges``,
-    tendon2r_gym.task.arms): every reset draws a valid arm (EnvConfig.draw_arm), rebuilds its
-    model and reports it as the reset info's ``mechanism``, which PD, CT and the residual
-    follow.  ``mechanism.max_tendon_force: "auto"`` (the default) is FORCE_HEADROOM (2) times
-    the peak force that inverse dynamics of the reference (of the worst corner of
-    ``reference_ranges``) needs, ``force_need()``; a fixed limit below that need warns.
+    (``density_scale``, ``extra_joint_damping``) are off by default
+    (tendon2r_gym.simulation.realism); PD and CT keep the nominal model.  With
+    ``mechanism_ranges`` every reset draws a valid arm (EnvConfig.draw_arm) and reports it as
+    the reset info's ``mechanism``.  ``mechanism.max_tendon_force: "auto"`` (the default) is
+    FORCE_HEADROOM (2) times the peak force that inverse dynamics of the reference needs.
 
     ## Version History
     Each id's contract is frozen (tendon2r_gym.policies.contract); CHANGELOG.md says what each changed.
@@ -347,7 +327,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         return sum([counts[w] for w in DIVERGENCE_WARNING_IDS])
 
     def _check_divergence(self, state: list[float]) -> bool:
-        """Returns whether the last step, which left the true ``state`` (:meth:`_state`),
+        """Returns whether the last step, which left the true ``state`` (`_state`),
         diverged (a new MuJoCo instability warning, or a state outside the task's domain); if
         so, leaves a finite state."""
         n_warn = self._warnings()
@@ -373,13 +353,13 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         )
 
     def _get_obs(self, measured: bool = True) -> np.ndarray:
-        """Returns the observation (:meth:`_obs_entries` as an array): of what the sensors
+        """Returns the observation (`_obs_entries` as an array): of what the sensors
         measure, or with ``measured=False`` of the true state."""
         state = self._measured if measured and self._sensing is not None else self._state()
         return np.array(self._obs_entries(state), dtype=np.float64)
 
     def _true_entries(self, parts: list[float], state: list[float]) -> list[float]:
-        """Returns the observation's entries of the true ``state`` (:meth:`_state`): ``parts``
+        """Returns the observation's entries of the true ``state`` (`_state`): ``parts``
         (the entries of the sensors' observation of this step) with the entries the joint
         state sets rewritten (Task.state_entries, and Task.error_rate_entries if observed)."""
         qd1, qd2 = parts[obs_layout.Q_DES]

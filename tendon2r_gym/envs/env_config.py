@@ -1,7 +1,7 @@
-"""EnvConfig: every argument of Tendon2R-v0 except rendering, resolved and validated once.
+"""EnvConfig: every argument of the Tendon2R env except rendering, resolved and validated once.
 
 ``EnvConfig.make(preset, **overrides)`` reads the preset or experiment file, applies the
-overrides (:func:`tendon2r_gym.presets.merge_env_kwargs`), checks every value, fits the reference
+overrides (`tendon2r_gym.presets.merge_env_kwargs`), checks every value, fits the reference
 to the workspace if asked, and sizes ``max_tendon_force: auto``.  Every error is raised here,
 before any MuJoCo model is built.  ``to_dict()`` is what a training run records, and what a
 trained model is checked against when it is loaded.
@@ -65,50 +65,68 @@ MAX_SUBSTEPS = 1000  # physics steps per control step (ctrl_dt / sim_dt), at mos
 
 @dataclass(frozen=True)
 class EnvConfig:
-    """The resolved arguments of Tendon2R-v0 (see the Tendon2REnv docstring for each one)."""
+    """The resolved arguments of the Tendon2R env, every id's.
 
+    Each field's description is the ``#:`` comment above it, the one place it is written: the
+    env card's Arguments table (scripts/gen_docs.py) is generated from these comments and the
+    defaults.
+    """
+
+    #: Mechanism fields over the preset's (a dict), or a Mechanism: geometry, routing, force
+    #: limit, cables and motors.
     mechanism: Mechanism
+    #: Reference fields over the preset's (a dict), or a Reference: each joint's sinusoid.
     reference: Reference
+    #: ReferenceRanges (a dict): draw a new reference every reset.
     reference_ranges: ReferenceRanges | None = None
-    #: Draw a new arm at every reset (tendon2r_gym.task.arms.MechanismRanges) and its reference,
-    #: each pair valid with its own ``auto`` force limit, as one experiment file (draw_arm).
+    #: Draw a new arm and its reference at every reset (draw_arm), each pair valid with its
+    #: own ``auto`` force limit: {field: [lo, hi]} of Mechanism, sensor or PD gain fields, a
+    #: named set ("course", "envelope", "real_arm") or a list of these
+    #: (tendon2r_gym.task.arms.MechanismRanges).
     mechanism_ranges: MechanismRanges | None = None
-    #: The optional observation entries (tendon2r_gym.task.observation.OBSERVABLE, in that
-    #: order): ``error_rate``, the tracking error's rate, log-scaled (``error_rate_log``);
-    #: ``feedforward``, the reference's acceleration as the normalized joint torques that give
-    #: it; ``force_limit``, ln of max_tendon_force (``force_limit_log``), a normalized action's
-    #: scale; ``arm``, the drawn fields, normalized over mechanism_ranges.
+    #: The optional observation entries (the Observation Space table): any of ``error_rate``,
+    #: ``feedforward``, ``force_limit`` and ``arm`` (tendon2r_gym.task.observation.OBSERVABLE).
     observe: tuple[str, ...] = ()
-    #: The ranges the ``arm`` slice covers and is normalized over, if not mechanism_ranges:
-    #: a policy trained on random arms that observes ``arm`` sees one fixed arm as it saw the
-    #: arms it was trained on (fine-tuning a generalist on one arm).
+    #: The ranges the ``arm`` slice is normalized over, if not mechanism_ranges: one fixed arm
+    #: seen as a generalist saw its training arms (fine-tuning a generalist on one arm).
     arm_feature_ranges: MechanismRanges | None = None
+    #: Scale the reference's amplitudes down to the arm's workspace (with a warning) instead
+    #: of raising.
     fit_to_workspace: bool = False
+    #: The control period (s), an integer multiple of the mechanism's sim_dt.
     ctrl_dt: float = 0.001
+    #: What the action commands: "tension" (one command per tendon motor) or "joint_torque"
+    #: (one per joint, distributed over the tendons as PD's are).
     action_mode: str = "tension"
+    #: The time constant (s) of a first-order low-pass filter on the applied command (0: none).
     action_filter_tau: float = 0.0
+    #: Seconds per episode.
     episode_duration: float = 2.0
+    #: The reward terms' weights (the Rewards table); a term left out keeps its default.
     reward_scales: Mapping[str, float] = field(default_factory=lambda: dict(REWARD_SCALES))
+    #: The tracking reward's form: "multiscale", "log" (both bounded) or "quadratic".
     tracking_form: str = "multiscale"
+    #: The error scale (deg) of the "multiscale" and "log" tracking forms.
     tracking_sigma_deg: float = 1.0
     #: How far ahead (s) the ``tracking_rate`` reward term looks: e + tracking_horizon de.
     tracking_horizon: float = 0.05
+    #: The initial state's uniform noise about the reference (rad, rad/s).
     reset_noise_scale: float = 0.001
+    #: The number of future reference samples observed.
     preview_steps: int = 3
+    #: The spacing (s) of the future reference samples.
     preview_dt: float = 0.01
-    #: What error_log and error_rate_log log-scale (tendon2r_gym.envs.task.ERROR_UNITS): "rad", the
-    #: tracking error and its rate; "action", the normalized joint torques that close the
-    #: error and cancel its rate on the episode's arm (rate_to_action), so that a policy's
-    #: gains on them move the joints alike on every arm.
+    #: What error_log and error_rate_log log-scale: "rad", the error and its rate; "action",
+    #: the normalized joint torques that close the error and cancel its rate on the episode's
+    #: arm (rate_to_action), alike on every arm.
     error_units: str = "rad"
-    #: What the controller measures (tendon2r_gym.simulation.realism.Sensors): Gaussian noise (std,
-    #: rad
-    #: and rad/s) on each joint's angle and speed, and their age (s, whole control steps).
+    #: The std of the Gaussian noise on each measured joint angle (rad) and speed (rad/s)
+    #: (tendon2r_gym.simulation.realism.Sensors).
     observation_noise: tuple[float, float] = (0.0, 0.0)
+    #: The measurements' age (s), a multiple of ctrl_dt.
     observation_delay: float = 0.0
-    #: Gains of PD and CT on this arm (tendon2r_gym.task.gains.Gains fields over data/pd.yaml; None:
-    #: data/pd.yaml), and of the PD inside a residual policy trained here.  A lagging arm may
-    #: need lower ones: ``tendon2r-tune-pd`` finds them.
+    #: Gains of PD, CT and a residual's PD on this arm (tendon2r_gym.task.gains.Gains fields
+    #: over data/pd.yaml; None: data/pd.yaml); ``tendon2r-tune-pd`` finds them.
     pd_gains: Gains | None = None
     #: What inverse dynamics of the reference (or of the worst corner of reference_ranges)
     #: needs of this arm, and its control authority (tendon2r_gym.task.needs.Needs); computed,
@@ -280,7 +298,7 @@ class EnvConfig:
     def draw_arm(self, rng: np.random.Generator, reference: Reference | None = None) -> EnvConfig:
         """Returns the config of a random arm of ``mechanism_ranges`` and its episode's
         reference (``reference``, else a draw of reference_ranges on that arm, else the
-        nominal one): :meth:`for_arm`.  Draws again until the pair is valid (a Mechanism,
+        nominal one): `for_arm`.  Draws again until the pair is valid (a Mechanism,
         stable, the reference's bias in its workspace); raises after MAX_TRIES draws."""
         ranges = self.mechanism_ranges
         if ranges is None:
