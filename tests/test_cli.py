@@ -263,3 +263,86 @@ def test_evaluate_runs_a_bundle_in_the_settings_it_trained_in(tmp_path):
     recorded = json.loads(out.read_text())["env_kwargs"]
     mode = model_settings(bundled_model("generalist"))["action_mode"]
     assert recorded.get("action_mode", "tension") == mode
+
+
+def _figures(record):
+    """benchmark.json without what a run's timing and folders decide: the wall times, the
+    model paths and the command line."""
+    timing = {"eval_s", "train_wall_s", "train_wall_s_max", "model"}
+    return [{k: v for k, v in r.items() if k not in timing} for r in record["rows"]]
+
+
+def test_the_own_arm_benchmark_on_two_workers_gives_the_figures_of_one(tmp_path, monkeypatch):
+    """--workers 2 trains a row's two seeds at once in spawned worker processes: benchmark.json
+    holds the figures of --workers 1.  The row of both seeds carries its per-joint IQM with
+    its interval, mean +- std and its probability of beating PD.  One learned row of a tiny
+    PPO (2 envs, 64-step rollouts: the hyperparameters travel with each job), no zero-shot
+    bundles and no plots (their own tests above); no short_episodes (a spawned worker does not
+    see this process's patches; the arm's episodes are 0.2 s anyway)."""
+    from tendon2r_gym.app import benchmark
+    from tendon2r_gym.evaluation.metrics import beats
+    from tendon2r_gym.training import Hyperparams
+
+    _untuned(monkeypatch)
+    monkeypatch.setattr(benchmark, "LEARNED", {"ppo scratch": "default_scratch"})
+    monkeypatch.setattr(benchmark, "FINETUNED", {})
+    monkeypatch.setattr(benchmark, "ZERO_SHOT", ())
+    monkeypatch.setattr(benchmark, "plot_trace", lambda *a: None)
+    entry = Hyperparams.from_entry
+
+    def tiny(cls, *args, **kwargs):
+        hp = entry(*args, **kwargs)
+        return hp.replace(ppo={**hp.ppo, "n_steps": 64, "batch_size": 64, "n_epochs": 1},
+                          n_envs=2, eval_freq=128, checkpoint_freq=128, eval_seeds=[0])  # fmt: skip
+
+    monkeypatch.setattr(Hyperparams, "from_entry", classmethod(tiny))
+    arm = tmp_path / "my_arm.yaml"
+    arm.write_text(ARM)
+
+    def run(workers):
+        out = tmp_path / f"out_{workers}"
+        benchmark_main(["--env-config", str(arm), "--train-steps", "256", "--seeds", "0", "1",
+                        "--episodes", "1", "--out", str(out), "--run-dir",
+                        str(tmp_path / f"runs_{workers}"), "--workers", str(workers)])  # fmt: skip
+        return json.loads((out / "benchmark.json").read_text())
+
+    one, two = run(1), run(2)
+    assert "--workers 2" in two["command"]
+    assert _figures(two) == _figures(one)
+    rows = {r["policy"]: r for r in two["rows"]}
+    seeds, pd = rows["ppo scratch (2 seeds)"], rows["pd"]["rms_deg"]
+    stats = seeds["statistics"]
+    per_seed = seeds["rms_deg_per_seed"]
+    assert stats["runs"] == 2 and stats["rms_deg_iqm"] == pytest.approx(seeds["rms_deg"])
+    assert stats["rms_deg_mean"] == seeds["rms_deg"]
+    assert stats["rms_deg_std"] == seeds["rms_deg_std"]
+    for (lo, hi), a, b in zip(stats["rms_deg_iqm_ci"], *per_seed, strict=True):
+        assert min(a, b) <= lo <= hi <= max(a, b)
+    assert stats["beats_pd"]["wins"] == sum(beats(r, pd) for r in per_seed)
+    assert stats["beats_pd"]["pairs"] == 2 and stats["note"].startswith("2 runs: the interval")
+    assert len(stats["worst_ratio_to_pd"]) == 2
+
+
+@pytest.mark.parametrize(
+    ("argv", "match"),
+    [
+        (["--workers", "2"], r"^--workers = 2 is invalid; allowed: 1 without --env-config"),
+        (["--cluster", "auto"], r"^--cluster = 'auto' is invalid; allowed: only with --env-c"),
+        (["--env-config", "{arm}", "--workers", "0"], r"^--workers = 0 is invalid"),
+        (
+            ["--env-config", "{arm}", "--workers", "2", "--cluster", "auto"],
+            r"^--workers = 2 is invalid; allowed: 1 with --cluster",
+        ),
+    ],
+)
+def test_the_benchmark_refuses_bad_workers_before_anything_trains(tmp_path, monkeypatch, argv,
+                                                                  match):  # fmt: skip
+    from tendon2r_gym.evaluation import tuning
+
+    monkeypatch.setattr(tuning, "tune_pd", lambda *a, **k: pytest.fail("tuned PD"))
+    arm = tmp_path / "my_arm.yaml"
+    arm.write_text(ARM)
+    argv = [a.replace("{arm}", str(arm)) for a in argv]
+    with pytest.raises(ValueError, match=match):
+        benchmark_main([*argv, "--out", str(tmp_path / "out"), "--run-dir", str(tmp_path / "r")])
+    assert not (tmp_path / "r").exists() and not (tmp_path / "out").exists()

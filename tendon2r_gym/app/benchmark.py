@@ -45,6 +45,8 @@ from tendon2r_gym.validation import invalid
 #: presets, each shipped model of registry group ``preset`` (tendon2r_gym/data/shipped.yaml)
 #: runs under the label of its kind (:func:`preset_models`).
 LEARNED = {"ppo scratch": "default_scratch", "ppo residual": "default"}
+#: The bootstrap's seed for every interval of benchmark.json (the same figures on every run).
+BOOTSTRAP_SEED = 0
 #: Held-out references for the generalization check (inside the training ranges of
 #: configs/ppo.yaml random_reference, never drawn exactly).
 HELD_OUT = [
@@ -66,7 +68,7 @@ def compare(
     progress: Any = None,
 ) -> list[dict[str, Any]]:
     """Returns the rows of one env: PD, CT, and per learned label its primary model and the
-    mean +- std (ddof 0) over all its training seeds."""
+    mean +- std (ddof 0) over all its training seeds, with its uncertainty (:func:`_spread`)."""
     rows = []
     for policy in names(BASELINE):
         rows.append(_row(name, policy, policy, env_kwargs, seeds, None, plots))
@@ -86,7 +88,8 @@ def compare(
             _tick(progress)
         rows.append(per_seed[0])
         if len(per_seed) > 1:
-            rows.append({**_spread(name, label, per_seed), **tag})
+            pd = next((r["rms_deg"] for r in rows if r["policy"] == "pd"), None)
+            rows.append({**_spread(name, label, per_seed, pd), **tag})
     for row in rows:
         _print(row)
     return rows
@@ -192,7 +195,11 @@ def shown_path(path: Path) -> str:
     return str(path)
 
 
-def _spread(name: str, label: str, per_seed: list[dict[str, Any]]) -> dict[str, Any]:
+def _spread(
+    name: str, label: str, per_seed: list[dict[str, Any]], pd: list[float] | None = None
+) -> dict[str, Any]:
+    """Returns the row of a learned label over its training seeds: the mean +- std (ddof 0)
+    per joint, and ``statistics`` (:func:`uncertainty`)."""
     rms = [r["rms_deg"] for r in per_seed]
     beat = [r["first_beat_pd"] for r in per_seed]
     mean = np.mean(rms, axis=0).tolist()
@@ -210,7 +217,40 @@ def _spread(name: str, label: str, per_seed: list[dict[str, Any]]) -> dict[str, 
         "train_wall_s": round(float(np.mean([r["train_wall_s"] for r in per_seed])), 1),
         "train_wall_s_max": max(r["train_wall_s"] for r in per_seed),
         "first_beat_pd": beat,
+        "statistics": uncertainty(rms, pd),
     }
+
+
+def uncertainty(rms: list[list[float]], pd: list[float] | None) -> dict[str, Any]:
+    """Returns the uncertainty of a learned row over its seeds' per-joint RMS (deg), by
+    tendon2r_gym.evaluation.statistics (seed BOOTSTRAP_SEED, so that benchmark.json is the
+    same on every run)::
+
+        {"runs", "confidence", "rms_deg_iqm", "rms_deg_iqm_ci" ([low, high] per joint),
+         "rms_deg_mean", "rms_deg_std", "beats_pd": {"share", "low", "high", "wins", "pairs",
+         "interval": "wilson"}, "worst_ratio_to_pd" (per seed), "bootstrap", "note"}
+
+    ``note``: a sentence where it rests on fewer than statistics.MIN_RUNS runs, else None.
+    Without PD's row (``pd`` None), no beats_pd and no ratios."""
+    from tendon2r_gym.evaluation.statistics import summary
+
+    s = summary(rms, pd, seed=BOOTSTRAP_SEED)
+    return {key: s[of] for key, of in UNCERTAINTY_KEYS.items() if of in s}
+
+
+#: The keys of a learned row's ``statistics`` -> those of statistics.summary.
+UNCERTAINTY_KEYS = {
+    "runs": "runs",
+    "confidence": "confidence",
+    "rms_deg_iqm": "iqm",
+    "rms_deg_iqm_ci": "iqm_ci",
+    "rms_deg_mean": "mean",
+    "rms_deg_std": "std",
+    "beats_pd": "beats_baseline",
+    "worst_ratio_to_pd": "worst_ratio",
+    "bootstrap": "bootstrap",
+    "note": "note",
+}
 
 
 def _print(row: dict[str, Any]) -> None:
@@ -314,19 +354,23 @@ def benchmark_own_arm(
     run_dir: Path,
     command: str,
     labels: Sequence[str] | None = None,
+    workers: int = 1,
+    cluster: str | None = None,
 ) -> dict[str, Any]:
     """Trains both PPO variants on ``env_config`` (one run per seed), then compares PD, CT, PD
     tuned on the arm (tendon2r-tune-pd's gains over TUNE_EPISODES held-out episodes), them
     and the zero-shot bundles (ZERO_SHOT) on the same evaluation seeds -> out/benchmark.md,
     .json, plots/.  ``labels``: train only these learned rows (of LEARNED and FINETUNED; None:
-    every one; empty: none, as ``--no-train``)."""
-    from tqdm.auto import tqdm
+    every one; empty: none, as ``--no-train``).
 
+    Each (row, seed) training is one job of the executor of ``workers`` and ``cluster``
+    (tendon2r_gym.training.executors.make_executor: in this process, local workers, or a Ray
+    cluster, which is joined before anything else runs); a seed trains to the same bits on
+    each.  The rows are trained one after another, each row's seeds at once."""
     from tendon2r_gym.envs.env_config import EnvConfig
-    from tendon2r_gym.evaluation.tuning import tune_pd
-    from tendon2r_gym.training import Experiment, Hyperparams
+    from tendon2r_gym.training import Hyperparams
+    from tendon2r_gym.training.executors import InProcess, entered, make_executor
 
-    env_kwargs = {"preset": env_config}
     config = EnvConfig.make(env_config)  # every error before any training
     entries = dict(LEARNED) | FINETUNED
     if labels is not None:
@@ -334,6 +378,40 @@ def benchmark_own_arm(
             raise invalid("labels", sorted(unknown), f"some of {list(entries)}")
         entries = {k: v for k, v in entries.items() if k in labels}
     cfgs = {k: Hyperparams.from_entry(e, env_config=env_config) for k, e in entries.items()}
+    threads = max((hp.torch_threads for hp in cfgs.values()), default=1)
+    executor = make_executor(workers, cluster, threads)  # --workers and --cluster checked
+    with entered(executor if cfgs else InProcess()) as ex:  # an unreachable cluster: refused
+        rows = _own_arm_rows(env_config, cfgs, train_steps, seeds, episodes, out, run_dir,
+                             command, ex)  # fmt: skip
+    result = {
+        "command": command,
+        "env_config": config.to_dict(),
+        "force_need_N": config.needs.force_need,
+        "rows": rows,
+    }
+    return _write(out, result, report.own_arm_page(result, env_config))
+
+
+def _own_arm_rows(
+    env_config: str,
+    cfgs: dict[str, Any],
+    train_steps: int | None,
+    seeds: list[int],
+    episodes: int,
+    out: Path,
+    run_dir: Path,
+    command: str,
+    executor: Any,
+) -> list[dict[str, Any]]:
+    """Returns the rows of :func:`benchmark_own_arm`: PD tuned, the trainings of ``cfgs``
+    (label -> hyperparameters) on ``executor``, then the comparison."""
+    from tqdm.auto import tqdm
+
+    from tendon2r_gym.evaluation.tuning import tune_pd
+    from tendon2r_gym.training import Experiment
+    from tendon2r_gym.training.jobs import train_experiment
+
+    env_kwargs = {"preset": env_config}
     # PD as tendon2r-tune-pd tunes it on this arm (a lagging arm needs lower gains): before
     # any training, as every error
     tuned = tune_pd(env_kwargs, TUNE_EPISODES).gains.to_dict()
@@ -355,7 +433,7 @@ def benchmark_own_arm(
             folder = run_dir / label.replace(" ", "_")
             exp = Experiment.start_or_continue(hp, folder, seeds, command)
             bar.set_postfix_str(f"training {label}")
-            exp.train(resume=True)
+            train_experiment(exp, resume=True, executor=executor)
             learned[label] = [model_files(exp.run_folder(s).best)[0] for s in seeds]
             bar.update(len(seeds))
         bar.set_postfix_str("evaluating")
@@ -367,10 +445,4 @@ def benchmark_own_arm(
         _print(rows[-1])
         rows += generalist_rows(name, env_kwargs, list(range(episodes)), tuned)
         rows += [{"env": name, "policy": k, "missing": v} for k, v in uncovered.items()]
-    result = {
-        "command": command,
-        "env_config": config.to_dict(),
-        "force_need_N": config.needs.force_need,
-        "rows": rows,
-    }
-    return _write(out, result, report.own_arm_page(result, env_config))
+    return rows

@@ -211,6 +211,13 @@ class BenchmarkArgs:
     tendon2r-benchmark                                   # bundled presets -> results/
     tendon2r-benchmark --env-config my_arm.yaml --train-steps 300000 --seeds 0 1 2 --out DIR
     tendon2r-benchmark --env-config my_arm_identified.yaml --no-train --out DIR
+    tendon2r-benchmark --env-config my_arm.yaml --seeds 0 1 2 3 4 5 6 7 8 9 --workers 2
+
+    With --env-config, --workers N trains N of a row's seeds at once in local processes, and
+    --cluster auto (or HOST:PORT) on a Ray cluster (the cluster extra), as tendon2r-train does;
+    each seed's run is the same on every executor.  A learned row of several seeds records, in
+    benchmark.json, its per-joint IQM with a 95% bootstrap interval, mean +- std and its
+    probability of beating PD (tendon2r_gym.evaluation.statistics).
     """
 
     env_config: Annotated[str | None, arg("your arm: train PPO on this file, then compare")] = None
@@ -224,6 +231,13 @@ class BenchmarkArgs:
     train: Annotated[
         bool, arg("with --env-config: train PPO on the arm (--no-train: PD, CT, zero-shot rows)")
     ] = True
+    workers: Annotated[
+        int, arg("with --env-config: train this many seeds at once in local worker processes")
+    ] = 1
+    cluster: Annotated[
+        str | None,
+        arg("with --env-config: train the seeds on a Ray cluster: auto or HOST:PORT"),
+    ] = None
 
 
 def benchmark_main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -239,6 +253,12 @@ def benchmark_main(argv: list[str] | None = None) -> dict[str, Any]:
     if args.env_config is None and not args.train:
         raise invalid("--no-train", True, "only with --env-config (the bundled one trains nothing)")
     if args.env_config is None:
+        if args.workers != 1:
+            raise invalid("--workers", args.workers, "1 without --env-config (the bundled "
+                          "benchmark trains nothing)")  # fmt: skip
+        if args.cluster is not None:
+            raise invalid("--cluster", args.cluster, "only with --env-config (the bundled "
+                          "benchmark trains nothing)")  # fmt: skip
         return benchmark_bundled(args.episodes, Path(args.out), command)
     return benchmark_own_arm(
         args.env_config,
@@ -249,6 +269,8 @@ def benchmark_main(argv: list[str] | None = None) -> dict[str, Any]:
         Path(args.run_dir or f"runs/{Path(args.env_config).stem}"),
         command,
         None if args.train else [],
+        args.workers,
+        args.cluster,
     )
 
 
