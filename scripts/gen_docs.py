@@ -255,9 +255,13 @@ def reward_table() -> list[str]:
     return [
         *table(("term", "default weight", "unscaled term"), rows),
         "",
-        f"with the log kernel ${KERNEL}$ (quadratic below sigma, logarithmic far from it), "
-        "e the joints' tracking errors (deg), sigma = `tracking_sigma_deg`, f the applied "
-        "command as a fraction of the force limit, a the action.",
+        "with e the joints' tracking errors (deg), sigma = `tracking_sigma_deg`, f the applied "
+        "command as a fraction of the force limit, a the action, and the log kernel (quadratic "
+        "below sigma, logarithmic far from it):",
+        "",
+        "$$",
+        KERNEL,
+        "$$",
         "",
         '??? note "What each term is for (tendon2r_gym.task.rewards.TERMS)"',
         "",

@@ -11,7 +11,7 @@ that other LLVM's functions, whose data layout differs, and the process dies wit
 later to its own.  (``TORCHDYNAMO_DISABLE`` does not help: torch._dynamo imports triton
 regardless, and the optimizer imports torch._dynamo.)
 
-:func:`load_triton` loads libtriton first where this package is about to bring Mesa's LLVM in
+`load_triton` loads libtriton first where this package is about to bring Mesa's LLVM in
 (an env made with a ``render_mode``; ``import tendon2r_gym`` with ``MUJOCO_GL=osmesa``) and
 before PPOPolicy.load loads a model.  If Mesa's LLVM is already there (a GL context made by
 other code), it loads libtriton with ``RTLD_DEEPBIND``, so that libtriton resolves its own

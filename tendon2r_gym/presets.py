@@ -1,15 +1,15 @@
 """Package data and experiment files: where things live, how YAML is read, how presets merge.
 
-An *experiment file* (an env YAML) holds any ``Tendon2R-v0`` keyword argument at its top level:
+An *experiment file* (an env YAML) holds any keyword argument of the Tendon2R env at its top level:
 the sections ``mechanism`` (Mechanism fields), ``reference`` (Reference fields) and
 ``reference_ranges`` (ReferenceRanges fields), and the scalar arguments such as ``ctrl_dt``,
 ``episode_duration``, ``fit_to_workspace`` or ``reward_scales``.  The bundled presets are such
 files, shipped inside the package (``tendon2r_gym/data/presets/``); a user's own file is passed
 by path, ``gym.make("Tendon2R-v1", preset="my_arm.yaml")``.  Keyword arguments given to
 ``gym.make`` override the file: a ``mechanism`` or ``reference`` dict overrides only the fields
-it names (:func:`merge_env_kwargs`).
+it names (`merge_env_kwargs`).
 
-Everything the library reads at run time lives under :data:`DATA_DIR`, so a non-editable
+Everything the library reads at run time lives under `DATA_DIR`, so a non-editable
 install works from any folder.
 """
 

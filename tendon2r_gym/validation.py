@@ -21,7 +21,7 @@ def invalid(field: str, value: Any, allowed: str) -> ValueError:
 
 
 def invalid_field(error: ValueError) -> str:
-    """Returns the field that an :func:`invalid` error names, without its class prefix
+    """Returns the field that an `invalid` error names, without its class prefix
     (``Mechanism.tendon_damping``: ``tendon_damping``)."""
     return str(error).split(" = ", 1)[0].rsplit(".", 1)[-1]
 

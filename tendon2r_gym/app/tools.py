@@ -79,7 +79,7 @@ def view_main(argv: list[str] | None = None) -> Path | None:
 
 @dataclass
 class ExportArgs:
-    """Write the MJCF XML of the model Tendon2R-v0 steps for an env config: MuJoCo's
+    """Write the MJCF XML of the model the Tendon2R env steps for an env config: MuJoCo's
     MjModel.from_xml_path compiles it to the env's own MjModel, every number exactly.
 
     tendon2r-export --env-config real_arm --out build/real_arm.xml

@@ -1,14 +1,15 @@
-"""The task of Tendon2R-v0, written once: observation, reward terms, divergence, reset and info.
+"""The task of the Tendon2R env, written once: observation, reward terms, divergence, reset
+and info.
 
 dm_control's Physics/Task split: the envs own the physics (one MjData in Tendon2REnv, N
-simulations of ``mujoco.batch`` in Tendon2RVectorEnv) and call :class:`Task` for every formula
+simulations of ``mujoco.batch`` in Tendon2RVectorEnv) and call `Task` for every formula
 of the task.  Each formula is plain arithmetic on per-joint quantities, run on Python floats
-with :data:`tendon2r_gym.ops.SCALAR` (the single env) or on arrays over N arms with
-:data:`~tendon2r_gym.ops.BATCH` (the vector env), so the two envs agree bit for bit.
+with `tendon2r_gym.ops.SCALAR` (the single env) or on arrays over N arms with
+`BATCH` (the vector env), so the two envs agree bit for bit.
 
 Reward terms come back unscaled, keyed like ``reward_scales``, and are scaled once
-(mujoco_playground's ``scales``): a new term is one entry of :data:`TERMS` and one line of
-:meth:`Task.reward_terms`.
+(mujoco_playground's ``scales``): a new term is one entry of `TERMS` and one line of
+`Task.reward_terms`.
 """
 
 from __future__ import annotations
@@ -69,7 +70,7 @@ RESET_INFO_KEYS = ("reference", "time", "force_need_N", "torque_need_Nm", "max_t
 
 def reference_params(ref: Reference) -> tuple[float, ...]:
     """Returns (amp_A, amp_B, omega_A, omega_B, phase_A, phase_B, bias_A, bias_B) in rad and
-    rad/s: the per-joint numbers :meth:`Task.observation` reads."""
+    rad/s: the per-joint numbers `Task.observation` reads."""
     return (
         *ref.amp_rad.tolist(),
         *ref.omega_array.tolist(),
@@ -78,14 +79,14 @@ def reference_params(ref: Reference) -> tuple[float, ...]:
     )
 
 
-#: Where :func:`arm_params` holds the link lengths (a, b, c) and EnvConfig.needs.rate_to_action
+#: Where `arm_params` holds the link lengths (a, b, c) and EnvConfig.needs.rate_to_action
 #: (row by row), which the observation reads but does not hold; its observed entries follow.
 LINKS, RATE_TO_ACTION = slice(0, 3), slice(3, 7)
 N_ARM_PARAMS = RATE_TO_ACTION.stop
 
 
 def arm_params(arm: EnvConfig, observed: EnvConfig) -> tuple[float, ...]:
-    """Returns the per-arm numbers :meth:`Task.observation` reads: the link lengths (a, b, c)
+    """Returns the per-arm numbers `Task.observation` reads: the link lengths (a, b, c)
     of the episode's arm config ``arm`` and its EnvConfig.needs.rate_to_action (row by row), then
     the observation's last per-arm entries if the env's config ``observed`` holds them:
     ``force_limit_log``, ln of the arm's force limit (N), and the arm's features over its
@@ -98,7 +99,7 @@ def arm_params(arm: EnvConfig, observed: EnvConfig) -> tuple[float, ...]:
 
 
 def to_action(arm: Sequence[Any], v1: Any, v2: Any) -> tuple[Any, Any]:
-    """Returns EnvConfig.needs.rate_to_action (:func:`arm_params`' ``RATE_TO_ACTION``) times the
+    """Returns EnvConfig.needs.rate_to_action (`arm_params`' ``RATE_TO_ACTION``) times the
     joints' speed changes (v1, v2) in one control step: the normalized joint torques that give
     them."""
     r00, r01, r10, r11 = arm[RATE_TO_ACTION]
@@ -236,7 +237,7 @@ class Task:
         """Returns the observation's entries in the order of tendon2r_gym.task.observation (q, dq,
         q_des, dq_des, error, error_log, effector_pos, effector_vel, preview, last action, then
         error_rate_log, feedforward, force_limit_log and arm if observed), from the joint
-        angles and speeds, the time, :func:`reference_params`, :func:`arm_params` and the last
+        angles and speeds, the time, `reference_params`, `arm_params` and the last
         clipped action (one value, or one column of N values, per action dimension)."""
         amp1, amp2, om1, om2, ph1, ph2, bias1, bias2 = ref
         sin, cos = ops.sin, ops.cos
@@ -261,7 +262,7 @@ class Task:
     ) -> tuple[list[Any], list[Any]]:
         """Returns the observation's entries that the joint state sets, in two runs:
         (q, dq) and (error, error_log, effector_pos, effector_vel), from the joint angles and
-        speeds, the reference q_des and :func:`arm_params` (tendon2r_gym.task.observation.STATE
+        speeds, the reference q_des and `arm_params` (tendon2r_gym.task.observation.STATE
         gives their slices).  With sensors, the envs rewrite these of the measured observation
         with the true state for the reward and info."""
         a, b, c = arm[LINKS]
@@ -283,13 +284,13 @@ class Task:
         self, ops: Ops, w1: Any, w2: Any, dqd1: Any, dqd2: Any, arm: Sequence[Any]
     ) -> list[Any]:
         """Returns ``error_rate_log`` (observe ``error_rate``) from the joint speeds and the
-        reference's: :meth:`_log_entries` of de = dq_des - dq."""
+        reference's: `_log_entries` of de = dq_des - dq."""
         return self._log_entries(ops, dqd1 - w1, dqd2 - w2, L.ERROR_RATE_LOG_SCALE, arm)
 
     def feedforward_entries(
         self, ops: Ops, t: Any, ref: Sequence[Any], arm: Sequence[Any]
     ) -> list[Any]:
-        """Returns ``feedforward`` (observe ``feedforward``): rate_to_action (:func:`arm_params`)
+        """Returns ``feedforward`` (observe ``feedforward``): rate_to_action (`arm_params`)
         times ctrl_dt ddq_des(t + ctrl_dt / 2), the normalized joint torques that give the
         reference's acceleration at the middle of the next control step."""
         amp1, amp2, om1, om2, ph1, ph2, _, _ = ref
@@ -303,7 +304,7 @@ class Task:
         self, ops: Ops, x1: Any, x2: Any, scale: float, arm: Sequence[Any], per: float = 1.0
     ) -> list[Any]:
         """Returns sign(y) log(1 + |y| / s) of each joint's y: with error_units "rad", y = x
-        and s = ``scale``; with "action", y = rate_to_action (x / per) (:func:`arm_params`), the
+        and s = ``scale``; with "action", y = rate_to_action (x / per) (`arm_params`), the
         normalized joint torques that change the joints' speeds by x / per in one control step,
         and s = ACTION_LOG_SCALE."""
         if self.config.error_units == "rad":
@@ -368,7 +369,7 @@ class Task:
     ) -> dict[str, Any]:
         """Returns the unscaled reward terms (keys of TERMS) from the tracking errors (rad), the
         clipped action and the one before it (one value, or one column of N values, per action
-        dimension), :meth:`rate_need_inverse` of the arm (per action dimension), divergence
+        dimension), `rate_need_inverse` of the arm (per action dimension), divergence
         and the errors' rates (rad/s; read only when ``tracking_rate`` is weighed)."""
         e1, e2 = e1 / RAD_PER_DEG, e2 / RAD_PER_DEG
         quadratic = -(e1 * e1 + e2 * e2)
@@ -441,7 +442,7 @@ class Task:
         diverged: Any,
     ) -> dict[str, Any]:
         """Returns the info of a step (keys STEP_INFO_KEYS) from the observation (one, or N
-        rows), the scaled reward terms (:meth:`scale`), the tendon tensions (N, positive
+        rows), the scaled reward terms (`scale`), the tendon tensions (N, positive
         pulling), the moment-arm condition number, the time and divergence."""
         info = dict(scaled)
         if obs.ndim == 1:  # one env

@@ -1,7 +1,7 @@
 """A native vector env: N arms of one model stepped in one process by ``mujoco.batch``.
 
-``gym.make_vec("Tendon2R-v0", num_envs=N, vectorization_mode="vector_entry_point")`` returns
-:class:`Tendon2RVectorEnv`.  One MjModel and N simulations are stepped by MuJoCo's batch API
+``gym.make_vec("Tendon2R-v1", num_envs=N, vectorization_mode="vector_entry_point")`` returns
+`Tendon2RVectorEnv`.  One MjModel and N simulations are stepped by MuJoCo's batch API
 (C threads, results bit-identical to one MjData per simulation); the observation, reward,
 reference and divergence checks are tendon2r_gym.envs.task's formulas on numpy arrays over the N
 arms.  The same seeds give the same trajectories, observations, rewards and infos as N single
@@ -39,8 +39,8 @@ from tendon2r_gym.validation import boolean, integer, invalid, real_array
 
 
 class Tendon2RVectorEnv(VectorEnv):
-    """N Tendon2R-v0 arms in one process (see the module docstring).  Takes the arguments of
-    Tendon2R-v0 (preset, mechanism, reference, ...) plus ``num_envs``, ``autoreset_mode``,
+    """N Tendon2R arms in one process (see the module docstring).  Takes the arguments of
+    the Tendon2R env (preset, mechanism, reference, ...) plus ``num_envs``, ``autoreset_mode``,
     ``nthread`` (MuJoCo batch threads; None: one per ARMS_PER_THREAD arms, up to the CPUs this
     process may use; 0: one per CPU) and ``stagger`` (training: after each full reset, arm i's
     episode is already i / N of the way to its step limit, so the arms desynchronize; off by

@@ -88,7 +88,7 @@ def _entry(name: str) -> PolicyEntry:
     return POLICIES[name]
 
 
-#: The relative size of :class:`Jittered`'s perturbations: float32's rounding (2**-24).
+#: The relative size of `Jittered`'s perturbations: float32's rounding (2**-24).
 JITTER = 2.0**-24
 
 
@@ -128,7 +128,7 @@ def evaluate(
     jitter: int | None = None,
 ) -> tuple[dict[str, Any], list[Trace]]:
     """Rolls policy ``name`` out on ``seeds``; returns (metrics, traces).  ``jitter``: the
-    policy is :class:`Jittered` with that seed."""
+    policy is `Jittered` with that seed."""
     probe = make_env(**env_kwargs)
     policy = make_policy(name, probe, model)
     probe.close()
@@ -139,7 +139,7 @@ def evaluate(
 
 
 #: Re-evaluations of a figure with its policy's commands perturbed in their last float32 bits
-#: (:class:`Jittered`, seeds 1 .. REPRO_RUNS): its ``reproducible_to`` is, per joint, the
+#: (`Jittered`, seeds 1 .. REPRO_RUNS): its ``reproducible_to`` is, per joint, the
 #: largest change of its RMS error among them.
 REPRO_RUNS = 2
 

@@ -30,7 +30,7 @@ def beats(rms_deg: Sequence[float], baseline_rms_deg: Sequence[float]) -> bool:
 
 def worst_ratio(rms_deg: Sequence[float], baseline_rms_deg: Sequence[float]) -> float:
     """Returns the larger of the joints' RMS errors as a multiple of the baseline's (<= 1:
-    :func:`beats` the baseline)."""
+    `beats` the baseline)."""
     return float(max(r / b for r, b in zip(rms_deg, baseline_rms_deg, strict=True)))
 
 
@@ -48,7 +48,7 @@ RATE_LIMIT_X_PD = {"residual": 3.0, "plain": 10.0}
 
 def smoothness_x_pd(row: dict[str, Any], pd_row: dict[str, Any]) -> tuple[float, float]:
     """Returns a policy's RMS tension and RMS tension rate as multiples of PD's (two
-    :func:`tracking_metrics` results on the same episodes)."""
+    `tracking_metrics` results on the same episodes)."""
     return (
         rms_ratio(row["rms_tension_N"], pd_row["rms_tension_N"]),
         rms_ratio(row["rms_tension_rate_N_per_s"], pd_row["rms_tension_rate_N_per_s"]),

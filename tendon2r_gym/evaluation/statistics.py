@@ -34,7 +34,7 @@ import numpy as np
 from tendon2r_gym.evaluation.metrics import beats, worst_ratio
 from tendon2r_gym.validation import integer, invalid, number
 
-#: Below this many runs an interval is wide and rough (:func:`few_runs_note`).
+#: Below this many runs an interval is wide and rough (`few_runs_note`).
 MIN_RUNS = 5
 CONFIDENCE = 0.95
 N_RESAMPLES = 9999
@@ -282,10 +282,10 @@ def performance_profile(
     n_resamples: int = N_RESAMPLES,
 ) -> dict[str, Any]:
     """Returns performance-profile data: per policy, for each threshold tau, the fraction of
-    its runs whose worst-joint RMS ratio to PD (:func:`worst_ratios`) is <= tau, with a
+    its runs whose worst-joint RMS ratio to PD (`worst_ratios`) is <= tau, with a
     stratified bootstrap band (pointwise percentile intervals; each is non-decreasing in tau).
     ``ratios``: policy -> its runs' ratios (a list, or a mapping stratum -> list).  ``taus``:
-    default :func:`default_taus` over every policy's ratios.
+    default `default_taus` over every policy's ratios.
 
     Returns ``{"tau": [...], "curves": {policy: {"fraction", "low", "high", "runs"}},
     "confidence": ...}``."""

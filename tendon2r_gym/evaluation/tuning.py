@@ -3,7 +3,7 @@
 PD's gains (tendon2r_gym.task.gains) are closed-loop quantities that carry over between ideal
 arms, but a real arm's motor lag and delays (tendon2r_gym.simulation.realism) take phase out of the
 loop:
-the default 30 Hz bandwidth can then oscillate or diverge.  :func:`tune_pd` rolls PD out at
+the default 30 Hz bandwidth can then oscillate or diverge.  `tune_pd` rolls PD out at
 each bandwidth of a geometric grid through the default one (ratio GRID_RATIO, from
 MIN_BANDWIDTH_HZ up to the cap ``max_bandwidth_fraction / ctrl_dt``) on held-out episodes
 (seeds TUNE_SEED, ... : never the evaluation's 0, 1, 2) and keeps the bandwidth whose worst

@@ -1,14 +1,14 @@
 """Recordings from the simulator, and the excitation a user plays on a physical arm.
 
-:func:`record` runs any policy on any arm (a preset, an experiment file, with any realism,
+`record` runs any policy on any arm (a preset, an experiment file, with any realism,
 noise and delay) and writes what a physical arm's logger would: the commands as sent, the
 angles as measured (recording format: tendon2r_gym.identification.recording).
 
-:func:`design` chooses the excitation: PD tracking a multi-sine reference about the experiment
+`design` chooses the excitation: PD tracking a multi-sine reference about the experiment
 file's bias, each joint a sum of sines over ``MultiSine.freq_hz`` with Schroeder phases (a flat
 spectrum with a low peak), its amplitude the largest (at most the file's) for which PD keeps
-every command within :data:`FORCE_MARGIN` of the force limit and the joints
-:data:`RANGE_MARGIN_DEG` inside their range on the nominal arm.  Low frequencies move the links'
+every command within `FORCE_MARGIN` of the force limit and the joints
+`RANGE_MARGIN_DEG` inside their range on the nominal arm.  Low frequencies move the links'
 mass and damping; the high ones make the cables stretch and the motors lag; every reversal of a
 joint makes the cables' friction change sign.  To fit the force limit, the slow sines shrink
 first (down to MIN_SLOW of the reference's amplitudes), then the fast ones with them.
@@ -93,7 +93,7 @@ class MultiSine:
 
 
 class Excitation:
-    """A policy that tracks a :class:`MultiSine` instead of the env's reference: the policy's
+    """A policy that tracks a `MultiSine` instead of the env's reference: the policy's
     observation gets the multi-sine's q_des and dq_des at each step's time (PD reads only q,
     dq, q_des and dq_des)."""
 

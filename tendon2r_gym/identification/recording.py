@@ -12,7 +12,7 @@ Columns (a header row names them; their order is free):
 Row k holds the angles measured at ``time[k]`` and the command sent right after them: the
 command of row k acts from ``time[k]`` to ``time[k + 1]`` (plus the arm's delays).
 
-:func:`load` checks a file against the arm it was recorded on and raises a ValueError naming
+`load` checks a file against the arm it was recorded on and raises a ValueError naming
 the file, the column and the row (the data row, 1 = the first after the header) of the first
 problem: a missing or unknown column, a value that is not a finite number, time that does
 not increase or is not uniform at ``ctrl_dt`` (or drifts from it), a command beyond the arm's

@@ -71,7 +71,7 @@ class Identification:
 
     def experiment(self, nominal: str | os.PathLike) -> dict[str, Any]:
         """Returns the identified arm's experiment file: the nominal one (a preset name or
-        file) with :attr:`changes`."""
+        file) with `changes`."""
         from tendon2r_gym.presets import load_yaml, merge_env_kwargs, preset_path
 
         return merge_env_kwargs(load_yaml(preset_path(nominal)), self.changes)

@@ -91,7 +91,7 @@ class _TendonController:
 
     @property
     def data(self) -> mujoco.MjData:
-        """Returns the private MjData of :attr:`model`."""
+        """Returns the private MjData of `model`."""
         return self.actuation.data
 
     def _set_gains(
@@ -140,7 +140,7 @@ class _TendonController:
 
     def reset(self, info: dict[str, Any]) -> None:
         """Follows the episode's arm, if the env draws arms (``mechanism``,
-        ``observation_delay`` and, if drawn, ``pd_gains`` in the reset info of Tendon2R-v0, or
+        ``observation_delay`` and, if drawn, ``pd_gains`` in the reset info of the Tendon2R env, or
         of its vector env: one arm per row)."""
         if "mechanism" in info:
             delay = info.get("observation_delay", self.observation_delay)
@@ -190,7 +190,7 @@ class ComputedTorquePolicy(_TendonController):
     """Inverse dynamics of the full model plus PD: the 'perfect model' reference.
     tau = ID(q, dq, ddq_des + kp e + kd de), with ddq_des = -w^2 (q_des - bias) exact for the
     sinusoidal reference.  It knows the reference, so it is a bound, not a deployable baseline:
-    :meth:`reset` reads each episode's reference from the env's reset info (one env, or every
+    `reset` reads each episode's reference from the env's reset info (one env, or every
     arm of a vector env), which ``rollout`` and ``rollouts`` pass it."""
 
     def __init__(
@@ -218,7 +218,7 @@ class ComputedTorquePolicy(_TendonController):
         self._bias = np.array([r.bias_rad for r in refs])
 
     def reset(self, info: dict[str, Any]) -> None:
-        """Follows the episode's reference and arm: ``info`` is a reset info of Tendon2R-v0
+        """Follows the episode's reference and arm: ``info`` is a reset info of the Tendon2R env
         (its ``reference`` fields) or of its vector env (one reference per arm)."""
         super().reset(info)
         self._set_references(_per_arm(info, "reference", Reference.from_dict))

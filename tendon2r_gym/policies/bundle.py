@@ -12,7 +12,7 @@ its statistics are plain arrays (npz), and its model zip is read without unpickl
 (tendon2r_gym.policies.files); bundling a run of an earlier version, whose statistics are a
 pickle, converts them, and only with the trust option.
 
-A bundle's name is one plain folder name under the models root (:func:`check_name`), and
+A bundle's name is one plain folder name under the models root (`check_name`), and
 bundling writes nothing else: the new bundle is written into a temporary folder beside it
 (``.<name>.new-*``) and renamed into place once complete; an existing bundle is replaced only
 when asked (``replace``), and only after the new one is complete.
@@ -52,7 +52,7 @@ NAME_ALLOWED = (
 
 
 def check_name(name: Any, field: str = "name") -> str:
-    """Returns ``name`` if it is a plain bundle name (:data:`NAME`), else raises naming
+    """Returns ``name`` if it is a plain bundle name (`NAME`), else raises naming
     ``field``."""
     if not _plain(name):
         raise invalid(field, name, NAME_ALLOWED)
@@ -156,7 +156,7 @@ def _swap_in(new: Path, dest: Path) -> None:
 
 
 def _beside(dest: Path, kind: str) -> Path:
-    """Returns a free hidden name beside ``dest`` (never a bundle name: :data:`NAME`)."""
+    """Returns a free hidden name beside ``dest`` (never a bundle name: `NAME`)."""
     return dest.with_name(f".{dest.name}.{kind}-{uuid.uuid4().hex[:8]}")
 
 

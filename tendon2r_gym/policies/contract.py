@@ -12,7 +12,7 @@ fails when a contract changes until the id's version is raised (tendon2r_gym.VER
 CHANGELOG.md says what changed.
 
 A contract may grow: ``tendon2r_gym/data/contracts/<hash>.json`` holds each pinned contract
-whole, and a contract that keeps every pinned value (:func:`changes` is empty) and only adds
+whole, and a contract that keeps every pinned value (`changes` is empty) and only adds
 keys is the same contract.  A new option at the value that leaves the env as it was (a reward
 term of weight 0, a mechanism field that is off) then needs no new version: the pinned
 rollout shows that the behaviour did not change.

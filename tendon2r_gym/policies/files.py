@@ -1,20 +1,20 @@
 """Reading the model-side files of a run or bundle: the SB3 model zip, its VecNormalize
 statistics and a bundle's bundle.json.  Whatever is wrong with one of them (truncated, not that
 kind of file, missing a key, made for another observation size) is one ValueError that names
-the file, says what is wrong and how to recover (:func:`corrupt`, :func:`mismatch`).
+the file, says what is wrong and how to recover (`corrupt`, `mismatch`).
 
-No file is unpickled unless asked (:data:`TRUST_HELP`): a model file from someone else cannot
+No file is unpickled unless asked (`TRUST_HELP`): a model file from someone else cannot
 run code when it is loaded.
 
 - The model zip: its policy is built from the zip's plain JSON (``data``: the policy class
-  named in it, one of :data:`POLICY_CLASSES`, its policy_kwargs and spaces) and its weights
+  named in it, one of `POLICY_CLASSES`, its policy_kwargs and spaces) and its weights
   (``policy.pth``, read with ``torch.load(weights_only=True)``); the cloudpickled entries of
-  ``data`` (schedules, spaces, the class itself) are never unpickled (:func:`load_policy`,
-  and :func:`load_ppo` for training on from a model).
+  ``data`` (schedules, spaces, the class itself) are never unpickled (`load_policy`,
+  and `load_ppo` for training on from a model).
 - The statistics: ``<name>_vecnormalize.npz``, plain arrays read with ``allow_pickle=False``
-  (:class:`NormStats`).  The ``<name>_vecnormalize.pkl`` of earlier versions (a pickle) is
-  read only with ``trust_pickle=True`` or inside :func:`trusting_pickle` (the commands'
-  ``--trust-pickle``); otherwise it is a :class:`PickleRefused` naming the file and the option.
+  (`NormStats`).  The ``<name>_vecnormalize.pkl`` of earlier versions (a pickle) is
+  read only with ``trust_pickle=True`` or inside `trusting_pickle` (the commands'
+  ``--trust-pickle``); otherwise it is a `PickleRefused` naming the file and the option.
 """
 
 from __future__ import annotations
@@ -78,7 +78,7 @@ class PickleRefused(ValueError):
 @contextlib.contextmanager
 def trusting_pickle(trust: bool = True) -> Iterator[None]:
     """Inside it, the loaders that are not given ``trust_pickle`` unpickle if ``trust`` (the
-    commands' ``--trust-pickle``: :data:`TRUST_HELP`)."""
+    commands' ``--trust-pickle``: `TRUST_HELP`)."""
     token = _TRUST.set(bool(trust))
     try:
         yield
@@ -88,7 +88,7 @@ def trusting_pickle(trust: bool = True) -> Iterator[None]:
 
 def trusted(trust_pickle: bool | None = None) -> bool:
     """Returns whether a loader may unpickle: ``trust_pickle`` if given, else whether it runs
-    inside :func:`trusting_pickle`."""
+    inside `trusting_pickle`."""
     return _TRUST.get() if trust_pickle is None else bool(trust_pickle)
 
 
@@ -183,7 +183,7 @@ def check_model_spaces(
     action_shape: tuple[int, ...],
     env: str,
 ) -> None:
-    """Raises if the model zip's observation or action space (``data``: :func:`model_data`)
+    """Raises if the model zip's observation or action space (``data``: `model_data`)
     differs in shape from what ``env`` gives it."""
     for what, key, ours in (
         ("observation shape", "observation_space", tuple(obs_shape)),
@@ -256,7 +256,7 @@ def _pickled_global(entry: Any) -> tuple[str, str] | None:
 
 
 def _policy_class(path: Path, data: dict[str, Any]) -> Any:
-    """Returns the policy class a model zip names, if it is one of :data:`POLICY_CLASSES`."""
+    """Returns the policy class a model zip names, if it is one of `POLICY_CLASSES`."""
     named = _pickled_global(data.get("policy_class"))
     if named not in POLICY_CLASSES:
         shown = ".".join(named) if named else "a class that is not named by reference"
@@ -286,7 +286,7 @@ def _policy_kwargs(path: Path, data: dict[str, Any]) -> dict[str, Any]:
 
 
 class SavedModel:
-    """A model zip's policy (SB3's ActorCriticPolicy as :func:`load_policy` built it) behind
+    """A model zip's policy (SB3's ActorCriticPolicy as `load_policy` built it) behind
     the ``predict`` of SB3's PPO."""
 
     def __init__(self, policy: Any, path: Path) -> None:
@@ -314,7 +314,7 @@ class SavedModel:
 
 def load_policy(path: str | Path) -> SavedModel:
     """Returns the policy of an SB3 model zip, built without unpickling (module docstring):
-    the class the zip names (:data:`POLICY_CLASSES`), its plain policy_kwargs and spaces, and
+    the class the zip names (`POLICY_CLASSES`), its plain policy_kwargs and spaces, and
     its weights; a zip that does not build or whose weights do not fit is a ValueError
     naming it.  Loading it leaves torch's random state as it was."""
     load_triton()  # before torch: tendon2r_gym.llvm
@@ -351,7 +351,7 @@ def load_ppo(
 ) -> Any:
     """Returns SB3's PPO on ``env`` with the weights, optimizer state and step counters of a
     model zip, built without unpickling: as SB3's ``PPO.load`` would, but with the policy
-    class and policy_kwargs from the zip's plain JSON (:func:`load_policy`), the PPO settings
+    class and policy_kwargs from the zip's plain JSON (`load_policy`), the PPO settings
     ``ppo_kwargs`` (the run's, as config.yaml records them) and the zip's seed unless
     ``seed``; the weights and optimizer state through SB3's ``set_parameters`` (which reads
     them with ``weights_only=True``)."""
@@ -385,8 +385,8 @@ def load_model(
     path: str | Path, cls: Any = None, trust_pickle: bool | None = None, **kwargs: Any
 ) -> Any:
     """Returns ``cls.load(path, **kwargs)`` (default: SB3's PPO), which unpickles the zip's
-    ``data``: only with the trust option (:func:`trusted`), else a :class:`PickleRefused`
-    (:func:`load_policy` reads the policy without it).  A file SB3 cannot read is a ValueError
+    ``data``: only with the trust option (`trusted`), else a `PickleRefused`
+    (`load_policy` reads the policy without it).  A file SB3 cannot read is a ValueError
     naming it."""
     path = Path(path)
     _exists(path)
@@ -446,7 +446,7 @@ _KINDS = {"int": "i", "float": "f", "bool": "b"}
 class NormStats:
     """SB3's VecNormalize statistics as plain values: the observations' running mean,
     variance and count, the returns' (for reward normalization), and its settings.  Saved as
-    numpy's npz of :data:`STATS_ARRAYS` and read with ``allow_pickle=False``."""
+    numpy's npz of `STATS_ARRAYS` and read with ``allow_pickle=False``."""
 
     obs_mean: np.ndarray
     obs_var: np.ndarray
@@ -481,7 +481,7 @@ class NormStats:
         )  # fmt: skip
 
     def arrays(self) -> dict[str, np.ndarray]:
-        """Returns the arrays of its file (:data:`STATS_ARRAYS`)."""
+        """Returns the arrays of its file (`STATS_ARRAYS`)."""
         values = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         return {"format": np.array(STATS_FORMAT), **{k: np.array(v) for k, v in values.items()}}
 
@@ -510,8 +510,8 @@ class NormStats:
 
 def read_stats(path: str | Path, trust_pickle: bool | None = None) -> NormStats:
     """Returns the statistics of a ``.npz`` file (read with ``allow_pickle=False``), or of an
-    earlier version's ``.pkl`` only with the trust option (:func:`trusted`; else a
-    :class:`PickleRefused`).  A file that is not whole is a ValueError naming it."""
+    earlier version's ``.pkl`` only with the trust option (`trusted`; else a
+    `PickleRefused`).  A file that is not whole is a ValueError naming it."""
     path = Path(path)
     _exists(path)
     if path.suffix == ".pkl":
@@ -539,7 +539,7 @@ def _npz_state(path: Path) -> str:
 
 
 def _stats_of(path: Path, arrays: dict[str, np.ndarray]) -> NormStats:
-    """Returns the statistics of a file's ``arrays`` after checking each (:data:`STATS_ARRAYS`)."""
+    """Returns the statistics of a file's ``arrays`` after checking each (`STATS_ARRAYS`)."""
     for name, (shape, kind) in STATS_ARRAYS.items():
         if name not in arrays:
             raise corrupt(path, f"not a statistics npz of this version (no array {name!r})")
@@ -577,7 +577,7 @@ def _unpickled_vecnormalize(path: Path) -> Any:
 def load_vecnormalize(
     path: str | Path, venv: Any, env: str = "the env", trust_pickle: bool | None = None
 ) -> Any:
-    """Returns SB3's VecNormalize of a statistics file (:func:`read_stats`) wrapping ``venv``,
+    """Returns SB3's VecNormalize of a statistics file (`read_stats`) wrapping ``venv``,
     after checking that it normalizes observations of venv's shape."""
     stats = read_stats(path, trust_pickle)
     check_stats_shape(path, stats, venv.observation_space.shape, env)

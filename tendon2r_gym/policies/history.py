@@ -4,7 +4,7 @@ every ``stride`` control steps, oldest first, zeros before an episode's first.
 With stride 1 this is SB3's VecFrameStack (rl_zoo3's ``frame_stack``), which training keeps
 using then; a stride spreads the same ``n`` frames over ``(n - 1) * stride + 1`` steps, a
 window long enough to tell the arm's response (e.g. a hidden mass error) from a few inputs.
-:class:`FrameHistory` is the one buffer: the training wrapper (:class:`StridedFrameStack`)
+`FrameHistory` is the one buffer: the training wrapper (`StridedFrameStack`)
 and the deployed policy (tendon2r_gym.policies.learned.PPOPolicy) both stack through it."""
 
 from __future__ import annotations
@@ -85,7 +85,7 @@ class StridedFrameStack(VecEnvWrapper):
 
 def stacked(vecnorm: Any, frame_stack: int, frame_stride: int = 1) -> Any:
     """Returns what the policy trains on: ``vecnorm``; with frame_stack > 1 SB3's VecFrameStack
-    of it (rl_zoo3's order: normalize, then stack), or :class:`StridedFrameStack` with a
+    of it (rl_zoo3's order: normalize, then stack), or `StridedFrameStack` with a
     stride."""
     if frame_stack == 1:
         return vecnorm

@@ -6,11 +6,11 @@ torch's own vectorized code): their summation order, and so the last bits of an 
 differ from one machine to another.  On an arm that the policy keeps unstable, the closed
 loop amplifies those bits until whole benchmark figures differ.
 
-:func:`predict` evaluates the same actor in float64 with numpy's elementwise operations only
+`predict` evaluates the same actor in float64 with numpy's elementwise operations only
 (multiply, add, divide: IEEE-754 correctly rounded whatever the CPU's instruction set) in an
-order fixed here: each sum of a layer as a pairwise tree, tanh from :func:`exp` of a fixed
+order fixed here: each sum of a layer as a pairwise tree, tanh from `exp` of a fixed
 polynomial; no BLAS, no libm, no threads.  It covers SB3's ActorCriticPolicy as SB3 builds
-it (its MlpPolicy, and :class:`~tendon2r_gym.policies.split_view.SplitViewPolicy`'s masked
+it (its MlpPolicy, and `SplitViewPolicy`'s masked
 input): a flattened Box observation, Linear layers with Tanh or ReLU, and a Box action whose
 deterministic action is the mean, clipped to the action space.  It reads the weights again
 whenever they change (training evaluates its live model).  Its actions equal SB3's to
@@ -58,7 +58,7 @@ def relu(x: np.ndarray) -> np.ndarray:
     return np.maximum(x, 0.0)
 
 
-#: Products held at once by :func:`linear` (256 kB of float64: a chunk stays in cache).
+#: Products held at once by `linear` (256 kB of float64: a chunk stays in cache).
 CHUNK = 32768
 
 
@@ -90,7 +90,7 @@ def _as64(tensor: Any) -> np.ndarray:
 def actor_layers(policy: Any) -> list[tuple[str, Any]] | None:
     """Returns the actor of an SB3 policy as a list of (kind, parameters): ``mask`` (the
     features extractor's 0/1 mask), ``linear`` ((weight, bias) as float64), ``tanh`` or
-    ``relu``; None if the policy is not one :func:`predict` covers (module docstring)."""
+    ``relu``; None if the policy is not one `predict` covers (module docstring)."""
     from gymnasium import spaces
     from stable_baselines3.common.distributions import DiagGaussianDistribution
     from stable_baselines3.common.policies import ActorCriticPolicy
@@ -135,7 +135,7 @@ _READ: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def _actor(policy: Any) -> list[tuple[str, Any]] | None:
-    """Returns :func:`actor_layers` of ``policy``, read again only when its weights changed."""
+    """Returns `actor_layers` of ``policy``, read again only when its weights changed."""
     try:
         stamp = tuple((id(p), p._version) for p in policy.parameters())
     except (AttributeError, TypeError):  # not a torch module: nothing to cache

@@ -1,6 +1,6 @@
 """Trained PPO policies: a run's model, loaded for the env it runs in.
 
-A trained model only meets the env it was trained for: :meth:`PPOPolicy.load` compares the env
+A trained model only meets the env it was trained for: `PPOPolicy.load` compares the env
 config recorded in the run (``run.json``) with the env's (tendon2r_gym.policies.model_env) and
 refuses another mechanism, reference set or observation layout, and its model zip and
 VecNormalize statistics when unreadable or made for another observation or action size
@@ -40,9 +40,9 @@ def trained_model(
 ) -> tuple[Path, Path, dict[str, Any]]:
     """Returns (``<name>.zip``, its statistics ``<name>_vecnormalize.npz``, or an earlier
     version's ``.pkl``, the run's run.json) of a model that tendon2r-train wrote, after checking
-    that it was trained for ``env`` (:func:`check_model_env`; a ValueError naming ``field``
+    that it was trained for ``env`` (`check_model_env`; a ValueError naming ``field``
     otherwise) and that both files are readable without pickle (or with ``trust_pickle``) and
-    made for it (:func:`check_model_files`; a ValueError naming the file)."""
+    made for it (`check_model_files`; a ValueError naming the file)."""
     zip_path, stats = model_files(stem_of(model_path))
     if zip_path.is_dir() or not zip_path.is_file():
         raise ValueError(
@@ -71,8 +71,8 @@ def check_model_files(
     """Raises a ValueError naming the file if the model zip or its VecNormalize statistics
     are unreadable (a pickle without ``trust_pickle``: files.read_stats), or made for another
     observation or action size than ``env`` (whose config matches the run's ``meta``,
-    :func:`check_model_env`) gives it: the model sees the env's observation (with its
-    :func:`arm_features` appended), ``frame_stack`` times."""
+    `check_model_env`) gives it: the model sees the env's observation (with its
+    `arm_features` appended), ``frame_stack`` times."""
     arm = arm_features(meta["env_config"], env)
     seen = env.observation_space.shape[0] + (0 if arm is None else arm.size)
     stack = int(meta.get("frame_stack", 1))
@@ -87,7 +87,7 @@ class PPOPolicy:
     acting on raw observations of the unwrapped env: normalizes them with VecNormalize's own
     ``normalize_obs``, and adds PD if it was residual: the PD of its training env's gains
     (``pd_gains``), whatever the env's are, except gains drawn in training, which are the
-    env's (:func:`deployed_gains`), and the residual at the scale and through the filter it
+    env's (`deployed_gains`), and the residual at the scale and through the filter it
     trained with (``residual_scale``, ``residual_filter_tau``)."""
 
     def __init__(
@@ -104,7 +104,7 @@ class PPOPolicy:
         self.model = model
         self.vecnormalize = vecnormalize
         self.residual = residual
-        #: The ``arm`` slice appended to each observation (:func:`arm_features`), or None.
+        #: The ``arm`` slice appended to each observation (`arm_features`), or None.
         self.arm = arm
         #: The model sees its last frame_stack normalized observations, frame_stride control
         #: steps apart, oldest first, as in training (tendon2r_gym.policies.history).
@@ -127,7 +127,7 @@ class PPOPolicy:
         run's run.json, without unpickling (an earlier version's ``.pkl`` statistics only with
         ``trust_pickle``, or inside files.trusting_pickle); raises if the env is not the one
         the model was trained on, or a file is corrupt or made for another observation size
-        (:func:`trained_model`)."""
+        (`trained_model`)."""
         load_triton()  # torch's triton after a GL context's LLVM segfaults: tendon2r_gym.llvm
         from stable_baselines3.common.vec_env import DummyVecEnv
 

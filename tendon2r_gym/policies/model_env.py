@@ -61,14 +61,14 @@ def recorded_settings(recorded: dict[str, Any]) -> dict[str, Any]:
 
 
 def config_settings(config: EnvConfig) -> dict[str, Any]:
-    """Returns the MODEL_SETTINGS of an env config, as :func:`recorded_settings` gives them."""
+    """Returns the MODEL_SETTINGS of an env config, as `recorded_settings` gives them."""
     out = {k: getattr(config, k) for k in MODEL_SETTINGS}
     return {**out, "observe": without_arm(config.observe)}
 
 
 def without_arm(observe: Any) -> list[str]:
     """Returns the entries of ``observe`` that a model's settings carry: all but ``arm`` (a
-    model that observed its arm sees one fixed arm through :func:`arm_features`)."""
+    model that observed its arm sees one fixed arm through `arm_features`)."""
     return [name for name in observe if name != "arm"]
 
 
@@ -80,7 +80,7 @@ def model_settings(model_path: str | Path) -> dict[str, Any]:
 
 
 def settings_on(model_path: str | Path, env_kwargs: dict[str, Any]) -> dict[str, Any]:
-    """Returns the model's :func:`model_settings` that differ from those of the env of
+    """Returns the model's `model_settings` that differ from those of the env of
     ``env_kwargs`` (an arm): with them added, the arm's env is one the model runs in, and a
     report names them beside its row."""
     config = EnvConfig.make(**env_kwargs)
@@ -92,7 +92,7 @@ def settings_on(model_path: str | Path, env_kwargs: dict[str, Any]) -> dict[str,
 
 
 def in_model_settings(model_path: str | Path, env_kwargs: dict[str, Any]) -> dict[str, Any]:
-    """Returns ``env_kwargs`` with the model's :func:`settings_on` added: the env of that arm
+    """Returns ``env_kwargs`` with the model's `settings_on` added: the env of that arm
     that the model runs in."""
     return {**env_kwargs, **settings_on(model_path, env_kwargs)}
 
@@ -108,7 +108,7 @@ def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
     fields and its reference lie inside the training ranges, else the ValueError names the
     first field out, its value and the range; its integrator and step (SIMULATION) may
     differ.  A model that observed its arm sees it on an env that does not (PPOPolicy appends
-    :func:`arm_features`), or on one that observes it over the same ranges."""
+    `arm_features`), or on one that observes it over the same ranges."""
     config = env.unwrapped.config
     theirs = {"observation": recorded.get("observation"), **recorded_settings(recorded)}
     ours = {"observation": config.observation.layout(), **config_settings(config)}
@@ -152,7 +152,7 @@ def check_model_env(recorded: dict[str, Any], env: gym.Env, where: str) -> None:
 def arm_features(recorded: dict[str, Any], env: gym.Env) -> np.ndarray | None:
     """Returns the ``arm`` slice a model that observed ``arm`` expects, for an env of
     one fixed arm that does not observe it: the arm's fields normalized over the model's
-    :func:`feature_ranges`, as its training env computed them.  None if the model did not
+    `feature_ranges`, as its training env computed them.  None if the model did not
     observe its arm, or the env observes it or draws arms itself."""
     config = env.unwrapped.config
     observed = "arm" in config.observe
@@ -178,7 +178,7 @@ def feature_ranges(recorded: dict[str, Any]) -> MechanismRanges | None:
 
 def fine_tune_env_kwargs(model_path: str | Path, env_kwargs: dict[str, Any]) -> dict[str, Any]:
     """Returns the env kwargs on which a run fine-tunes the model (``init_from``) on the env
-    of ``env_kwargs``: with the model's :func:`model_settings` (what its actions mean, its
+    of ``env_kwargs``: with the model's `model_settings` (what its actions mean, its
     timing), and, if it observed its arm, the arm slice over the model's ranges
     (observe ``arm``, ``arm_feature_ranges``), so that the run's every env, its record and
     its deployment see the arm as the model did."""
@@ -206,7 +206,7 @@ def trained_on_drawn_gains(model_path: str | Path) -> bool:
 def deployed_gains(recorded: dict[str, Any], env: gym.Env) -> Gains:
     """Returns the gains of the PD inside a residual model deployed on ``env``: those of its
     training env (``pd_gains``), except the gains its training drew per episode
-    (:func:`drawn_gains`), which are ``env``'s: the gains a user tuned for their arm, inside
+    (`drawn_gains`), which are ``env``'s: the gains a user tuned for their arm, inside
     the training ranges (check_model_env)."""
     gains = gains_of(recorded.get("pd_gains"))
     drawn = drawn_gains(recorded)

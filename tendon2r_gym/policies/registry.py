@@ -3,7 +3,7 @@
 Each line gives the model's role, its training entry (``tendon2r_gym/data/ppo.yaml``), the
 preset it was trained on, its bundled seeds (the first is the primary one) and the hash of the
 env contract it needs: the env config its runs recorded (run.json ``env_config``: every env
-argument, resolved, and the observation layout), as :func:`contract_hash` computes it.  Its
+argument, resolved, and the observation layout), as `contract_hash` computes it.  Its
 ``group`` says where the benchmark runs it: ``preset`` (the preset's own table), ``generalist``
 (zero-shot on your arm), ``realism`` (the perturbed arms) or ``references`` (held-out
 references).

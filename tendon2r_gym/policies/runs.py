@@ -19,11 +19,11 @@ A training run writes, in ``runs/<name>/seed_<n>/``::
                                  each checkpoint, as if the run were interrupted there)
     tb/                          TensorBoard logs
 
-A bundle (tendon2r_gym.policies.bundle) copies the small files of a run: :data:`BUNDLE_FILES`
+A bundle (tendon2r_gym.policies.bundle) copies the small files of a run: `BUNDLE_FILES`
 (no pickle: a bundle's statistics are the npz).  Each
-record is checked when it is read (:func:`read_record`): a corrupt one is a ValueError naming
+record is checked when it is read (`read_record`): a corrupt one is a ValueError naming
 the file, what is wrong with it and how to recover.  A training option this version no longer
-has (:data:`REMOVED`) is dropped from a record that holds it off, and refused in one that
+has (`REMOVED`) is dropped from a record that holds it off, and refused in one that
 holds it on.
 """
 
@@ -108,7 +108,7 @@ RECOVERY = {
 #: The training options this version no longer has (only ablations that lost used them; the
 #: ablations' results stay in research/results/), each with the value a run records while it
 #: is off; a mapping is off when it holds these values (its other keys unused while off).
-#: Records of runs (config.yaml, run.json) hold them: :func:`without_removed`.
+#: Records of runs (config.yaml, run.json) hold them: `without_removed`.
 REMOVED: dict[str, Any] = {
     "zero_obs": [],
     "hide_from_critic": [],
@@ -118,7 +118,7 @@ REMOVED: dict[str, Any] = {
 
 
 def without_removed(data: dict[str, Any], path: Path) -> dict[str, Any]:
-    """Returns a run record's ``data`` without the options of :data:`REMOVED`, each recorded
+    """Returns a run record's ``data`` without the options of `REMOVED`, each recorded
     off (the run trained without it, as this version trains); raises naming the file, the key
     and the value if one is recorded on."""
     out = dict(data)
@@ -141,15 +141,15 @@ def _is_off(value: Any, off: Any) -> bool:
 
 def corrupt(path: Path, what: str) -> ValueError:
     """Returns the ValueError of a corrupt run file: ``<path> is corrupt: <what>; to recover,
-    <how>`` (:data:`RECOVERY`), on one line."""
+    <how>`` (`RECOVERY`), on one line."""
     how = RECOVERY.get(path.name, f"restore it from a copy, or {_AGAIN}")
     return ValueError(" ".join(f"{path} is corrupt: {what}; to recover, {how}".split()))
 
 
 def read_record(path: Path) -> Any:
     """Returns the data of a run record (JSON, or YAML for config.yaml), or None if there is
-    no such file; raises :func:`corrupt` if it is empty, does not parse, or is not shaped as
-    :data:`SHAPES` says.  The hyperparameters and run.json come :func:`without_removed`."""
+    no such file; raises `corrupt` if it is empty, does not parse, or is not shaped as
+    `SHAPES` says.  The hyperparameters and run.json come `without_removed`."""
     if not path.is_file():
         return None
     try:
@@ -173,7 +173,7 @@ def read_record(path: Path) -> Any:
 
 def _mismatch(data: Any, shape: Any, where: str = "") -> str | None:
     """Returns what about ``data`` (the value at ``where``) does not match ``shape`` (see
-    :data:`SHAPES`), or None."""
+    `SHAPES`), or None."""
     name = where or "its top level"
     if shape is None:
         return None
@@ -221,8 +221,8 @@ def model_files(stem: Path) -> tuple[Path, Path]:
 
 
 def stats_files(stem: Path) -> tuple[Path, Path]:
-    """Returns (npz, pkl): the names of a saved model's statistics (:data:`STATS`,
-    :data:`LEGACY_STATS`)."""
+    """Returns (npz, pkl): the names of a saved model's statistics (`STATS`,
+    `LEGACY_STATS`)."""
     return stem.with_name(stem.name + STATS), stem.with_name(stem.name + LEGACY_STATS)
 
 
@@ -289,7 +289,7 @@ class RunFolder:
     # -- records -------------------------------------------------------------------------------
     def read_json(self, name: str) -> Any:
         """Returns a JSON record of the run, or None if there is none; raises a ValueError
-        naming the file if it is corrupt (:func:`read_record`)."""
+        naming the file if it is corrupt (`read_record`)."""
         return read_record(self.file(name))
 
     def write_json(self, name: str, data: Any) -> None:
@@ -307,7 +307,7 @@ class RunFolder:
 
     def read_config(self) -> dict[str, Any] | None:
         """Returns the recorded hyperparameters (config.yaml), or None; raises a ValueError
-        naming the file if it is corrupt (:func:`read_record`)."""
+        naming the file if it is corrupt (`read_record`)."""
         return read_record(self.file(CONFIG))
 
     def record_command(self, command: str, resume: bool) -> None:
@@ -349,7 +349,7 @@ class RunFolder:
 
     def checkpoint_candidates(self) -> list[tuple[Path, Path]]:
         """Returns every saved (zip, statistics) pair of the run (the statistics' npz, or an
-        earlier version's pkl: :func:`model_files`), the most trained first (by the steps
+        earlier version's pkl: `model_files`), the most trained first (by the steps
         each one recorded, last_model first among equals, not by file times, which a copy of
         the run folder may reset): last_model (written on Ctrl-C and at the end) and the
         checkpoints."""

@@ -6,7 +6,7 @@ tendon's *tension* t is positive when it pulls; pulling shortens the tendon, so 
 torques are tau = -J^T t (MuJoCo: a positive tendon-actuator force lengthens the tendon, so the
 motor force is -t).
 
-Tension distribution (:func:`distribute`).  The minimum-norm tensions are
+Tension distribution (`distribute`).  The minimum-norm tensions are
 t0 = -J (J^T J + lam^2 I)^-1 tau (lam^2 = damping |J|_F^2 keeps them finite near singular
 configurations).  Push-pull motors apply t0.  Pull-only motors add a multiple of a strictly
 positive null vector n of J^T, which changes no joint torque:  t = t0 + alpha n, with alpha
@@ -106,7 +106,7 @@ class MomentArms:
 
     MuJoCo 4 stores ten_J sparse, with the model's row pattern: a tendon that ends on link c
     has no entry for joint B.  When every row is full, the sparse layout is the dense one and
-    :meth:`dense` returns a view (no copy on the hot path)."""
+    `dense` returns a view (no copy on the hot path)."""
 
     def __init__(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
         self._data = data
@@ -137,7 +137,7 @@ class MomentArms:
         return np.array(self.rows())
 
     def rows(self) -> list[Sequence[float]]:
-        """Returns :meth:`dense`'s rows as Python floats, the same bits (what cond_of_rows
+        """Returns `dense`'s rows as Python floats, the same bits (what cond_of_rows
         takes; the env's info reads them at every step, so no array is built)."""
         if self._full and self._ideal:
             return self._view.tolist()
@@ -179,9 +179,9 @@ class ActuationAnalysis:
 
 class TorqueToTension:
     """Joint torques -> normalized tendon commands for one mechanism, or one per row of a batch
-    (:meth:`follow`: random arms), from a private copy of each nominal model
-    (:meth:`Mechanism.ideal`, never the env's MjData): the moment arms at q,
-    :func:`distribute`, then the inverse of :attr:`Mechanism.command_map` (push-pull: -t / F;
+    (`follow`: random arms), from a private copy of each nominal model
+    (`Mechanism.ideal`, never the env's MjData): the moment arms at q,
+    `distribute`, then the inverse of `Mechanism.command_map` (push-pull: -t / F;
     pull-only: 2 t / F - 1, F = max_tendon_force), clipped to [-1, 1].  PD and computed
     torque command the tendons through it, and so does the env in
     ``action_mode="joint_torque"``."""
@@ -277,7 +277,7 @@ class TorqueToTension:
 def max_joint_torque(J: np.ndarray, max_force: Any) -> np.ndarray:
     """Returns the torque (N m) each joint alone reaches before a tendon of limit
     ``max_force`` (N) saturates, through the moment arms J (..., n_tendons, 2): F / max_k
-    |(J^+)^T_kj|, 0 for a joint that no tendon spans (:attr:`TorqueToTension.max_torque`)."""
+    |(J^+)^T_kj|, 0 for a joint that no tendon spans (`TorqueToTension.max_torque`)."""
     peak = np.max(np.abs(np.linalg.pinv(J)), axis=-1)  # (..., 2): per joint
     return np.where(peak > 0, max_force / np.where(peak > 0, peak, 1.0), 0.0)
 

@@ -53,7 +53,7 @@ REALISM_LIMITS = {
 }
 #: The nominal model's errors (tendon2r_gym.simulation.realism), each at its exact value: what the
 #: real arm
-#: has and the controllers' nominal model (:meth:`Mechanism.ideal`) does not.
+#: has and the controllers' nominal model (`Mechanism.ideal`) does not.
 MODEL_ERRORS = {"density_scale": 1.0, "extra_joint_damping": 0.0}
 #: Upper bounds of the model errors: a 100x heavier arm, damping far above any bearing's.
 MODEL_ERROR_LIMITS = {"density_scale": 100.0, "extra_joint_damping": 1.0}
@@ -276,7 +276,7 @@ class Mechanism:
 
     @property
     def rest_ctrl(self) -> float:
-        """Returns the normalized motor command whose tension is :attr:`rest_tension`: 0 for
+        """Returns the normalized motor command whose tension is `rest_tension`: 0 for
         push-pull motors, 2 pretension / F - 1 for pull-only ones (F = max_tendon_force, once
         resolved from "auto")."""
         if not self.pull_only:

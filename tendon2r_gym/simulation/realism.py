@@ -1,6 +1,6 @@
 """Real tendons and motors: the state they start from and the tension they carry.
 
-The realism fields of :class:`~tendon2r_gym.simulation.mechanism.Mechanism` (all off by default;
+The realism fields of `Mechanism` (all off by default;
 then the
 model is the ideal one, bit for bit) and what each one means physically:
 
@@ -16,7 +16,7 @@ model is the ideal one, bit for bit) and what each one means physically:
 - ``motor_delay``: dead time between a command and the motor (s), whole control steps: bus and
   driver.  Typical: 1 to 5 ms.
 
-The nominal model's errors, which the controllers' model (:meth:`Mechanism.ideal`) leaves out
+The nominal model's errors, which the controllers' model (`Mechanism.ideal`) leaves out
 while the simulation has them: ``density_scale`` (the real links' and pulleys' density over
 ``density``: every mass and inertia scales with it; printed parts' infill, screws and glue
 put a CAD mass off by tens of percent) and ``extra_joint_damping`` (N m s/rad, both joints:
@@ -25,12 +25,12 @@ bearings and cable bending; typical 1e-6 to 1e-5 for miniature ball bearings).
 What the controller measures is set in the env config: ``observation_noise`` (Gaussian std on
 each joint's angle, rad, and speed, rad/s; typical encoders 1e-4 rad, speeds from differences
 1e-2 rad/s) and ``observation_delay`` (s, whole control steps; typical 1 to 5 ms):
-:class:`Sensors`.  The reward and ``info`` stay on the true state.
+`Sensors`.  The reward and ``info`` stay on the true state.
 
-:class:`Drive` puts an arm at rest for a reset: every spool where its cable holds the rest
-tension (:attr:`Mechanism.rest_tension`), every motor's lag at the rest command, so that an
+`Drive` puts an arm at rest for a reset: every spool where its cable holds the rest
+tension (`Mechanism.rest_tension`), every motor's lag at the rest command, so that an
 episode starts as it would on the bench.  Both envs use it (the vector env copies the state of
-its scratch MjData into the batch).  :class:`CommandDelay` holds the commands back: the envs
+its scratch MjData into the batch).  `CommandDelay` holds the commands back: the envs
 apply it, not MuJoCo (MuJoCo 4's actuator ``delay`` mixes samples across RK4's stages:
 measured, a 2 ms delay moved the trajectory by neither 1 nor 2 steps).
 """
@@ -101,14 +101,14 @@ class Drive:
     @property
     def cable(self) -> tuple[Any, ...]:
         """Returns (stiffness, damping, rest length, slack length) of the cables: the
-        arguments of :func:`cable_tensions` after length and speed."""
+        arguments of `cable_tensions` after length and speed."""
         mech = self.mech
         return mech.tendon_elasticity, mech.tendon_damping, self.rest_length, self.slack_length
 
     def tension_view(self, qfrc_passive: np.ndarray) -> np.ndarray:
         """Returns a view of the cables' tensions (N, positive pulling) in ``qfrc_passive``
         (one MjData's, or the batch's N rows): the passive force of each cable on its spool's
-        slide, which is its stretch's spring and damping force (:func:`cable_tensions`: the
+        slide, which is its stretch's spring and damping force (`cable_tensions`: the
         same to within rounding, tests/test_realism.py).  Only for elastic cables."""
         return qfrc_passive[..., self.spools]
 
@@ -129,7 +129,7 @@ def cable_tensions(
 class LagRing:
     """The last capacity + 1 rows of N arms that step together, each arm read back its own
     number of steps late (0 to ``capacity``): what CommandDelay and Sensors hold.  One arm
-    (the single env) steps through :meth:`push_one` instead: a deque of Python rows with the
+    (the single env) steps through `push_one` instead: a deque of Python rows with the
     same lag, a fraction of the cost of a numpy row write."""
 
     def __init__(self, capacity: int, n_arms: int, width: int, what: str) -> None:
@@ -154,8 +154,8 @@ class LagRing:
             self._line = deque([self.rows[0, 0].tolist()] * int(self.steps[0]))
 
     def push_one(self, row: list[float]) -> list[float]:
-        """One arm, after :meth:`fill`: stores ``row`` and returns the row of ``steps`` steps
-        ago (``row`` itself for 0), as :meth:`lagged` would."""
+        """One arm, after `fill`: stores ``row`` and returns the row of ``steps`` steps
+        ago (``row`` itself for 0), as `lagged` would."""
         line = self._line
         if not line:
             return row
@@ -184,7 +184,7 @@ class CommandDelay:
     """Holds each motor command back by its arm's number of control steps (0 to
     ``capacity``), for N arms that step together (a LagRing), each arm's ring filled with its
     rest command at its reset.  Random arms set each arm's steps and rest command
-    (:meth:`set_arm`)."""
+    (`set_arm`)."""
 
     def __init__(self, capacity: int, n_arms: int, n_motors: int) -> None:
         self.ring = LagRing(capacity, n_arms, n_motors, "motor delay")
@@ -209,8 +209,8 @@ class CommandDelay:
         return self.ring.lagged().copy()
 
     def one(self, ctrl: list[float]) -> list[float]:
-        """The single env's call (one arm, ``ctrl`` its n_motors floats, after :meth:`reset`):
-        returns the command of its ``steps`` steps ago, the same as :meth:`__call__`'s."""
+        """The single env's call (one arm, ``ctrl`` its n_motors floats, after `reset`):
+        returns the command of its ``steps`` steps ago, the same as `__call__`'s."""
         return self.ring.push_one(ctrl)
 
 
@@ -228,7 +228,7 @@ class Sensors:
     is taken when the state is (every step, and at a reset, which fills the arm's ring), so
     that reading draws nothing; a ``noisy`` env draws for every arm, even one of zero std,
     so that every arm's generator advances alike.  Random arms set each arm's delay and noise
-    (:meth:`set_arm`).  The measurement is x + noise * std in Python floats, one arm at a
+    (`set_arm`).  The measurement is x + noise * std in Python floats, one arm at a
     time, in both envs (the same bits)."""
 
     def __init__(self, capacity: int, n_arms: int, noisy: bool) -> None:
@@ -257,8 +257,8 @@ class Sensors:
         return [x1 + n1, x2 + n2, x3 + n3, x4 + n4]
 
     def one(self, state: list[float], rng: np.random.Generator) -> list[float]:
-        """The single env's step (arm 0, ``state`` its 4 floats, after :meth:`reset`):
-        :meth:`store`, then :meth:`read`'s row, as floats."""
+        """The single env's step (arm 0, ``state`` its 4 floats, after `reset`):
+        `store`, then `read`'s row, as floats."""
         return self.ring.push_one(self._measure(0, state, rng))
 
     def reset(self, arm: int, state: list[float], rng: np.random.Generator) -> None:

@@ -5,7 +5,7 @@ package, so the mechanism, the model and the actuation all read routing knowledg
 A tendon passes each pulley on side +1 (over the top, +z in the link frame) or -1 (under).  Side
 0 on pulley 2 means the tendon ends on link c and spans joint A only.  The moment arms of a
 straight tendon are dL/dq = (-s1 r1, -s2 r2).  Pull-only tendons produce any joint torque exactly
-when their moment arms *positively span* the torque plane (:func:`positive_span`).
+when their moment arms *positively span* the torque plane (`positive_span`).
 """
 
 from __future__ import annotations

@@ -22,7 +22,7 @@ true inertia is the nominal one times ``density_scale`` (every mass is a geom's 
 its volume).
 
 A run is accepted if lambda * sim_dt, omega * sim_dt and the lag rate * sim_dt stay below the
-integrator's limits in :data:`LIMITS`.  The study ``python -m research.studies.stability_limits``
+integrator's limits in `LIMITS`.  The study ``python -m research.studies.stability_limits``
 (in the repository) measures them on the compiled default mechanism at sim_dt = 1 ms (bisection
 on each parameter until a 2 s episode diverges); the limits are set 20% below: for RK4
 divergence started at lambda dt = 4.9-5.2 and omega dt = 3.4; for Euler at 4.4 (tendon damping)

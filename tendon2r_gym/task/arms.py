@@ -3,7 +3,7 @@ that the envs draw a new arm from at every reset (``mechanism_ranges``).
 
 The students' arms span pulley diameters of 0.011 to 0.047 m, links of 0.03 to 0.095 m,
 amplitudes up to 53 deg, biases up to 44 deg and frequencies up to 3.9 Hz (NOTES.md).
-:func:`draw_arm` draws uniformly in these ranges and keeps only arms that are valid:
+`draw_arm` draws uniformly in these ranges and keeps only arms that are valid:
 
 - the mechanism passes ``Mechanism``'s checks (pulleys that fit on link c and clear the wall,
   a link radius below the pulleys);
@@ -14,7 +14,7 @@ amplitudes up to 53 deg, biases up to 44 deg and frequencies up to 3.9 Hz (NOTES
 Each draw is an experiment file's content (``mechanism``, ``reference``,
 ``fit_to_workspace``), so ``tendon2r-benchmark --env-config`` runs it as a user's arm.
 
-:class:`MechanismRanges` is the one per-episode randomization of the arm, shared by the random
+`MechanismRanges` is the one per-episode randomization of the arm, shared by the random
 geometry of "One policy for every arm" and the random cables and motors of "Real tendons":
 uniform ranges of Mechanism fields, drawn by ``EnvConfig.draw_arm`` at every reset, and the
 arm's features normalized over them (the optional ``arm`` slice of the observation).  It

@@ -6,7 +6,7 @@ a lagging arm (tendon2r_gym.evaluation.tuning).
 
 A real arm's motor lag and delays (tendon2r_gym.simulation.realism) take phase out of the loop:
 about
-w tau at the closed loop's frequency w, for a loop delay tau (:func:`loop_delay`).  With
+w tau at the closed loop's frequency w, for a loop delay tau (`loop_delay`).  With
 ``max_delay_phase`` the bandwidth is held to that phase on each arm, w <= max_delay_phase /
 tau: a stiff PD where the delays are short, a soft one where they are long, on the arm's known
 delays (gain scheduling; ``tendon2r-tune-pd --scan max_delay_phase`` tunes the phase).
@@ -66,7 +66,7 @@ class Gains:
     def natural_frequency(self, ctrl_dt: float, delay: float | np.ndarray = 0.0) -> Any:
         """Returns w (rad/s): the bandwidth, capped at the fraction of the control rate and,
         with max_delay_phase, at max_delay_phase / ``delay`` (the loop delay in s, one per arm:
-        :func:`loop_delay`; then one w per arm)."""
+        `loop_delay`; then one w per arm)."""
         w = 2 * math.pi * min(self.bandwidth_hz, self.max_bandwidth_fraction / ctrl_dt)
         if self.max_delay_phase is None:
             return w
@@ -93,7 +93,7 @@ def tuned_bandwidth(
     mechanism: Mechanism, observation_delay: float, ctrl_dt: float, phase: float
 ) -> float:
     """Returns the bandwidth (Hz) at which the arm's true loop delay takes ``phase`` rad
-    (:func:`true_phase_per_hz`): a model of what ``tendon2r-tune-pd`` picks on the arm, used
+    (`true_phase_per_hz`): a model of what ``tendon2r-tune-pd`` picks on the arm, used
     to draw the gains a residual trains on (MechanismRanges' tuned_phase), not to deploy
     them."""
     return phase / true_phase_per_hz(mechanism, observation_delay, ctrl_dt)

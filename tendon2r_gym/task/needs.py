@@ -1,9 +1,9 @@
 """What an arm needs to follow its references, from inverse dynamics of its nominal model.
 
-:class:`Needs` holds, over a set of references (the episode's, the corners of its ranges and a
+`Needs` holds, over a set of references (the episode's, the corners of its ranges and a
 floor motion): the peak tendon force, each joint's peak torque and torque rate, each joint's
 control authority at the arm's force limit, and the actions that change the joints' speeds
-(rate_to_action).  EnvConfig sizes ``max_tendon_force: auto`` from :func:`force_needs` and
+(rate_to_action).  EnvConfig sizes ``max_tendon_force: auto`` from `force_needs` and
 keeps an arm's Needs; the task scales rewards, observations and residuals by them.
 """
 
@@ -129,7 +129,7 @@ def force_need(
 ) -> float:
     """Returns the peak tendon tension (N) that inverse dynamics needs to follow any of
     ``references`` exactly, over every combination of the two joints' phases: the tensions of
-    :func:`inverse_dynamics_grid`'s torques from tendon2r_gym.simulation.actuation.distribute (with
+    `inverse_dynamics_grid`'s torques from tendon2r_gym.simulation.actuation.distribute (with
     the
     pretension for pull-only tendons)."""
     J, tau, _ = inverse_dynamics_grid(model, references, grid)
@@ -173,7 +173,7 @@ def inverse_dynamics_grid(
 
 def torque_rate(tau: np.ndarray, ref: Reference) -> np.ndarray:
     """Returns the rate (N m / s) of the joint torques ``tau`` (grid^2, 2) of one reference on
-    :func:`inverse_dynamics_grid`'s phase grid: d tau / dt = omega_A d tau / d theta_A + omega_B
+    `inverse_dynamics_grid`'s phase grid: d tau / dt = omega_A d tau / d theta_A + omega_B
     d tau / d theta_B, each partial a periodic central difference over the grid."""
     grid = math.isqrt(len(tau))
     t = tau.reshape(grid, grid, -1)

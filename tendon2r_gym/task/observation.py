@@ -1,4 +1,4 @@
-"""The observation layout of Tendon2R-v0: named slices, the one place that knows the order.
+"""The observation layout of the Tendon2R env: named slices, the one place that knows the order.
 
 The env writes the observation in this order, and policies, info and tests read it by name.
 The fixed entries come first, so their slices do not depend on ``preview_steps``; then the
@@ -25,7 +25,7 @@ from tendon2r_gym.validation import boolean
 #: What ``observe`` may list: the optional entries, in the observation's order.
 OBSERVABLE = ("error_rate", "feedforward", "force_limit", "arm")
 #: The flags that ``observe`` replaced (tendon2r_gym 0.3.0), as older experiment files and run
-#: records hold them; read through :func:`from_flags`.  (An entry added to OBSERVABLE later
+#: records hold them; read through `from_flags`.  (An entry added to OBSERVABLE later
 #: has no flag.)
 FLAGS = {
     "observe_error_rate": "error_rate",
@@ -251,8 +251,8 @@ def arm_entry(field: str) -> str:
 
 
 def entry_names(layout_: list[list], arm_fields: Iterable[str] = ()) -> list[str]:
-    """Returns the names that :func:`layout_mask` can blank: the layout's names, then one
-    :func:`arm_entry` per drawn field (``arm_fields``, in order) if the layout has an arm."""
+    """Returns the names that `layout_mask` can blank: the layout's names, then one
+    `arm_entry` per drawn field (``arm_fields``, in order) if the layout has an arm."""
     names = [name for name, _ in layout_]
     return names + [arm_entry(f) for f in arm_fields] if "arm" in names else names
 
@@ -262,7 +262,7 @@ def layout_mask(
 ) -> np.ndarray:
     """Returns a multiplier over an observation of ``layout_`` ([[name, size], ...], from
     EnvConfig.observation.layout()) that blanks the entries named in ``hidden``
-    (:func:`entry_names`; ``arm_fields`` names the arm slice's entries, in order)."""
+    (`entry_names`; ``arm_fields`` names the arm slice's entries, in order)."""
     hidden, out = set(hidden), []
     for name, n in layout_:
         if name == "arm" and name not in hidden:
@@ -290,14 +290,14 @@ class Layout:
         return size(self.preview_steps, self.n_actions, len(self.arm_fields), self.optional)
 
     def layout(self) -> list[list]:
-        """Returns the named layout, [[name, size], ...] (:func:`layout`)."""
+        """Returns the named layout, [[name, size], ...] (`layout`)."""
         return layout(self.preview_steps, self.n_actions, len(self.arm_fields), self.optional)
 
     def mask(self, hidden: Iterable[str]) -> np.ndarray:
         """Returns the 0/1 multiplier that blanks the entries named in ``hidden`` (layout
-        names, or ``arm.<field>``: :func:`layout_mask`)."""
+        names, or ``arm.<field>``: `layout_mask`)."""
         return layout_mask(self.layout(), hidden, self.arm_fields)
 
     def entries(self) -> list[str]:
-        """Returns the names :meth:`mask` accepts."""
+        """Returns the names `mask` accepts."""
         return entry_names(self.layout(), self.arm_fields)
