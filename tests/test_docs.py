@@ -36,7 +36,9 @@ def _load(name: str):
 
 
 gen_docs = _load("gen_docs")
-gen_figures = sys.modules["gen_figures"]
+gen_figures, docs_env, docs_results = (
+    sys.modules[m] for m in ("gen_figures", "docs_env", "docs_results")
+)
 
 
 @pytest.fixture(scope="module")
@@ -117,9 +119,9 @@ def test_check_names_the_stale_page(pages, tmp_path, capsys, monkeypatch):
 
 
 def test_a_changed_reward_weight_makes_the_env_card_stale(pages, monkeypatch):
-    weight, doc = gen_docs.TERMS["ctrl"]
-    monkeypatch.setitem(gen_docs.TERMS, "ctrl", (weight * 2, doc))
-    assert gen_docs.stale({"env.md": gen_docs.env_page()}, ROOT / "docs") == ["env.md"]
+    weight, doc = docs_env.TERMS["ctrl"]
+    monkeypatch.setitem(docs_env.TERMS, "ctrl", (weight * 2, doc))
+    assert gen_docs.stale({"env.md": docs_env.env_page()}, ROOT / "docs") == ["env.md"]
     assert gen_docs.stale({"env.md": pages["env.md"]}, ROOT / "docs") == []
 
 
@@ -129,7 +131,7 @@ def test_a_changed_result_makes_the_results_page_stale(tmp_path):
     report = json.loads((results / "benchmark.json").read_text())
     report["rows"][0]["rms_deg"] = [v * 2 for v in report["rows"][0]["rms_deg"]]
     (results / "benchmark.json").write_text(json.dumps(report))
-    assert gen_docs.stale({"results.md": gen_docs.results_page(tmp_path)}, ROOT / "docs") == [
+    assert gen_docs.stale({"results.md": docs_results.results_page(tmp_path)}, ROOT / "docs") == [
         "results.md"
     ]
 
@@ -137,10 +139,10 @@ def test_a_changed_result_makes_the_results_page_stale(tmp_path):
 # -- the env card: one home for each argument ----------------------------------------------------
 def test_the_arguments_table_holds_every_argument_with_its_default(pages):
     rows = rows_of(section(pages["env.md"], "Arguments"))
-    defaults = gen_docs.argument_defaults()
+    defaults = docs_env.argument_defaults()
     assert [r[0].strip("`") for r in rows][: len(arguments()) + 1] == ["preset", *arguments()]
     assert {r[0].strip("`"): r[1].strip("`") for r in rows} == {
-        k: gen_docs.shown(v) for k, v in defaults.items()
+        k: docs_env.shown(v) for k, v in defaults.items()
     }
     assert all(r[2] for r in rows), "every argument has a description"
 
@@ -150,33 +152,33 @@ def test_each_argument_is_described_once_beside_its_field():
     docstring's Args:, and the docstring holds no table of them."""
     from tendon2r_gym.envs.env import Tendon2REnv
 
-    comments = gen_docs.field_comments()
+    comments = docs_env.field_comments()
     assert set(arguments()) <= set(comments)
-    template, own = gen_docs.own_arguments(gen_docs.docstring_template(Tendon2REnv))
+    template, own = docs_env.own_arguments(docs_env.docstring_template(Tendon2REnv))
     assert set(own) == {"preset", "render_mode", "width", "height", "camera_name"}
     assert not re.search(r"^\| `\w+` \|", template, flags=re.M), "a hand-typed argument table"
     assert set(own).isdisjoint(comments)
 
 
 def test_an_undocumented_argument_fails_the_env_card(monkeypatch):
-    defaults = gen_docs.argument_defaults()
-    monkeypatch.setattr(gen_docs, "argument_defaults", lambda: {**defaults, "new_argument": 1})
+    defaults = docs_env.argument_defaults()
+    monkeypatch.setattr(docs_env, "argument_defaults", lambda: {**defaults, "new_argument": 1})
     with pytest.raises(ValueError, match="new_argument"):
-        gen_docs.env_page()
+        docs_env.env_page()
 
 
 def test_the_env_card_has_every_section_id_version_and_reward_term(pages):
     text = pages["env.md"]
-    assert re.findall(r"^## (.+)$", text, flags=re.M) == list(gen_docs.ENV_SECTIONS)
+    assert re.findall(r"^## (.+)$", text, flags=re.M) == list(docs_env.ENV_SECTIONS)
     ids = [r[0].strip("`") for r in rows_of(text.split("\n## ")[0])]
-    assert ids == gen_docs.env_ids()
+    assert ids == docs_env.env_ids()
     versions = rows_of(section(text, "Version History"))
     assert [r[0].strip("`") for r in versions] == [
-        f"Tendon2R-{v}" for v in gen_docs.tendon2r_gym.VERSIONS
+        f"Tendon2R-{v}" for v in docs_env.tendon2r_gym.VERSIONS
     ]
     terms = rows_of(section(text, "Rewards"))
-    assert [(r[0].strip("`"), float(r[1])) for r in terms][: len(gen_docs.TERMS)] == [
-        (k, w) for k, (w, _) in gen_docs.TERMS.items()
+    assert [(r[0].strip("`"), float(r[1])) for r in terms][: len(docs_env.TERMS)] == [
+        (k, w) for k, (w, _) in docs_env.TERMS.items()
     ]
 
 
@@ -201,9 +203,9 @@ def test_a_study_page_comes_from_its_markdown_and_a_missing_one_is_skipped(tmp_p
     studies = tmp_path / "research" / "results"
     studies.mkdir(parents=True)
     (studies / "clients.md").write_text("# PPO clients\n\n| client | RMS |\n|---|---|\n| sb3 | 1 |")
-    pages = gen_docs.study_pages(tmp_path)
+    pages = docs_results.study_pages(tmp_path)
     assert list(pages) == ["studies/clients.md"] and "| sb3 | 1 |" in pages["studies/clients.md"]
-    rows = rows_of("\n".join(gen_docs.studies_section(tmp_path)))
+    rows = rows_of("\n".join(docs_results.studies_section(tmp_path)))
     assert rows == [["[PPO clients](studies/clients.md)", "`python -m research.studies.clients`"]]
 
 

@@ -1,0 +1,176 @@
+"""The results' pages, for scripts/gen_docs.py: docs/results.md (the benchmark's chart and
+tables, results/benchmark.json by tendon2r_gym.app.report), docs/studies/<name>.md (each
+study's own Markdown, research/results/<name>.md, as the study writes it: no research code is
+imported) and docs/reports/<name>.md (each own-arm report, results/<name>/benchmark.json).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import gen_figures
+from docs_common import ROOT, asset, benchmark_reports, figure, header, relative_paths
+
+from tendon2r_gym.app import report
+from tendon2r_gym.app.markdown import code, indented, page, table
+
+#: The studies whose results have a page (``research/results/<name>.md``, where it exists),
+#: linked from the results page in this order.  A study that writes its Markdown there needs
+#: only its name here.
+STUDIES = ("realism", "identification", "envelope", "envelope_generalists", "clients")
+
+
+#: A benchmark row's plots (tendon2r_gym.app.plots.plot_trace), by the link's label.
+PLOTS = {"tracking": "tracking.png", "tensions": "forces.png", "path": "effector_path.png"}
+
+
+def plot_links(root: Path, plots_dir: str, prefix: str = "") -> Callable[[dict[str, Any]], str]:
+    """Returns the function that gives a row of a report its plots' links: the files that the
+    benchmark wrote under ``plots_dir/<env>/<policy>/`` (links from a page ``prefix`` deep)."""
+
+    def links(row: dict[str, Any]) -> str:
+        folder = f"{plots_dir}/{row['env']}/{row['policy'].replace(' ', '_')}"
+        return " · ".join(
+            f"[{label}]({asset(f'{folder}/{file}', prefix)})"
+            for label, file in PLOTS.items()
+            if (root / folder / file).is_file()
+        )
+
+    return links
+
+
+#: The results page's "how to read", above its chart; the rest is in a collapsed note.
+HOW_TO_READ = [
+    "PD, computed torque (CT) and PPO, plain and residual on PD, on the same episodes of each",
+    "bundled preset: RMS tracking error per joint, lower is better (log scale; dots: each",
+    "training seed). Each table row links its tracking, tension and path plots.",
+]
+
+
+def bundled_section(root: Path, result: dict[str, Any]) -> list[str]:
+    """Returns the bundled presets' section (``tendon2r-benchmark``, results/benchmark.json)."""
+    result = {**result, "rows": relative_paths(result["rows"])}
+    return [
+        "## The bundled presets",
+        "",
+        f"`results/benchmark.json`, produced by `{result['command']}` (`make benchmark`); the",
+        "rows marked *quoted* are the [lab reports'](background.md) own figures.",
+        "",
+        *report.bundled_sections(
+            result, level=3, notes=[], plots=plot_links(root, "results/plots")
+        ),
+    ]
+
+
+def report_name(path: str) -> str:
+    """Returns an own-arm report's name: its folder under results/."""
+    return Path(path).parent.name
+
+
+def own_arm_pages(root: Path = ROOT) -> dict[str, str]:
+    """Returns docs/reports/<name>.md for each own-arm report results/<name>/benchmark.json
+    (``tendon2r-benchmark --env-config FILE``): its tables, each row linking its plots."""
+    out = {}
+    for path, result in benchmark_reports(root).items():
+        if path == "results/benchmark.json":
+            continue
+        result = {**result, "rows": relative_paths(result["rows"])}
+        plots = plot_links(root, f"{Path(path).parent.as_posix()}/plots", "../")
+        out[f"reports/{report_name(path)}.md"] = page(
+            [
+                header(path),
+                "",
+                f"# Your own arm: {report_name(path)}",
+                "",
+                f"`{path}`. How to read it: the [results](../results.md) page's note; the",
+                "commands: [your own arm](../your_arm.md).",
+                "",
+                *report.own_arm_sections(result, notes=[], plots=plots, level=2),
+            ]
+        )
+    return out
+
+
+def study_pages(root: Path = ROOT) -> dict[str, str]:
+    """Returns docs/studies/<name>.md for each study of STUDIES whose Markdown
+    (research/results/<name>.md) exists: that file's text as the study wrote it."""
+    out = {}
+    for name in STUDIES:
+        path = root / "research" / "results" / f"{name}.md"
+        if path.is_file():
+            text = path.read_text()
+            out[f"studies/{name}.md"] = page(
+                [header(f"research/results/{name}.md"), "", text, "", "[Results](../results.md)"]
+            )
+    return out
+
+
+def study_title(text: str) -> str:
+    """Returns a study page's title: its first ``#`` heading."""
+    found = re.search(r"^# +(.+?) *$", text, flags=re.M)
+    return found.group(1) if found else "(untitled)"
+
+
+def studies_section(root: Path) -> list[str]:
+    """Returns the results page's list of the studies' pages."""
+    pages = study_pages(root)
+    if not pages:
+        return []
+    rows = []
+    for file, text in pages.items():
+        name = Path(file).stem
+        command = f"python -m research.studies.{name}"
+        rows.append((f"[{study_title(text)}]({file})", code(command)))
+    return [
+        "## Studies",
+        "",
+        "Each study's own report (`research/results/<name>.md`), on a page of its own:",
+        "",
+        *table(("study", "command"), rows),
+    ]
+
+
+def results_page(root: Path = ROOT) -> str:
+    """Returns docs/results.md."""
+    reports = benchmark_reports(root)
+    main = reports.pop("results/benchmark.json", None)
+    lines = [
+        header("results/benchmark.json, results/*/benchmark.json and research/results/*.md"),
+        "",
+        "# Results",
+        "",
+        *HOW_TO_READ,
+        "",
+    ]
+    if main is None:
+        lines += ["`results/benchmark.json` is missing: `make benchmark` writes it."]
+    else:
+        lines += [
+            figure(gen_figures.RESULTS_FIGURE, "RMS error per joint by policy and preset"),
+            "",
+            '??? note "How to read the tables"',
+            "",
+            *indented(report.NOTES),
+            "",
+            *bundled_section(root, main),
+        ]
+    lines += ["", *studies_section(root)]
+    if reports:
+        rows = [
+            (f"[{report_name(path)}](reports/{report_name(path)}.md)", code(result["command"]))
+            for path, result in reports.items()
+        ]
+        lines += [
+            "",
+            "## Your own arm",
+            "",
+            "`tendon2r-benchmark --env-config FILE` trains both PPO variants on an experiment",
+            "file and compares them with PD, CT and the generalists ([Your own arm](your_arm.md)).",
+            "The example arms' reports:",
+            "",
+            *table(("report", "command"), rows),
+        ]
+    return page(lines)
