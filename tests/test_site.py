@@ -62,6 +62,7 @@ function measure(win, path) {
   };
   const wide = [];
   for (const el of doc.body.querySelectorAll('*')) {
+    if (el.closest('.md-search') || el.offsetParent === null) continue;  // hidden
     const r = el.getBoundingClientRect();
     if (r.right > win.innerWidth + 1 && r.width > 0 && !scrolls(el.parentElement))
       wide.push(el.tagName.toLowerCase() + (el.className ? '.' + el.className : ''));
@@ -135,8 +136,11 @@ def site(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def measured(site) -> dict[str, dict]:
-    """Returns each page's measurements, by its URL path."""
-    browser = chromium()
+    return measure_site(site, chromium())
+
+
+def measure_site(site: Path, browser: str) -> dict[str, dict]:
+    """Returns each page of a built site's measurements, by its URL path."""
     pages = site_pages(site)
     harness = HARNESS_PAGE.format(
         width=WIDTH, height=HEIGHT, measure=MEASURE, pages=json.dumps(pages)
