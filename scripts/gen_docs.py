@@ -178,11 +178,11 @@ def main(argv: list[str] | None = None) -> int:
     for name in stale(pages, docs):
         if name not in pages:
             (docs / name).unlink()
-            print("removed", docs / name)
-    for name, page_text in pages.items():
+            print("removed", docs / name, file=sys.stderr)
+    for name, page_text in pages.items():  # "wrote PATH": one line per file written
         (docs / name).parent.mkdir(parents=True, exist_ok=True)
         (docs / name).write_text(page_text)
-    print("wrote", len(pages), "pages under", docs)
+        print("wrote", docs / name)
     for path, page_text in reports.items():
         path.write_text(page_text)
         print("wrote", path)

@@ -373,13 +373,16 @@ def write(root: Path = ROOT) -> list[str]:
     for name in touched:
         if name in wanted:
             wanted[name].draw(root, folder / name)
-            print("drew", folder / name)
+            print("wrote", folder / name)
         else:
             (folder / name).unlink()
-            print("removed", folder / name)
+            print("removed", folder / name, file=sys.stderr)
     hashes = {name: inputs_hash(root, fig) for name, fig in wanted.items()}
     folder.mkdir(parents=True, exist_ok=True)
-    (folder / MANIFEST).write_text(json.dumps(hashes, indent=1, sort_keys=True) + "\n")
+    manifest_text = json.dumps(hashes, indent=1, sort_keys=True) + "\n"
+    if manifest(root) != hashes or not (folder / MANIFEST).is_file():
+        (folder / MANIFEST).write_text(manifest_text)
+        print("wrote", folder / MANIFEST)
     return touched
 
 
