@@ -1,9 +1,9 @@
 """The benchmark: PD, computed torque and PPO (from scratch and residual on PD), same seeds.
 
-- :func:`benchmark_bundled` (``tendon2r-benchmark``, ``make benchmark``): the bundled presets
+- `benchmark_bundled` (``tendon2r-benchmark``, ``make benchmark``): the bundled presets
   with their bundled models, plus held-out references for the random-reference model.  (The
   shipped models on real cables, motors and sensors: ``python -m research.studies.realism``.)
-- :func:`benchmark_own_arm` (``tendon2r-benchmark --env-config my_arm.yaml``): trains both PPO
+- `benchmark_own_arm` (``tendon2r-benchmark --env-config my_arm.yaml``): trains both PPO
   variants on the user's experiment file, then compares all four on it.
 
 Every learned row is evaluated on the benchmark seeds (0, 1, ...), never on the seeds that
@@ -43,7 +43,7 @@ from tendon2r_gym.validation import invalid
 
 #: The learned rows: label -> the hyperparameter entry trained on your arm.  On the bundled
 #: presets, each shipped model of registry group ``preset`` (tendon2r_gym/data/shipped.yaml)
-#: runs under the label of its kind (:func:`preset_models`).
+#: runs under the label of its kind (`preset_models`).
 LEARNED = {"ppo scratch": "default_scratch", "ppo residual": "default"}
 #: The bootstrap's seed for every interval of benchmark.json (the same figures on every run).
 BOOTSTRAP_SEED = 0
@@ -68,7 +68,7 @@ def compare(
     progress: Any = None,
 ) -> list[dict[str, Any]]:
     """Returns the rows of one env: PD, CT, and per learned label its primary model and the
-    mean +- std (ddof 0) over all its training seeds, with its uncertainty (:func:`_spread`)."""
+    mean +- std (ddof 0) over all its training seeds, with its uncertainty (`_spread`)."""
     rows = []
     for policy in names(BASELINE):
         rows.append(_row(name, policy, policy, env_kwargs, seeds, None, plots))
@@ -199,7 +199,7 @@ def _spread(
     name: str, label: str, per_seed: list[dict[str, Any]], pd: list[float] | None = None
 ) -> dict[str, Any]:
     """Returns the row of a learned label over its training seeds: the mean +- std (ddof 0)
-    per joint, and ``statistics`` (:func:`uncertainty`)."""
+    per joint, and ``statistics`` (`uncertainty`)."""
     rms = [r["rms_deg"] for r in per_seed]
     beat = [r["first_beat_pd"] for r in per_seed]
     mean = np.mean(rms, axis=0).tolist()
@@ -403,7 +403,7 @@ def _own_arm_rows(
     command: str,
     executor: Any,
 ) -> list[dict[str, Any]]:
-    """Returns the rows of :func:`benchmark_own_arm`: PD tuned, the trainings of ``cfgs``
+    """Returns the rows of `benchmark_own_arm`: PD tuned, the trainings of ``cfgs``
     (label -> hyperparameters) on ``executor``, then the comparison."""
     from tqdm.auto import tqdm
 
