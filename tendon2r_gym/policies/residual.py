@@ -8,17 +8,22 @@ scratch").  With ``residual_filter_tau > 0`` the residual passes a first-order l
 (:class:`ResidualFilter`) before it is added, and PD's own command does not: a filter on the
 whole command would put its lag inside PD's loop.  ``residual_scale`` is a fraction of each
 command's whole range (a tendon's in tension mode, a joint's in joint-torque mode), the same on
-every arm.
+every arm.  With ``residual_units="need"`` (joint-torque mode) it is instead a multiple of
+each joint's peak torque need on the episode's arm and reference (EnvConfig.needs.torque_need):
+a residual of 1 can add the whole torque the reference needs, on the joint that needs little as
+on the one that needs much (``Tendon2RResidual-v2``).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import os
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
+from tendon2r_gym.envs.env import Tendon2REnv
 from tendon2r_gym.envs.env_config import low_pass_alpha
 from tendon2r_gym.envs.registration import make as make_env
 from tendon2r_gym.policies.baselines import PDPolicy
@@ -30,6 +35,9 @@ MAX_RESIDUAL_SCALE = 2.0
 
 #: The largest residual_filter_tau (s).
 MAX_RESIDUAL_FILTER_TAU = 1.0
+#: What residual_scale multiplies: "command", each command's whole range (the same on every
+#: joint and arm); "need", each joint's peak torque need (joint-torque mode only).
+RESIDUAL_UNITS = ("command", "need")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,27 +86,48 @@ class ResidualPDWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """The agent's action is a residual on the PD command (see module docstring)."""
 
     def __init__(
-        self, env: gym.Env, residual_scale: float, residual_filter_tau: float = 0.0
+        self,
+        env: gym.Env,
+        residual_scale: float,
+        residual_filter_tau: float = 0.0,
+        residual_units: str = "command",
     ) -> None:
         gym.utils.RecordConstructorArgs.__init__(
-            self, residual_scale=residual_scale, residual_filter_tau=residual_filter_tau
+            self,
+            residual_scale=residual_scale,
+            residual_filter_tau=residual_filter_tau,
+            residual_units=residual_units,
         )
         super().__init__(env)
         number("residual_scale", residual_scale, 0.0, MAX_RESIDUAL_SCALE, lo_open=True)
+        if residual_units not in RESIDUAL_UNITS:
+            raise invalid("residual_units", residual_units, f"one of {RESIDUAL_UNITS}")
+        mode = env.unwrapped.config.action_mode
+        if residual_units == "need" and mode != "joint_torque":
+            raise invalid(
+                "residual_units", residual_units, f"'command' in action_mode {mode!r} ('need' "
+                "scales joint torques: action_mode 'joint_torque')",
+            )  # fmt: skip
         self.residual = Residual(residual_scale, residual_filter_tau)
+        self.residual_units = residual_units
         self.pd = PDPolicy.from_env(env)
         self.filter = ResidualFilter(residual_filter_tau, env.unwrapped.config.ctrl_dt)
+        self._scale: float | np.ndarray = self.residual.scale
         self._obs: np.ndarray | None = None
 
     def reset(self, **kwargs: Any):
         self._obs, info = self.env.reset(**kwargs)
         self.pd.reset(info)  # follows the episode's arm, if the env draws arms
         self.filter.clear()
+        if self.residual_units == "need":  # this episode's need, over the action's torque
+            max_torque = self.pd.actuation.max_torque
+            need = np.asarray(info["torque_need_Nm"], dtype=float)
+            self._scale = self.residual.scale * need / np.where(max_torque > 0, max_torque, 1.0)
         return self._obs, info
 
     def step(self, action: np.ndarray):
         base, _ = self.pd.predict(self._obs)
-        command = residual_command(base, action, self.residual.scale, self.filter)
+        command = residual_command(base, action, self._scale, self.filter)
         self._obs, reward, terminated, truncated, info = self.env.step(command)
         return self._obs, reward, terminated, truncated, info
 
@@ -134,11 +163,12 @@ class ResidualFilter:
 def residual_command(
     base: np.ndarray,
     action: np.ndarray,
-    scale: float,
+    scale: float | np.ndarray,
     filter_: ResidualFilter | None = None,
     start: Any = None,
 ) -> np.ndarray:
-    """Returns clip(base + r, -1, 1) with r = scale * clip(action, -1, 1) (through ``filter_``
+    """Returns clip(base + r, -1, 1) with r = scale * clip(action, -1, 1) (``scale``: one
+    number, or one per action dimension; through ``filter_``
     if given; ``start`` as :meth:`ResidualFilter.__call__` takes it): the PD command ``base``
     plus the agent's residual.  Training (ResidualPDWrapper, the native vector env) and
     deployment (PPOPolicy) share it, and it refuses an action of the wrong shape or a
@@ -149,6 +179,22 @@ def residual_command(
     if filter_ is not None:
         residual = filter_(residual, start)
     return np.clip(base + residual, -1.0, 1.0)
+
+
+def make_residual_env(
+    preset: str | os.PathLike = "default",
+    residual_scale: float = 1.0,
+    residual_units: str = "need",
+    residual_filter_tau: float = 0.0,
+    **kwargs: Any,
+) -> gym.Env:
+    """The entry point of ``Tendon2RResidual-v2`` and later: Tendon2REnv (``preset`` and
+    ``kwargs``) with PD inside (:class:`ResidualPDWrapper`), under a TimeLimit of
+    episode_duration / ctrl_dt steps.  ``gym.make`` gives what the name says: the action is a
+    correction to PD's command, by default in multiples of each joint's torque need."""
+    env = Tendon2REnv(preset, **kwargs)
+    wrapped = ResidualPDWrapper(env, residual_scale, residual_filter_tau, residual_units)
+    return gym.wrappers.TimeLimit(wrapped, env.config.max_episode_steps)
 
 
 def make_training_env(env_kwargs: dict[str, Any], residual: Residual = NO_RESIDUAL) -> gym.Env:
