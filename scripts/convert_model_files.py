@@ -55,7 +55,7 @@ class _Blank(gym.Env):
 
 
 def observations(size: int, n: int = N_OBS) -> np.ndarray:
-    """Returns ``n`` observations of ``size`` entries at the scales of :data:`SCALES`."""
+    """Returns ``n`` observations of ``size`` entries at the scales of ``SCALES``."""
     rng = np.random.default_rng(0)
     return rng.normal(size=(n, size)) * rng.choice(SCALES, size=(n, 1))
 

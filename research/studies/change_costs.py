@@ -6,7 +6,7 @@
 For each kind of docs/extending.md, the study adds a temporary detached git worktree of HEAD
 (removed afterwards, even on error), regenerates the docs there as HEAD's code writes them,
 then makes a small but real example of the change with text edits at anchors in the source
-(:data:`KINDS`; an anchor that is missing, or found twice, stops the study naming the file),
+(``KINDS``; an anchor that is missing, or found twice, stops the study naming the file),
 regenerates the docs again and records what changed (``git status``, untracked files
 included), split into library files (``tendon2r_gym/`` but its models), data files
 (``tendon2r_gym/data/`` but its models), bundle folders, generated docs (what
@@ -44,7 +44,7 @@ from tendon2r_gym.app.args import arg, parse
 from tendon2r_gym.policies.runs import command_line
 
 PROBES = Path(__file__).resolve().with_name("change_probes.py")
-#: Where a change's files go, in the order of :func:`classify`'s answer.
+#: Where a change's files go, in the order of ``classify``'s answer.
 CATEGORIES = ("library", "data", "bundle", "generated", "other")
 LIBRARY, DATA, MODELS = "tendon2r_gym/", "tendon2r_gym/data/", "tendon2r_gym/data/models/"
 REGISTRY = "tendon2r_gym/data/shipped.yaml"
@@ -374,7 +374,7 @@ def dirty(root: Path) -> dict[str, bytes | None]:
 
 
 def changed(root: Path, before: Mapping[str, bytes | None]) -> list[str]:
-    """Returns the files that differ from ``before`` (:func:`dirty`), sorted."""
+    """Returns the files that differ from ``before`` (``dirty``), sorted."""
     return sorted(p for p, data in dirty(root).items() if p not in before or before[p] != data)
 
 
@@ -430,7 +430,7 @@ def ruff(root: Path, files: list[str]) -> dict[str, Any]:
 
 def line_counts(root: Path, files: list[str], before: Mapping[str, bytes | None]) -> dict:
     """Returns [lines added, lines removed] of each changed text file against its content
-    before the change: ``before`` (:func:`dirty`) if it holds it, else HEAD's (none for a
+    before the change: ``before`` (``dirty``) if it holds it, else HEAD's (none for a
     new file)."""
     out = {}
     for path in files:

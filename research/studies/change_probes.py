@@ -6,7 +6,7 @@ off-by-default change must leave as it was.
 
 ROOT is the edited copy, which must also be the first entry of PYTHONPATH (so that
 ``tendon2r_gym`` is imported from it, and checked to be).  Each PROBE (a name of
-:data:`PROBES`) adds its checks, ``{"check", "ok", "detail"}``; an exception ends a probe
+``PROBES``) adds its checks, ``{"check", "ok", "detail"}``; an exception ends a probe
 as a failed check.
 """
 

@@ -37,7 +37,7 @@ REAL_IDEAL = "Tendon2R-v0 pull_only"
 
 def time_raw_physics(env: gym.Env, n: int) -> float:
     """Returns seconds per env step of mj_step(nstep=frame_skip) alone on the env's model, on
-    the states the env steps through in :func:`time_env_step`: from the env's reset state
+    the states the env steps through in ``time_env_step``: from the env's reset state
     (seed 0), with the zero action's controls (the env writes its action to ``ctrl``), for
     episodes of 500 steps.  (From a fresh MjData instead, the cables of an elastic arm start
     off their rest stretch, and the physics of other states would count as overhead.)"""

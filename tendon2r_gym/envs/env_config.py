@@ -143,14 +143,14 @@ class EnvConfig:
         # An older experiment file or record may hold the flags that ``observe`` replaced.
         base = observation.from_flags(load_preset(preset, [*allowed, *observation.FLAGS]))
         overrides = observation.from_flags(overrides, base.get("observe", ()))
-        check_keys("Tendon2R-v0", overrides, allowed)
+        check_keys("Tendon2R", overrides, allowed)
         return cls.from_kwargs(merge_env_kwargs(base, overrides))
 
     @classmethod
     def from_kwargs(cls, kwargs: Mapping[str, Any]) -> EnvConfig:
         """Validates and resolves merged keyword arguments (sections may be dicts)."""
         kwargs = observation.from_flags(kwargs)
-        check_keys("Tendon2R-v0", kwargs, arguments())
+        check_keys("Tendon2R", kwargs, arguments())
         mech = kwargs.pop("mechanism", None)
         if not isinstance(mech, Mechanism):
             mech = Mechanism.from_dict(mapping("mechanism", mech))

@@ -5,7 +5,7 @@ command = clip(PD(obs) + residual_scale * a, -1, 1).  The agent starts at PD's p
 (SB3 initializes the policy mean near zero) and learns what PD lacks, such as acceleration
 feed-forward.  With ``residual_scale = 0`` the agent drives the motors directly ("from
 scratch").  With ``residual_filter_tau > 0`` the residual passes a first-order low-pass
-(:class:`ResidualFilter`) before it is added, and PD's own command does not: a filter on the
+(``ResidualFilter``) before it is added, and PD's own command does not: a filter on the
 whole command would put its lag inside PD's loop.  ``residual_scale`` is a fraction of each
 command's whole range (a tendon's in tension mode, a joint's in joint-torque mode), the same on
 every arm.  With ``residual_units="need"`` (joint-torque mode) it is instead a multiple of
@@ -45,7 +45,7 @@ class Residual:
     """How a policy's action joins PD's command (module docstring): ``scale`` (0: no PD, the
     action is the command; > 0: a residual on PD) and the residual's low-pass ``filter_tau``
     (s).  An entry, a run record and a deployed policy carry these two as ``residual_scale``
-    and ``residual_filter_tau`` (:meth:`to_record`, :meth:`from_record`); errors name those."""
+    and ``residual_filter_tau`` (``to_record``, ``from_record``); errors name those."""
 
     scale: float = 0.0
     filter_tau: float = 0.0
@@ -169,7 +169,7 @@ def residual_command(
 ) -> np.ndarray:
     """Returns clip(base + r, -1, 1) with r = scale * clip(action, -1, 1) (``scale``: one
     number, or one per action dimension; through ``filter_``
-    if given; ``start`` as :meth:`ResidualFilter.__call__` takes it): the PD command ``base``
+    if given; ``start`` as ``ResidualFilter.__call__`` takes it): the PD command ``base``
     plus the agent's residual.  Training (ResidualPDWrapper, the native vector env) and
     deployment (PPOPolicy) share it, and it refuses an action of the wrong shape or a
     non-finite one."""
@@ -189,7 +189,7 @@ def make_residual_env(
     **kwargs: Any,
 ) -> gym.Env:
     """The entry point of ``Tendon2RResidual-v2`` and later: Tendon2REnv (``preset`` and
-    ``kwargs``) with PD inside (:class:`ResidualPDWrapper`), under a TimeLimit of
+    ``kwargs``) with PD inside (``ResidualPDWrapper``), under a TimeLimit of
     episode_duration / ctrl_dt steps.  ``gym.make`` gives what the name says: the action is a
     correction to PD's command, by default in multiples of each joint's torque need."""
     env = Tendon2REnv(preset, **kwargs)

@@ -53,7 +53,7 @@ class TrackingLogCallback(BaseCallback):
 
 class TimedCheckpointCallback(CheckpointCallback):
     """SB3's CheckpointCallback (its file names; model + VecNormalize every ``save_freq``
-    calls), also every ``minutes`` of wall time, each written by :func:`save_pair`, so that a
+    calls), also every ``minutes`` of wall time, each written by ``save_pair``, so that a
     SIGKILL loses little and never leaves a torn checkpoint."""
 
     def __init__(
@@ -84,7 +84,7 @@ class TimedCheckpointCallback(CheckpointCallback):
 class TrackingEvalCallback(BaseCallback):
     """At every multiple of ``eval_freq`` of the run's env steps (a resumed run's too) and at
     the end, rolls the deterministic policy out on fixed seeds and keeps the best model by
-    :func:`~tendon2r_gym.evaluation.metrics.selection_rank`: the lowest mean tracking RMS (over
+    ``tendon2r_gym.evaluation.metrics.selection_rank``: the lowest mean tracking RMS (over
     joints)
     among the evaluations <= PD on both joints within the smoothness limits, else the lowest
     overall.  Each evaluation is appended to evaluations.json with the
@@ -297,5 +297,5 @@ def quiet_writer_threads() -> Iterator[None]:
 
 def save_model(model: Any, stem: Path) -> None:
     """Saves ``stem.zip`` and its statistics ``stem_vecnormalize.npz`` (see
-    :func:`save_pair`)."""
+    ``save_pair``)."""
     save_pair(model, stem.with_name(stem.name + ".zip"), stats_files(stem)[0])

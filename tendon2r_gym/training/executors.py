@@ -1,15 +1,15 @@
 """Where jobs run: in this process, in local worker processes, or on a Ray cluster.
 
-Every executor has one interface, :meth:`Executor.map`: ``fn(job)`` for each job, the results
+Every executor has one interface, ``Executor.map``: ``fn(job)`` for each job, the results
 in job order, ``done(i, result)`` called in this process as each job finishes (a training
 command writes a job's run folder there).  A job is anything picklable, ``fn`` a module-level
 function (a worker imports it by name).  No scheduler of our own: the local executor is
-:class:`concurrent.futures.ProcessPoolExecutor` (spawned workers), the cluster executor Ray's
+``concurrent.futures.ProcessPoolExecutor`` (spawned workers), the cluster executor Ray's
 remote tasks.
 
-- A job that raises: the other jobs run to their end, then :class:`JobError` names the job
+- A job that raises: the other jobs run to their end, then ``JobError`` names the job
   (its label, e.g. ``seed 1``) and the error; a ValueError stays a ValueError
-  (:class:`JobValueError`).  In-process, a job's error propagates as it is (today's one-process
+  (``JobValueError``).  In-process, a job's error propagates as it is (today's one-process
   training).
 - Ctrl-C (KeyboardInterrupt in the caller): jobs not yet started are cancelled, the running
   ones are asked to stop (SIGINT for local workers, Ray's cancel), which lets a training save
@@ -20,7 +20,7 @@ remote tasks.
   gives each task ``num_cpus=cpus`` and runs a lost node's jobs again elsewhere
   (``max_retries``).
 
-Ray is optional (the ``cluster`` extra) and imported only by :class:`RayCluster`.
+Ray is optional (the ``cluster`` extra) and imported only by ``RayCluster``.
 """
 
 from __future__ import annotations
@@ -72,7 +72,7 @@ def job_error(label: str, error: BaseException) -> JobError:
 
 
 class Executor(Protocol):
-    """Runs jobs; :meth:`map` returns their results in job order."""
+    """Runs jobs; ``map`` returns their results in job order."""
 
     #: Whether jobs may run on another machine (they then see none of this one's files).
     remote: bool

@@ -1,8 +1,8 @@
 """The hyperparameters of one training run: a typed dataclass, validated once.
 
 An entry of the hyperparameter file (``configs/ppo.yaml``, package data) is read with
-:meth:`Hyperparams.from_entry`; a run folder's ``config.yaml`` with :meth:`Hyperparams.from_dict`.
-Both go through the same validation, and :meth:`Hyperparams.replace` validates overrides again,
+``Hyperparams.from_entry``; a run folder's ``config.yaml`` with ``Hyperparams.from_dict``.
+Both go through the same validation, and ``Hyperparams.replace`` validates overrides again,
 so nothing downstream checks a value twice.
 """
 
@@ -51,7 +51,7 @@ def merged(base: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]:
 def entry_values(name: str, path: str | Path = PPO_CONFIG, seen: tuple[str, ...] = ()) -> dict:
     """Returns entry ``name`` of the hyperparameter file ``path`` with its ``base`` resolved: the
     named entry (of the same file, else of the shipped file PPO_CONFIG) with this one's values
-    on top (:func:`merged`)."""
+    on top (``merged``)."""
     table = load_yaml(path)
     if name not in table:
         if Path(path).resolve() != PPO_CONFIG.resolve() and name in load_yaml(PPO_CONFIG):
@@ -211,7 +211,7 @@ class Hyperparams:
 
     def ppo_kwargs(self) -> dict[str, Any]:
         """Returns SB3 PPO's keyword arguments: ``ppo`` with each ``lin_<v>`` its SB3 schedule
-        (:func:`sb3_schedule`; validated at construction)."""
+        (``sb3_schedule``; validated at construction)."""
         out = dict(self.ppo)
         for key in SCHEDULES:
             value = out.get(key)

@@ -76,7 +76,7 @@ def load_initial(
     hp: Hyperparams, source: tuple[Path, Path], venv: Any, seed: int, run: RunFolder
 ) -> tuple[Any, Any]:
     """Returns (PPO, VecNormalize) started from the weights and observation statistics of
-    ``source`` (:func:`initial_model`), training on ``venv`` with the run's PPO settings and
+    ``source`` (``initial_model``), training on ``venv`` with the run's PPO settings and
     the source's policy (its class and policy_kwargs: files.load_ppo)."""
     from tendon2r_gym.policies.files import load_ppo, load_vecnormalize
 
@@ -95,7 +95,7 @@ def load_initial(
 
 def reset_log_std(log_std: Any, value: float | list[float]) -> None:
     """Sets the policy's log std (``init_log_std``): one value for every action, or one per
-    action (:func:`initial_model` checked their number)."""
+    action (``initial_model`` checked their number)."""
     import torch
 
     values = torch.as_tensor(value, dtype=log_std.dtype).expand(log_std.shape)

@@ -1,15 +1,15 @@
 """One training job: (hyperparameters, seed) -> the run folder ``base/seed_<n>/`` and its
 summary, the same on every executor (tendon2r_gym.training.executors).
 
-:func:`train_seed` trains exactly one seed with the run owner's own steps (manager.plan_run,
+``train_seed`` trains exactly one seed with the run owner's own steps (manager.plan_run,
 then manager.train_planned: the same folder, checkpoints, summaries and ``--resume``), with
-torch and BLAS pinned to the run's ``torch_threads``.  :func:`run_seed_job` is what an executor
+torch and BLAS pinned to the run's ``torch_threads``.  ``run_seed_job`` is what an executor
 runs: where the driver's run folder is visible (this machine, or a shared file system: the
 driver's marker file is found there), the job trains in it, so that a job run again after a
 lost node continues from the last checkpoint; elsewhere it trains in a temporary folder of its
 own, seeded with what the driver sent (the seed folder to continue, the experiment file the
 hyperparameters name), and returns the finished folder whole, which the driver puts in place
-(:func:`install_folder`: written beside it, then renamed).  A Ctrl-C of a training ends the job
+(``install_folder``: written beside it, then renamed).  A Ctrl-C of a training ends the job
 with its state saved (``interrupted``), not an exception, so that the driver keeps it.
 """
 
@@ -126,9 +126,9 @@ def train_experiment(
 ) -> dict[str, Any]:
     """Trains the seeds of ``exp`` (continuing those with a saved state if ``resume``) on
     ``executor`` and writes SEEDS_SUMMARY: in this process one after another (None,
-    InProcess: :meth:`Experiment.train`), or one job per seed (:func:`run_seed_job`) on local
+    InProcess: ``Experiment.train``), or one job per seed (``run_seed_job``) on local
     workers or a Ray cluster.  Every seed is checked before anything is written
-    (:meth:`Experiment.plan`) and its folder held by this process from the start.  A Ctrl-C
+    (``Experiment.plan``) and its folder held by this process from the start.  A Ctrl-C
     stops every job (each saves its state), writes the summary of the finished seeds, then
     re-raises; a job's error names its seed, after the other jobs end."""
     if executor is None or isinstance(executor, InProcess):

@@ -1,28 +1,28 @@
 """The run owner (rl_zoo3's ExperimentManager): one training command, its seeds and folders.
 
-:class:`Experiment` trains one run per seed in ``base/seed_<n>/`` (names from
+``Experiment`` trains one run per seed in ``base/seed_<n>/`` (names from
 tendon2r_gym.policies.runs) and survives interruption:
 - Ctrl-C (or SIGTERM) stops training at the next env step (StopOnSignal), saves
   ``last_model`` and the summary, then raises KeyboardInterrupt, so a multi-seed command stops
   as a whole (exit code 130) after writing the summary of the seeds that finished;
 - checkpoints are taken every ``checkpoint_freq`` steps and every ``checkpoint_minutes``;
-- :meth:`Experiment.resume` continues the run that was started: the hyperparameters recorded
+- ``Experiment.resume`` continues the run that was started: the hyperparameters recorded
   in its folder (budget and overrides included), never the entry's current defaults, from the
   newest readable saved state (a corrupt one is skipped with a warning);
 - a new run never overwrites one that was started: without ``resume``, a folder that holds a
   run is refused (rl_zoo3 numbers its folders instead; here ``--run-dir`` names the run);
 - a command that can be run again (the own-arm benchmark, the studies) trains through
-  :meth:`Experiment.start_or_continue`: its runs continue as they were recorded, and runs of
+  ``Experiment.start_or_continue``: its runs continue as they were recorded, and runs of
   other hyperparameters in its folder are refused;
 - ``summary.json`` adds up steps and wall time over every segment, recorded at each
   checkpoint too (a killed segment counts up to its last checkpoint), and command.txt keeps
   the original command with one line per resume;
-- a run is checked before anything is written (:func:`plan_run`): a refused start leaves its
+- a run is checked before anything is written (``plan_run``): a refused start leaves its
   folder as it was;
 - a folder in training is held by its process (records.training_lock): a second command on it
   (a --resume while it trains) is refused, not run beside it;
 - a run folder that cannot be written (read-only, a full disk) stops training with one
-  :class:`RunWriteError` line, after keeping the last state it can.
+  ``RunWriteError`` line, after keeping the last state it can.
 """
 
 from __future__ import annotations
@@ -138,7 +138,7 @@ class Experiment:
     def train(self, resume: bool = False) -> dict[str, Any]:
         """Trains one run per seed in this process, one after another (continuing those with a
         saved state if ``resume``) and writes SEEDS_SUMMARY.  Every seed's run is checked
-        before any is written (:meth:`plan`).  A Ctrl-C stops them all: the summary of the
+        before any is written (``plan``).  A Ctrl-C stops them all: the summary of the
         finished seeds is written, then it re-raises.  (Local workers or a Ray cluster train
         the seeds at once: tendon2r_gym.training.jobs.train_experiment.)"""
         plans = self.plan(resume)
@@ -163,7 +163,7 @@ class Experiment:
     def plan(self, resume: bool = False) -> list[RunPlan]:
         """Returns the plan of every seed's run, each checked before anything is written: the
         seeds (distinct, each one numpy takes), a folder that holds a run refused unless
-        ``resume``, and all that each run reads (:func:`plan_run`)."""
+        ``resume``, and all that each run reads (``plan_run``)."""
         check_seeds(self.seeds)
         runs = [self.run_folder(seed) for seed in self.seeds]
         started = [str(run.path) for run in runs if run.read_config() is not None]
@@ -300,7 +300,7 @@ def train_run(
     command: str = "",
     progress_bar: bool = False,
 ) -> dict[str, Any]:
-    """Trains one run; returns its summary (:func:`plan_run`, then :func:`train_planned`)."""
+    """Trains one run; returns its summary (``plan_run``, then ``train_planned``)."""
     plan = plan_run(hp, run, seed, resume)
     with training_lock([run]):
         return train_planned(plan, command, progress_bar)
@@ -309,7 +309,7 @@ def train_run(
 def train_planned(plan: RunPlan, command: str = "", progress_bar: bool = False) -> dict[str, Any]:
     """Trains one planned run; returns its summary.  Ctrl-C saves, writes the summary,
     re-raises.  If writing to the run folder fails (read-only, a full disk), training stops
-    with a :class:`RunWriteError`, after keeping the last state it can (last_model, else the
+    with a ``RunWriteError``, after keeping the last state it can (last_model, else the
     newest checkpoint stays)."""
     import torch
     from stable_baselines3.common.callbacks import CallbackList

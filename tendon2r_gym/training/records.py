@@ -79,7 +79,7 @@ WRITE_ERRNOS = frozenset({errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOSPC, 
 
 def is_write_error(error: BaseException, run: RunFolder) -> bool:
     """Returns whether ``error`` is a failure to write to the run folder: an OSError of
-    :data:`WRITE_ERRNOS`, or of a file in the folder."""
+    ``WRITE_ERRNOS``, or of a file in the folder."""
     if not isinstance(error, OSError):
         return False
     if error.errno in WRITE_ERRNOS:
