@@ -145,7 +145,8 @@ class Problem:
         """The toolbox's residual function: one column per column of ``x`` (batched finite
         differences).  An arm the env would refuse (its integrator cannot integrate it:
         tendon2r_gym.simulation.stability) gets a residual of 1e6 everywhere."""
-        cols = x.reshape(len(self.names), -1)
+        n = len(self.names)
+        cols = np.reshape(x, (n, -1)) if n else np.zeros((0, 1))  # no field: the nominal arm
         arms = [self.arm(cols[:, k]) for k in range(cols.shape[1])]
         ok = [self.stable(a) for a in arms]
         r = np.full((len(arms), len(self.rep.pieces), 2 * self.rep.pieces.length), 1e6)

@@ -67,6 +67,11 @@ class Identification:
     sources: list[str] = field(default_factory=list)
     #: The loop delays (s) not told apart from the best one, (least, most).
     delay_range_s: tuple[float, float] = (0.0, 0.0)
+    #: Each loop delay not told apart (s): the fields' fit there, on the subset's pieces.
+    delay_fits: dict[float, dict[str, float]] = field(default_factory=dict)
+    #: The folds' residual (RMS, rad) on the pieces they were fitted on, and on those they
+    #: held out (tendon2r_gym.identification.holdout); None without a continuous field.
+    holdout_rms_rad: tuple[float, float] | None = None
     extras: dict[str, Any] = field(default_factory=dict, repr=False)  # for the report
 
     def experiment(self, nominal: str | os.PathLike) -> dict[str, Any]:
@@ -97,6 +102,16 @@ class Identification:
             f"{'loop delay':<20} {'':>11} {self.loop_delay_s * 1e3:11.4g} {status:>27}  ms "
             "(motor_delay + observation_delay: only their sum shows)"
         )
+        if len(self.delay_fits) > 1:
+            for delay, fits in self.delay_fits.items():
+                shown = ", ".join(f"{k} {v:.4g}" for k, v in fits.items())
+                out.append(f"{'  at ' + format(delay * 1e3, 'g') + ' ms':<20} {shown}")
+        if self.holdout_rms_rad is not None:
+            inside, held = self.holdout_rms_rad
+            out.append(
+                f"{'held-out pieces':<20} residual {held:.3g} rad RMS, in-sample {inside:.3g} "
+                f"({held / max(inside, 1e-300):.2g}x)"
+            )
         for name, why in self.skipped.items():
             out.append(f"{name:<20} skipped: {why}")
         before, after = self.residual_rms_rad
