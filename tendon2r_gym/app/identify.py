@@ -98,15 +98,18 @@ def record_main(argv: list[str] | None = None) -> Path:
 @dataclass
 class IdentifyArgs:
     """Fit your arm's realism fields to recordings of it (mujoco.sysid): cable stiffness,
-    damping and friction, motor lag and delay, sensor delay, link mass scale, joint damping.
+    damping and friction, motor lag, mass and delay, sensor delay, link mass scale, joint
+    damping.
 
     tendon2r-identify --recording rec.csv --env-config my_arm.yaml --out my_arm_identified.yaml
     tendon2r-identify --recording a.csv b.csv --env-config my_arm.yaml --out id.yaml \\
         --fit motor_tau density_scale
 
-    Prints each field with its 95% interval (a field the recordings cannot pin down to 10% is
-    flagged, and keeps its nominal value), and writes the identified arm's experiment file
-    and, beside it, the toolbox's HTML report (--report to place it elsewhere).
+    Prints each field with its 95% interval, widened to hold its fits on held-out pieces (a
+    field the recordings cannot pin down to 10% is flagged, and keeps its nominal value), the
+    loop delay (with each delay's fit where several are not told apart), and writes the
+    identified arm's experiment file and, beside it, the toolbox's HTML report (--report to
+    place it elsewhere).
     """
 
     recording: Annotated[list[str], arg("one or more recordings of the arm (CSV)")]

@@ -26,7 +26,14 @@ finds where to start and the loop delay, and judges each result:
   not told apart.  A delay left out of ``fit`` is known and keeps its nominal value, the
   other taking the rest of the loop delay; with both fitted, the identified arm splits it
   evenly (``motor_delay`` takes an odd step).  PD tuning sees only the loop; the realism
-  residuals observe each delay.
+  residuals observe each delay.  A delay that some contiguous block of the pieces fits best
+  is not told apart either (tendon2r_gym.identification.holdout.fold_delays), and each delay
+  not told apart has its fields' fit reported;
+- the fit is checked on held-out pieces (tendon2r_gym.identification.holdout): a field's
+  interval is widened to hold its fits on the folds, and every field is flagged where the
+  held-out pieces' residual is far above the in-sample one (the model misses something);
+- ``motor_mass`` and ``motor_tau`` are both flagged where their fits' correlation is beyond
+  MASS_LAG_CORRELATION: the fit cannot tell the mass from the lag.
 """
 
 from __future__ import annotations
