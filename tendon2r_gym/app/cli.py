@@ -284,6 +284,10 @@ class TunePDArgs:
     tendon2r-tune-pd --env-config my_arm.yaml --out my_arm_tuned.yaml
     tendon2r-evaluate --policy pd --env-config my_arm_tuned.yaml
     tendon2r-tune-pd --hyperparams real_arm --episodes 16 --scan max_delay_phase
+    tendon2r-tune-pd --hyperparams generalist_real --episodes 32 --workers 2
+
+    --workers N rolls N grid points out at once in local processes; --cluster auto (or
+    HOST:PORT) on a Ray cluster (the cluster extra).  The scan is the same on every executor.
     """
 
     env_config: Annotated[str, arg("preset name or experiment file")] = "default"
@@ -296,6 +300,16 @@ class TunePDArgs:
         ScanName,
         arg("the gain to scan (max_delay_phase: gains scheduled on each arm's loop delay)"),
     ] = "bandwidth_hz"
+    workers: Annotated[
+        int, arg("roll this many grid points out at once in local worker processes")
+    ] = 1
+    cluster: Annotated[
+        str | None,
+        arg(
+            "roll the grid points out on a Ray cluster: auto (ray start's, or RAY_ADDRESS) or "
+            "HOST:PORT"
+        ),
+    ] = None
 
 
 def tune_pd_main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -305,6 +319,7 @@ def tune_pd_main(argv: list[str] | None = None) -> dict[str, Any]:
     from tendon2r_gym.policies.runs import command_line
     from tendon2r_gym.presets import PPO_CONFIG, load_yaml, preset_path
     from tendon2r_gym.training import Hyperparams
+    from tendon2r_gym.training.executors import entered, make_executor
     from tendon2r_gym.validation import integer
 
     args = parse(TunePDArgs, argv)
@@ -312,7 +327,10 @@ def tune_pd_main(argv: list[str] | None = None) -> dict[str, Any]:
     env_kwargs: dict[str, Any] = {"preset": args.env_config}
     if args.hyperparams is not None:
         env_kwargs = Hyperparams.from_entry(args.hyperparams, PPO_CONFIG).env_kwargs
-    scan = tune_pd(env_kwargs, args.episodes, args.scan)
+    # --workers and --cluster checked, and a cluster that cannot be reached refused, first
+    executor = make_executor(args.workers, args.cluster, 1)
+    with entered(executor) as ex:
+        scan = tune_pd(env_kwargs, args.episodes, args.scan, ex)
     print("\n".join(scan.lines()))
     result = {"pd_gains": scan.gains.to_dict(), "scan": scan.field, "values": list(scan.values),
               "worst_deg": [list(w) for w in scan.worst_deg]}  # fmt: skip

@@ -18,12 +18,18 @@ the control rate, so that the phase alone sets each arm's bandwidth below it.
 
 ``tendon2r-tune-pd --env-config my_arm.yaml --out my_arm_tuned.yaml`` writes the experiment
 file with the tuned ``pd_gains``; PD, CT and a residual trained on that file use them.
+
+Each grid point's episodes are one job (``scan_point``) of an executor
+(tendon2r_gym.training.executors: ``tendon2r-tune-pd --workers N`` or ``--cluster``): a point
+depends only on its gains and its seeds, so the scan is the same on every executor.
 """
 
 from __future__ import annotations
 
 import math
+import tempfile
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from tendon2r_gym.envs.env_config import EnvConfig
@@ -84,10 +90,53 @@ def delay_phase_grid() -> list[float]:
     return [round(MIN_DELAY_PHASE * GRID_RATIO**k, 6) for k in range(n + 1)]
 
 
-def tune_pd(env_kwargs: dict[str, Any], episodes: int = 3, scan: str = "bandwidth_hz") -> Scan:
+@dataclass(frozen=True)
+class ScanPoint:
+    """One job of a scan: PD on ``env_kwargs`` (the point's gains set) over ``seeds``.
+    ``preset_file``: the bytes of the experiment file that ``env_kwargs["preset"]`` names, for
+    a node that may not see it (a Ray cluster), else None."""
+
+    env_kwargs: dict[str, Any]
+    seeds: tuple[int, ...]
+    preset_file: bytes | None = None
+
+
+def scan_point(job: ScanPoint) -> tuple[float, ...]:
+    """An executor's job: the worst-joint RMS error (deg) of each of ``job.seeds``'s episodes
+    of PD on ``job.env_kwargs``."""
+    if job.preset_file is None:
+        return _worst_per_episode(job.env_kwargs, list(job.seeds))
+    with tempfile.TemporaryDirectory(prefix="tendon2r-tune-") as tmp:
+        preset = Path(tmp, Path(str(job.env_kwargs["preset"])).name)
+        preset.write_bytes(job.preset_file)
+        return _worst_per_episode({**job.env_kwargs, "preset": str(preset)}, list(job.seeds))
+
+
+def _worst_per_episode(env_kwargs: dict[str, Any], seeds: list[int]) -> tuple[float, ...]:
+    _, traces = evaluate("pd", env_kwargs, seeds)
+    return tuple(max(tracking_metrics([t])["rms_deg"]) for t in traces)
+
+
+def _preset_file(env_kwargs: dict[str, Any], executor: Any) -> bytes | None:
+    """Returns the experiment file's bytes if ``executor``'s jobs may run on another machine
+    and ``env_kwargs`` names one by a path (a preset name is in the package on every node)."""
+    preset = env_kwargs.get("preset")
+    if not getattr(executor, "remote", False) or not isinstance(preset, (str, Path)):
+        return None
+    path = Path(preset)
+    return path.read_bytes() if path.suffix in (".yaml", ".yml") and path.is_file() else None
+
+
+def tune_pd(
+    env_kwargs: dict[str, Any],
+    episodes: int = 3,
+    scan: str = "bandwidth_hz",
+    executor: Any = None,
+) -> Scan:
     """Scans PD's ``scan`` gain (one of SCANS) on ``episodes`` held-out episodes of the env
     (see the module docstring) and returns the scan with the chosen gains (the env's others
-    kept)."""
+    kept).  ``executor``: runs each grid point as one job (tendon2r_gym.training.executors;
+    None: one after another in this process); the scan is the same on every executor."""
     if scan not in SCANS:
         raise invalid("scan", scan, f"one of {SCANS}")
     config = EnvConfig.make(**env_kwargs)
@@ -104,12 +153,14 @@ def tune_pd(env_kwargs: dict[str, Any], episodes: int = 3, scan: str = "bandwidt
     else:  # the phase alone sets the bandwidth, below the control rate's cap
         grid = delay_phase_grid()
         base["bandwidth_hz"] = max(bandwidth_grid(config))
-    seeds = list(range(TUNE_SEED, TUNE_SEED + episodes))
-    worst = []
-    for value in grid:
-        kwargs = {**env_kwargs, "pd_gains": {**base, scan: value}}
-        _, traces = evaluate("pd", kwargs, seeds)
-        worst.append(tuple(max(tracking_metrics([t])["rms_deg"]) for t in traces))
+    seeds = tuple(range(TUNE_SEED, TUNE_SEED + episodes))
+    preset = _preset_file(env_kwargs, executor)
+    jobs = [ScanPoint({**env_kwargs, "pd_gains": {**base, scan: value}}, seeds, preset)
+            for value in grid]  # fmt: skip
+    if executor is None:
+        worst = [scan_point(job) for job in jobs]
+    else:
+        worst = executor.map(scan_point, jobs, [f"{scan} {value:g}" for value in grid])
     # The next grid point must hold too (the last one is the cap: nothing above it).
     score = [max(*w, *(worst[i + 1] if i + 1 < len(worst) else w)) for i, w in enumerate(worst)]
     best = min(range(len(grid)), key=score.__getitem__)

@@ -482,6 +482,25 @@ def make_executor(workers: int = 1, cluster: str | None = None, cpus: int = 1) -
     return InProcess() if workers == 1 else LocalWorkers(workers, cpus)
 
 
+#: The flags that choose where jobs run, not what they compute.
+EXECUTOR_FLAGS = ("--workers", "--cluster")
+
+
+def without_executor_flags(argv: Sequence[str]) -> list[str]:
+    """Returns ``argv`` without ``--workers N`` and ``--cluster ADDRESS`` (or ``--flag=value``):
+    the command a results file records, the same on every executor."""
+    out: list[str] = []
+    skip = False
+    for a in argv:
+        if skip:
+            skip = False
+        elif a in EXECUTOR_FLAGS:
+            skip = True
+        elif not a.startswith(tuple(f"{flag}=" for flag in EXECUTOR_FLAGS)):
+            out.append(a)
+    return out
+
+
 @contextlib.contextmanager
 def entered(executor: Any) -> Iterator[Any]:
     """Enters ``executor`` if it is a context manager (a Ray cluster connects), else yields
