@@ -34,6 +34,7 @@ from docs_common import (
 from markdown.extensions.toc import slugify
 
 import tendon2r_gym
+from tendon2r_gym.app.field_docs import class_node, docstring_args, field_comments
 from tendon2r_gym.app.markdown import code, code_block, indented, page, table
 from tendon2r_gym.envs.env import CARD_SECTIONS, Tendon2REnv
 from tendon2r_gym.envs.env_config import EnvConfig, arguments
@@ -47,8 +48,7 @@ ENV_SECTIONS = CARD_SECTIONS
 def docstring_template(cls: type) -> str:
     """Returns a class's docstring as its source writes it (before any ``str.format`` that
     fills tables into it), dedented."""
-    tree = ast.parse(Path(inspect.getsourcefile(cls)).read_text())
-    node = next(n for n in ast.walk(tree) if isinstance(n, ast.ClassDef) and n.name == cls.__name__)
+    node = class_node(Path(inspect.getsourcefile(cls)).read_text(), cls.__name__)
     return ast.get_docstring(node, clean=True) or ""
 
 
@@ -66,41 +66,14 @@ def markdown_indent(text: str) -> str:
     return re.sub(r"^( +)", lambda m: m.group(1) * 2, text, flags=re.M)
 
 
-ARGS_BLOCK = re.compile(r"^Args:\n((?:(?: {4}.*)?\n)+?)(?=\S|\Z)", re.M)
-
-
 def own_arguments(template: str) -> tuple[str, dict[str, str]]:
     """Returns the docstring with its Google-style ``Args:`` block (the env's own arguments:
-    the preset and rendering) replaced by ``{arguments}``, and that block's descriptions."""
-    found = ARGS_BLOCK.search(template)
+    the preset and rendering) replaced by ``{arguments}``, and that block's descriptions
+    (read by tendon2r_gym.app.field_docs, as the commands' --help reads them)."""
+    found, described = docstring_args(template)
     if found is None:
         raise ValueError("the Tendon2REnv docstring has no Args: block for its own arguments")
-    described: dict[str, str] = {}
-    for line in found.group(1).splitlines():
-        if m := re.match(r" {4}(\w+): (.*)", line):
-            described[m.group(1)] = m.group(2).strip()
-        elif line.strip():
-            last = next(reversed(described))
-            described[last] += " " + line.strip()
     return template[: found.start()] + "{arguments}\n\n" + template[found.end() :], described
-
-
-def field_comments(cls: type = EnvConfig) -> dict[str, str]:
-    """Returns each field's description: the ``#:`` comment lines right above it in the
-    class's source, joined (Sphinx's convention)."""
-    lines = Path(inspect.getsourcefile(cls)).read_text().splitlines()
-    tree = ast.parse("\n".join(lines))
-    node = next(n for n in ast.walk(tree) if isinstance(n, ast.ClassDef) and n.name == cls.__name__)
-    out = {}
-    for item in node.body:
-        if isinstance(item, ast.AnnAssign) and isinstance(item.target, ast.Name):
-            above, k = [], item.lineno - 2
-            while k >= 0 and lines[k].strip().startswith("#:"):
-                above.insert(0, lines[k].strip()[2:].strip())
-                k -= 1
-            if above:
-                out[item.target.id] = " ".join(above)
-    return out
 
 
 def argument_defaults() -> dict[str, Any]:
@@ -142,10 +115,24 @@ def argument_descriptions(own: dict[str, str]) -> dict[str, str]:
     return described
 
 
+#: What the arguments table shows for a default that another table of the card holds.
+DEFAULT_ELSEWHERE = {"reward_scales": "the [Rewards](#rewards) table's weights"}
+
+
+def default_cell(name: str, value: Any) -> str:
+    """Returns an argument's default as the arguments table shows it: the value, or for
+    ``reward_scales`` (when it is the reward terms' default weights) a link to their table."""
+    if name == "reward_scales" and value == {k: w for k, (w, _) in TERMS.items()}:
+        return DEFAULT_ELSEWHERE[name]
+    return code(shown(value))
+
+
 def arguments_table(own: dict[str, str]) -> list[str]:
     """Returns the arguments table: every argument, its default and its description."""
     defaults = argument_defaults()
-    rows = ((code(k), code(shown(defaults[k])), d) for k, d in argument_descriptions(own).items())
+    rows = (
+        (code(k), default_cell(k, defaults[k]), d) for k, d in argument_descriptions(own).items()
+    )
     return table(("argument", "default", "description"), rows)
 
 
@@ -178,9 +165,9 @@ def reward_table() -> list[str]:
     return [
         *table(("term", "default weight", "unscaled term"), rows),
         "",
-        "with e the joints' tracking errors (deg), sigma = `tracking_sigma_deg`, f the applied "
-        "command as a fraction of the force limit, a the action, and the log kernel (quadratic "
-        "below sigma, logarithmic far from it):",
+        "with e the joints' tracking errors (deg), sigma = `tracking_sigma_deg`, a the applied "
+        "command (f and s: below), and the log kernel (quadratic below sigma, logarithmic far "
+        "from it):",
         "",
         "$$",
         KERNEL,
@@ -192,19 +179,53 @@ def reward_table() -> list[str]:
     ]
 
 
-def layout_table(config: EnvConfig) -> list[str]:
-    """Returns the table of one config's observation layout, index by index."""
-    units = {name: unit for name, _, unit in (*observation.FIXED, *observation.OPTIONAL)}
-    units |= {"preview": "rad", "last_action": "1", "arm": "1"}
-    rows, start = [], 0
+def observation_table(config: EnvConfig) -> list[str]:
+    """Returns the observation's entries in order (tendon2r_gym.task.observation): each one's
+    index in ``config``'s layout (the newest id's), size, unit and, where its name does not
+    say it, what it holds; the optional entries with the ``observe`` name that adds them."""
+    index, start = {}, 0
     for name, n in config.observation.layout():
-        rows.append((f"{start}-{start + n - 1}", code(name), n, units[name]))
+        index[name] = f"{start}-{start + n - 1}"
         start += n
-    return table(("index", "entry", "size", "unit"), rows)
+    what = {
+        "error_log": f"e log-scaled, linear below {observation.ERROR_LOG_SCALE:g} rad",
+        "preview": "q_des(t + k preview_dt), k = 1..P, A then B",
+        "last_action": "the command applied last (the rest command after a reset)",
+        observation.ERROR_RATE[0]: "dq_des - dq log-scaled as `error_log`, linear below "
+        f"{observation.ERROR_RATE_LOG_SCALE:g} rad/s",
+        observation.FEEDFORWARD[0]: "the normalized joint torques for the reference's "
+        "acceleration over the next step",
+        observation.FORCE_LIMIT[0]: "ln of the force limit in N",
+        "arm": "the drawn fields, normalized to [-1, 1]",
+    }
+    entries = [(name, name, str(n), unit) for name, n, unit in observation.FIXED]
+    entries += [
+        ("preview", "preview", "2P", "rad"),
+        ("last_action", "last_action", "n_actions", "1"),
+    ]
+    entries += [(key, name, str(n), unit) for (name, n, unit), key in observation.OPTIONAL.items()]
+    entries += [("arm", "arm", "one per drawn field", "1")]
+    rows = []
+    for key, name, size, unit in entries:
+        optional = key in observation.OBSERVABLE
+        label = f"{code(name)} (observe {code(key)})" if optional else code(name)
+        label += f": {what[name]}" if name in what else ""
+        rows.append((index.get(name, index.get(key, "-")), label, size, unit))
+    return table((f"index in {code(newest_id())}", "entry", "size", "unit"), rows)
+
+
+def newest_config() -> EnvConfig:
+    """Returns the config that ``gym.make`` of the newest id builds."""
+    with quiet():
+        env = gym.make(newest_id())
+    config = env.unwrapped.config
+    env.close()
+    return config
 
 
 def ids_table() -> list[str]:
-    """Returns the table of the registered ids: spaces of the default env, contract hash."""
+    """Returns the table of the registered ids: spaces of the default env, contract hash (the
+    action space in a line above it when every id has the same)."""
     rows = []
     for env_id in env_ids():
         with quiet():
@@ -213,12 +234,19 @@ def ids_table() -> list[str]:
             (
                 code(env_id),
                 code(repr(env.action_space)),
-                code(repr(env.observation_space)),
+                code(env.observation_space.shape),
                 code(env_contract_hash(env_id)),
             )
         )
         env.close()
-    return table(("id", "action space", "observation space", "env contract"), rows)
+    head = ("id", "action space", "observation shape", "env contract")
+    if len({r[1] for r in rows}) > 1:
+        return table(head, rows)
+    return [
+        f"Every id's action space is {rows[0][1]}; its observations are float64.",
+        "",
+        *table(head[:1] + head[2:], (r[:1] + r[2:] for r in rows)),
+    ]
 
 
 def changelog_headings(root: Path) -> list[str]:
@@ -245,10 +273,10 @@ def version_lines(root: Path) -> list[str]:
             ]
             change = ", ".join(changed) or "no default changed"
         entry = next((h for h in headings if re.search(rf"\b{re.escape(env_id)}\b", h)), None)
-        link = f"[{entry}](changelog.md#{slugify(entry, '-')})" if entry else "-"
-        rows.append((code(env_id), code(env_contract_hash(env_id)), change, link))
+        name = f"[{code(env_id)}](changelog.md#{slugify(entry, '-')})" if entry else code(env_id)
+        rows.append((name, change))
         before = config
-    return table(("version", "env contract", "defaults over the version before", "changelog"), rows)
+    return table(("version (its changelog entry)", "defaults over the version before"), rows)
 
 
 def env_page(root: Path = ROOT) -> str:
@@ -256,7 +284,7 @@ def env_page(root: Path = ROOT) -> str:
     template, own = own_arguments(docstring_template(Tendon2REnv))
     fields = {f for _, f, _, _ in string.Formatter().parse(template) if f}
     fills = {
-        "obs_table": observation.table(),
+        "obs_table": "\n".join(observation_table(newest_config())),
         "rewards": "\n".join(reward_table()),
         "arguments": "\n".join(arguments_table(own)),
     }
@@ -265,20 +293,11 @@ def env_page(root: Path = ROOT) -> str:
     summary, found = sections(markdown_indent(template).format(**fills))
     if missing := [s for s in ENV_SECTIONS if s not in found]:
         raise ValueError(f"the Tendon2REnv docstring misses the sections {missing}")
-    default = EnvConfig.make()
-    found["Observation Space"] += "\n\n" + "\n".join(
-        [
-            f'??? example "The default env\'s layout ({code(f"gym.make({newest_id()!r})")}: '
-            f'{default.observation.size} entries)"',
-            "",
-            *indented(layout_table(default)),
-        ]
-    )
     found["Version History"] = "\n".join(
         [
-            "Each id's contract is frozen and pinned (tendon2r_gym.policies.contract): a change "
-            "that can change learning results is a new version. Each version's defaults, over "
-            "the preset's values; the [changelog](changelog.md) has every release's details.",
+            "Each id's contract is pinned (tendon2r_gym.policies.contract): a change that can "
+            "change learning results is a new version. The [changelog](changelog.md) has each "
+            "release's details.",
             "",
             *version_lines(root),
         ]

@@ -5,13 +5,8 @@ from __future__ import annotations
 
 import os
 import sys
-import typing
 from collections.abc import Callable
 from typing import Any, TypeVar
-
-if typing.TYPE_CHECKING:
-    pass
-
 
 A = TypeVar("A")
 
@@ -21,6 +16,15 @@ def arg(help: str) -> Any:  # noqa: A002
     import tyro
 
     return tyro.conf.arg(help=help)
+
+
+def env_help(name: str, note: str = "") -> Any:
+    """The --help marker of a flag that is the env argument ``name``: its one description
+    (the ``#:`` comment above its EnvConfig field, or the env docstring's ``Args:``;
+    tendon2r_gym.app.field_docs), then what the command adds (``note``)."""
+    from tendon2r_gym.app.field_docs import env_help as text
+
+    return arg(text(name, note))
 
 
 def parse(cls: type[A], argv: list[str] | None, doc: str | None = None) -> A:

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from tendon2r_gym.app.args import arg, parse, run
+from tendon2r_gym.app.args import arg, env_help, parse, run
 from tendon2r_gym.evaluation.evaluator import names as policy_names
 from tendon2r_gym.evaluation.tuning import SCANS
 from tendon2r_gym.policies.files import TRUST_HELP, trusting_pickle
@@ -56,9 +56,7 @@ class TrainArgs:
 
     hyperparams: Annotated[str, arg("entry of the hyperparameter file (a new run)")] = "default"
     config: Annotated[str | None, arg("hyperparameter file (default: configs/ppo.yaml)")] = None
-    env_config: Annotated[
-        str | None, arg("preset name or experiment file: the env to train on")
-    ] = None
+    env_config: Annotated[str | None, env_help("preset", "the env to train on")] = None
     total_timesteps: Annotated[int | None, arg("overrides the entry (or the resumed run)")] = None
     n_envs: Annotated[int | None, arg("overrides the entry (or the resumed run)")] = None
     vec_env: Annotated[VecEnvName | None, arg("overrides the entry (or the resumed run)")] = None
@@ -148,10 +146,12 @@ class EvaluateArgs:
         str | None, arg("PPO model zip (default: the bundle named like the preset)")
     ] = None
     bundle: Annotated[str | None, arg("bundled PPO to use instead of --model")] = None
-    env_config: Annotated[str, arg("preset name or experiment file")] = "default"
+    env_config: Annotated[str, env_help("preset")] = "default"
     episodes: Annotated[int, arg("episodes, seeds seed .. seed + episodes - 1")] = 3
     seed: Annotated[int, arg("first episode seed")] = 0
-    episode_duration: Annotated[float | None, arg("overrides the env config (s)")] = None
+    episode_duration: Annotated[
+        float | None, env_help("episode_duration", "overrides the env config")
+    ] = None
     json: Annotated[str | None, arg("write all metrics here")] = None
     plots: Annotated[str | None, arg("folder for the PNGs of the first episode")] = None
     video: Annotated[str | None, arg("mp4 or gif of the first episode")] = None
@@ -220,7 +220,9 @@ class BenchmarkArgs:
     probability of beating PD (tendon2r_gym.evaluation.statistics).
     """
 
-    env_config: Annotated[str | None, arg("your arm: train PPO on this file, then compare")] = None
+    env_config: Annotated[
+        str | None, env_help("preset", "your arm: train PPO on it, then compare")
+    ] = None
     train_steps: Annotated[int | None, arg("PPO steps per run (default: the entries' own)")] = None
     seeds: Annotated[list[int], arg("PPO training seeds (with --env-config)")] = field(
         default_factory=lambda: [0]
@@ -290,7 +292,7 @@ class TunePDArgs:
     HOST:PORT) on a Ray cluster (the cluster extra).  The scan is the same on every executor.
     """
 
-    env_config: Annotated[str, arg("preset name or experiment file")] = "default"
+    env_config: Annotated[str, env_help("preset")] = "default"
     hyperparams: Annotated[str | None, arg("tune on this ppo.yaml entry's env instead")] = None
     episodes: Annotated[
         int, arg("tuning episodes (seeds 1000 ..; more for an env that draws arms)")
