@@ -13,6 +13,7 @@ import re
 import shutil
 import subprocess
 import sys
+import typing
 from pathlib import Path
 
 import pytest
@@ -141,7 +142,10 @@ def test_the_arguments_table_holds_every_argument_with_its_default(pages):
     rows = rows_of(section(pages["env.md"], "Arguments"))
     defaults = docs_env.argument_defaults()
     assert [r[0].strip("`") for r in rows][: len(arguments()) + 1] == ["preset", *arguments()]
-    assert {r[0].strip("`"): r[1].strip("`") for r in rows} == {
+    shown = {r[0].strip("`"): r[1] for r in rows}
+    assert shown.pop("reward_scales") == docs_env.DEFAULT_ELSEWHERE["reward_scales"]
+    assert defaults.pop("reward_scales") == {k: w for k, (w, _) in docs_env.TERMS.items()}
+    assert {k: v.strip("`") for k, v in shown.items()} == {
         k: docs_env.shown(v) for k, v in defaults.items()
     }
     assert all(r[2] for r in rows), "every argument has a description"
@@ -173,13 +177,41 @@ def test_the_env_card_has_every_section_id_version_and_reward_term(pages):
     ids = [r[0].strip("`") for r in rows_of(text.split("\n## ")[0])]
     assert ids == docs_env.env_ids()
     versions = rows_of(section(text, "Version History"))
-    assert [r[0].strip("`") for r in versions] == [
+    assert [re.sub(r"^\[`(.+?)`\].*", r"\1", r[0]) for r in versions] == [
         f"Tendon2R-{v}" for v in docs_env.tendon2r_gym.VERSIONS
     ]
     terms = rows_of(section(text, "Rewards"))
     assert [(r[0].strip("`"), float(r[1])) for r in terms][: len(docs_env.TERMS)] == [
         (k, w) for k, (w, _) in docs_env.TERMS.items()
     ]
+
+
+def test_the_observation_table_is_the_layout_of_the_newest_id(pages):
+    """The card's observation rows follow the layout that gym.make of the newest id builds:
+    the same entries in order with their indices, then the optional entries it lacks."""
+    rows = rows_of(section(pages["env.md"], "Observation Space"))
+    layout = docs_env.newest_config().observation.layout()
+    start, expected = 0, []
+    for _, n in layout:
+        expected.append(f"{start}-{start + n - 1}")
+        start += n
+    assert [r[0] for r in rows][: len(layout)] == expected
+    assert all(r[0] == "-" for r in rows[len(layout) :])
+    names = [re.match(r"`(\w+)`", r[1]).group(1) for r in rows]
+    assert [n for n, _ in layout] == names[: len(layout)]
+
+
+def test_the_commands_help_reads_each_env_argument_from_its_field():
+    """A flag that is an env argument shows the one description of that argument."""
+    from tendon2r_gym.app import cli, field_docs
+
+    docs = field_docs.argument_docs()
+    assert docs == {**docs_env.own_arguments(docs_env.docstring_template(
+        docs_env.Tendon2REnv))[1], **docs_env.field_comments()}  # fmt: skip
+    hints = typing.get_type_hints(cli.EvaluateArgs, include_extras=True)
+    helps = {k: h.__metadata__[0].help for k, h in hints.items() if hasattr(h, "__metadata__")}
+    assert helps["episode_duration"].startswith(field_docs.plain(docs["episode_duration"])[:-1])
+    assert helps["env_config"] == field_docs.plain(docs["preset"]).rstrip(".")
 
 
 # -- models, results and studies -----------------------------------------------------------------

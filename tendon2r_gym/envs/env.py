@@ -41,12 +41,12 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     """Tendon-driven 2R planar arm: each joint tracks q_des(t) = amp sin(w t + phase) + bias.
 
     ## Description
-    A fixed base link ``a`` (wall to joint A), link ``c`` (joint A to joint B) and link ``b``
-    (joint B to the effector) move in the x-z plane without gravity.  Spatial tendons (two by
-    default, or any routing of 2 or more) run from the wall over pulleys on both joints
-    (diameters ``R1``, ``R2``) to the effector, or to link c; one motor pulls (and, unless
-    ``pull_only``, pushes) on each.  The mechanism, the reference and any other argument below
-    come from a preset or an experiment file (``preset``), with keyword overrides.
+    A 2R arm moves in the x-z plane without gravity.  Spatial tendons (two by default, or any
+    routing of 2 or more) run from the wall over pulleys on both joints to the effector, or to
+    link c; one motor pulls (and, unless ``pull_only``, pushes) on each.  The links ``a``,
+    ``c``, ``b``, the pulleys' diameters ``R1``, ``R2`` and the routings are on
+    [mechanism](mechanism.md).  The mechanism, the reference and any other argument below come
+    from a preset or an experiment file (``preset``), with keyword overrides.
 
     ## Action Space
     ``Box(-1, 1, (n_actions,), float32)``, by ``action_mode``:
@@ -55,30 +55,25 @@ class Tendon2REnv(MujocoEnv, EzPickle):
       +-``max_tendon_force`` N along the tendon.  Pull-only (``mechanism.pull_only``): [-1, 1]
       maps affinely to a tension in [0, ``max_tendon_force``] N (-1 slack, +1 full pull).
     - ``"joint_torque"``: one normalized torque per joint, times the torque each joint alone
-      reaches before a tendon saturates (``TorqueToTension.max_torque``); the env turns
-      the torques into tendon tensions with the distribution PD uses
-      (tendon2r_gym.simulation.actuation.distribute at the current q: pull-only respected, pretension
-      kept), clipped at the force limit.
+      reaches before a tendon saturates (``TorqueToTension.max_torque``), turned into tensions
+      as PD's are ([from joint torques to tensions](mechanism.md#from-joint-torques-to-tensions)),
+      clipped at the force limit.
 
     With ``action_filter_tau`` > 0 the env applies the command c = c_last + alpha (action -
     c_last), alpha = 1 - exp(-ctrl_dt / action_filter_tau), a first-order low-pass that a
     motor can follow; c_last is observed (``last_action``), so PD and CT send the action that
-    the filter turns into their own command.
-
-    Out-of-range actions are clipped to [-1, 1]; a wrong shape or a non-finite action raises
-    ValueError.  ``info["tendon_tension"]`` is each tendon's pulling force in N (positive when
-    it pulls) for every routing and mode.
+    the filter turns into their own command.  Out-of-range actions are clipped to [-1, 1]; a
+    wrong shape or a non-finite action raises ValueError.
 
     ## Observation Space
-    ``Box(-inf, inf, (16 + 2 * preview_steps + n_actions,), float64)`` (``observe`` adds 2 with
-    ``"error_rate"``, 2 with ``"feedforward"``, 1 with ``"force_limit"``, one per drawn field
-    with ``"arm"``), named slices in ``tendon2r_gym.task.observation``:
+    ``Box(-inf, inf, (n,), float64)``: the entries below, in order (named slices in
+    ``tendon2r_gym.task.observation``, P = ``preview_steps``); ``observe`` adds the optional ones.
 
     {obs_table}
 
-    With ``observation_noise`` or ``observation_delay`` (tendon2r_gym.simulation.realism.Sensors), the
-    observation is computed from measured joint angles and speeds (late by whole control steps,
-    with Gaussian noise); the reward and ``info`` stay on the true state.
+    ``observation_noise`` and ``observation_delay`` make the observation a measurement, noisy
+    and late by whole control steps; the reward and ``info`` stay on the true state
+    ([real tendons](real_tendons.md#tendons-that-stretch-slip-and-lag)).
 
     ## Rewards
     ``reward = sum(reward_scales[k] * term_k)`` over the terms below (tendon2r_gym.task.rewards.TERMS;
@@ -95,17 +90,15 @@ class Tendon2REnv(MujocoEnv, EzPickle):
       ``gym.make`` applies (``env.spec.max_episode_steps``).
     - Termination: if the physics diverges (a MuJoCo instability warning, a joint more than
       0.5 rad past its limit, a joint faster than 1e4 rad/s, or a non-finite state).  That step
-      returns the last good observation (never larger than the observations before it) and the
-      reward of that state minus ``reward_scales["divergence"]``, so it is bounded: in [-1 -
-      divergence - ctrl - action_rate terms, 0] for the "multiscale" and "log" forms.
-      ``info["diverged"]`` is True.  Construction refuses parameters the integrator cannot
-      integrate (tendon2r_gym.simulation.stability).
+      returns the last good observation (never larger than the observations before it) and
+      the reward of that state minus ``reward_scales["divergence"]``, so it is bounded: in
+      [-1 - divergence - ctrl - action_rate terms, 0] for the "multiscale" and "log" forms.
+      ``info["diverged"]`` is True.  Construction refuses parameters the integrator cannot integrate
+      (tendon2r_gym.simulation.stability).
 
     ## Arguments
-    ``gym.make(id, **kwargs)`` takes the env's own arguments below and every EnvConfig field,
-    each described by the ``#:`` comment above it (tendon2r_gym/envs/env_config.py); an
-    argument left out keeps the id's default, over the preset's values.  The env card lists
-    them all with their defaults.
+    ``gym.make(id, **kwargs)`` takes the arguments below; one left out keeps the id's default
+    (its version's, over the preset's values).
 
     Args:
         preset: A bundled preset name or an experiment-file path (.yaml).
@@ -114,13 +107,10 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         height: The render height (px).
         camera_name: The camera that frames the whole arm ("side"), or None for a free one.
 
-    Real tendons and motors (``mechanism``: ``tendon_elasticity``, ``motor_mass``,
-    ``tendon_friction``, ``motor_tau``, ``motor_delay``) and the nominal model's errors
-    (``density_scale``, ``extra_joint_damping``) are off by default
-    (tendon2r_gym.simulation.realism); PD and CT keep the nominal model.  With
-    ``mechanism_ranges`` every reset draws a valid arm (EnvConfig.draw_arm) and reports it as
-    the reset info's ``mechanism``.  ``mechanism.max_tendon_force: "auto"`` (the default) is
-    FORCE_HEADROOM (2) times the peak force that inverse dynamics of the reference needs.
+    Real tendons, motors and the model's errors (``mechanism`` fields, off by default) are on
+    [real tendons](real_tendons.md), arms drawn at every reset (``mechanism_ranges``) on
+    [one policy for every arm](generalist.md), and the ``"auto"`` force limit on
+    [mechanism](mechanism.md#the-force-limit).
 
     ## Version History
     Each id's contract is frozen (tendon2r_gym.policies.contract); CHANGELOG.md says what each changed.

@@ -15,53 +15,49 @@ TERMS: dict[str, tuple[float, str]] = {
     "tracking": (
         1.0,
         'with ``tracking_form="multiscale"`` (default): the mean of "log" kernels at MULTISCALE '
-        "x sigma (one per decade, 0.01 to 10 deg for sigma = ``tracking_sigma_deg`` = 1), in "
-        "[-1, 0]: its gradient stays useful from 90 deg off down to 0.01 deg, so that plain and "
-        'residual PPO both train on it.  ``"log"``: ``-sum(log(1 + (e / sigma)^2)) / (2 log(1 + '
-        "(180 / sigma)^2))`` with the errors e in deg, one kernel: quadratic below sigma and "
-        "logarithmic far from it, flat below about sigma / 10 (the generalist's ablations use "
-        'it).  ``"quadratic"``: ``-sum(e^2)`` in deg^2, the RMS metric everywhere, steep far '
-        "from the reference (the residual's reward before the multiscale one).  No form has a "
-        "constant offset, so VecNormalize's reward scaling does not clip it",
+        "x sigma (0.01 to 10 deg for sigma = ``tracking_sigma_deg`` = 1), in [-1, 0], whose "
+        "gradient stays useful from 90 deg off down to 0.01 deg, so that plain and residual PPO "
+        'both train on it.  ``"log"``: one kernel, flat below about sigma / 10 (the '
+        'generalist\'s ablations).  ``"quadratic"``: the squared error in deg^2, the RMS metric, '
+        "steep far off "
+        "(the residual's reward before the multiscale one).  No form has a constant offset, "
+        "so VecNormalize's reward scaling does not clip it",
     ),
     "tracking_quadratic": (
         0.0,
-        "``-sum(e^2)`` with the errors e in deg, beside ``tracking``: the RMS metric's own "
-        "weighting.  The multiscale kernels weigh a 0.03 deg error about 13 times a 0.001 deg "
-        "one (sigma 0.1), the RMS 900 times, so that on them the few steps that close the "
-        "reset's offset, most of a precise policy's RMS, are a few percent of its reward "
+        "beside ``tracking``, the RMS metric's own weighting.  The "
+        "multiscale kernels weigh a 0.03 deg error about 13 times a 0.001 deg one (sigma 0.1), "
+        "the RMS 900 times, so that on them the few steps that close the reset's offset, most "
+        "of a precise policy's RMS, are a few percent of its reward "
         "(research/results/transient.md)",
     ),
     "tracking_rate": (
         0.0,
-        "the ``tracking`` form's kernels on e + ``tracking_horizon`` de, the error that each "
-        "joint will have ``tracking_horizon`` s ahead at its present rate de = dq_des - dq "
-        "(deg): an action changes it on the very next step, where it changes the error itself "
-        "only over many steps, so that a learner with a short discount horizon (gamma 0.9 at 1 "
-        "kHz looks 10 ms ahead) sees what its action did.  Driving it to 0 closes the error "
-        "with time constant ``tracking_horizon``",
+        "the ``tracking`` form on e + ``tracking_horizon`` de, each joint's error "
+        "``tracking_horizon`` s ahead at its rate de = dq_des - dq (deg): an action changes it "
+        "on the next step, so that a learner with a short discount horizon (gamma 0.9 at 1 kHz "
+        "looks 10 ms ahead) sees what its action did.  Driving it to 0 closes the error with "
+        "time constant ``tracking_horizon``",
     ),
     "ctrl": (
         0.001,
-        "``-sum(f^2)``, f the applied command as a fraction of the force limit: the tension "
-        "commanded (tension mode: the command for push-pull motors, ``(command + 1) / 2`` for "
-        "pull-only ones, whose command -1 is slack) or the joint torque (joint-torque mode)",
+        "f is the applied command as a fraction of the force limit: the tension (``(command + "
+        "1) / 2`` for pull-only motors, whose -1 is slack) or the joint torque",
     ),
     "action_rate": (
         ACTION_RATE_WEIGHT,
-        "``-sum((command - last_command)^2)`` on the commands the env applied on this step and "
-        "the last (observed, zeros after a reset): smooth commands that a motor can follow",
+        "the change of the applied command since the last step (observed, zeros after a "
+        "reset): smooth commands that a motor can follow",
     ),
     "action_rate_need": (
         0.0,
-        "``-sum(log(1 + ((command - last_command) / s)^2))`` with s, per joint, the largest "
-        "change per control step of its torque command that the arm's reference needs "
-        "(EnvConfig.needs.torque_rate_need x ctrl_dt over the joint's torque range, "
-        "TorqueToTension.max_torque): the action rate in multiples of the task's own, alike on "
-        "every arm, where ``action_rate`` weighs a jitter the same on a joint whose task moves "
-        "its command little as on one whose task moves it much; logarithmic, so that the step "
-        "from rest "
-        "after a reset costs little more than a steady 3x (joint-torque mode only)",
+        "s is, per joint, the largest change "
+        "per control step of its torque command that the reference needs "
+        "(EnvConfig.needs.torque_rate_need x ctrl_dt over TorqueToTension.max_torque): the "
+        "action rate in multiples of the task's own, alike on every arm (``action_rate`` "
+        "weighs a jitter alike whether the task moves a joint's command little or much); "
+        "logarithmic, so that the step from rest after a reset costs little more than a steady 3x "
+        "(joint-torque mode only)",
     ),
     "divergence": (
         100.0,
