@@ -50,6 +50,16 @@ HOW_TO_READ = [
 ]
 
 
+#: The class of the block that holds a report's tables of figures: its cells do not wrap
+#: (docs/stylesheets/extra.css), so that 4.4e-10 never breaks at its exponent's minus sign.
+FIGURES = "figures"
+
+
+def figures_block(lines: list[str]) -> list[str]:
+    """Returns a report's sections inside a block of class FIGURES (md_in_html)."""
+    return [f'<div class="{FIGURES}" markdown>', "", *lines, "", "</div>"]
+
+
 def bundled_section(root: Path, result: dict[str, Any]) -> list[str]:
     """Returns the bundled presets' section (``tendon2r-benchmark``, results/benchmark.json)."""
     result = {**result, "rows": relative_paths(result["rows"])}
@@ -59,8 +69,10 @@ def bundled_section(root: Path, result: dict[str, Any]) -> list[str]:
         f"`results/benchmark.json`, produced by `{result['command']}` (`make benchmark`); the",
         "rows marked *quoted* are the [lab reports'](background.md) own figures.",
         "",
-        *report.bundled_sections(
-            result, level=3, notes=[], plots=plot_links(root, "results/plots")
+        *figures_block(
+            report.bundled_sections(
+                result, level=3, notes=[], plots=plot_links(root, "results/plots")
+            )
         ),
     ]
 
@@ -88,7 +100,7 @@ def own_arm_pages(root: Path = ROOT) -> dict[str, str]:
                 f"`{path}`. How to read it: the [results](../results.md) page's note; the",
                 "commands: [your own arm](../your_arm.md).",
                 "",
-                *report.own_arm_sections(result, notes=[], plots=plots, level=2),
+                *figures_block(report.own_arm_sections(result, notes=[], plots=plots, level=2)),
             ]
         )
     return out
