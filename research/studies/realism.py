@@ -5,11 +5,17 @@ ideal-trained and randomized residuals on the ``real_arm`` preset and its seeded
 
 Every figure is evaluated as ``make benchmark`` evaluates its rows, with its reproducibility
 (tendon2r_gym.evaluation.evaluator.reproducible_to).
+
+Each arm is one job (``realism_arm``) of an executor (tendon2r_gym.training.executors):
+``--workers N`` runs N arms at once in local processes, ``--cluster auto`` (or HOST:PORT) on a
+Ray cluster.  An arm's row depends only on the arm, the policies and the episodes, so the
+results are the same on every executor.
 """
 
 from __future__ import annotations
 
 import json
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
@@ -75,42 +81,59 @@ def realism_arms() -> list[tuple[str, dict[str, Any]]]:
     ]
 
 
-def realism(episodes: int) -> list[dict[str, Any]]:
+def realism(episodes: int, executor: Any = None) -> list[dict[str, Any]]:
     """PD, CT (nominal model), the ideal-trained residual and the randomized residual on the
     real arm and its seeded perturbations: one row per arm, RMS per joint and tension rate
-    per policy (a policy without its bundle is left out)."""
-    arms = realism_arms()
+    per policy (a policy without its bundle is left out).  ``executor``: runs each arm as one
+    job (None: one after another in this process)."""
+    from research.studies.realism import realism_arm  # by name, also under python -m
+
     policies = [p for p in REALISM_POLICIES if p[3] is None or bundle_meta(p[3])]
-    seeds = list(range(episodes))
-    rows = []
-    for name, kwargs in arms:
-        row: dict[str, Any] = {"arm": name, "env_kwargs": kwargs}
-        # PD as a user would tune it on this arm (tendon2r-tune-pd, held-out episodes)
-        scan = tune_pd(kwargs, TUNE_EPISODES)
-        tuned = {**kwargs, "pd_gains": scan.gains.to_dict()}
-        for key, _, policy, bundle in policies:
-            model = bundled_model(bundle) if bundle else None
-            on = on_its_pd(kwargs, tuned, model)
-            metrics, _ = evaluate(policy, on, seeds, model)
-            row[key] = {
-                k: metrics[k] for k in ("rms_deg", "rms_tension_N", "rms_tension_rate_N_per_s")
-            }
-            row[key]["reproducible_to"] = reproducible_to(
-                metrics["rms_deg"], jittered_rms(policy, on, seeds, model)
-            )
-        metrics, _ = evaluate("pd", tuned, seeds)
-        row["pd_tuned"] = {
-            "rms_deg": metrics["rms_deg"],
-            "rms_tension_rate_N_per_s": metrics["rms_tension_rate_N_per_s"],
-            "bandwidth_hz": scan.chosen,
-            "reproducible_to": reproducible_to(
-                metrics["rms_deg"], jittered_rms("pd", tuned, seeds, None)
-            ),
-        }
-        rows.append(row)
-        shown = "  ".join(f"{k} {fmt(row[k]['rms_deg'])}" for k in [p[0] for p in policies])
-        print(f"realism {name:12s} {shown}  pd_tuned {fmt(metrics['rms_deg'])} deg", flush=True)
-    return rows
+    jobs = [ArmJob(name, kwargs, policies, list(range(episodes)))
+            for name, kwargs in realism_arms()]  # fmt: skip
+    if executor is None:
+        return [realism_arm(job) for job in jobs]
+    return executor.map(realism_arm, jobs, [f"arm {job.name}" for job in jobs])
+
+
+@dataclass(frozen=True)
+class ArmJob:
+    """One arm of the study: its name, env kwargs, the policies (REALISM_POLICIES' tuples)
+    and the evaluation seeds."""
+
+    name: str
+    kwargs: dict[str, Any]
+    policies: list[tuple[str, str, str, str | None]]
+    seeds: list[int]
+
+
+def realism_arm(job: ArmJob) -> dict[str, Any]:
+    """An executor's job: one arm's row (realism)."""
+    name, kwargs, policies, seeds = job.name, job.kwargs, job.policies, job.seeds
+    row: dict[str, Any] = {"arm": name, "env_kwargs": kwargs}
+    # PD as a user would tune it on this arm (tendon2r-tune-pd, held-out episodes)
+    scan = tune_pd(kwargs, TUNE_EPISODES)
+    tuned = {**kwargs, "pd_gains": scan.gains.to_dict()}
+    for key, _, policy, bundle in policies:
+        model = bundled_model(bundle) if bundle else None
+        on = on_its_pd(kwargs, tuned, model)
+        metrics, _ = evaluate(policy, on, seeds, model)
+        row[key] = {k: metrics[k] for k in ("rms_deg", "rms_tension_N", "rms_tension_rate_N_per_s")}
+        row[key]["reproducible_to"] = reproducible_to(
+            metrics["rms_deg"], jittered_rms(policy, on, seeds, model)
+        )
+    metrics, _ = evaluate("pd", tuned, seeds)
+    row["pd_tuned"] = {
+        "rms_deg": metrics["rms_deg"],
+        "rms_tension_rate_N_per_s": metrics["rms_tension_rate_N_per_s"],
+        "bandwidth_hz": scan.chosen,
+        "reproducible_to": reproducible_to(
+            metrics["rms_deg"], jittered_rms("pd", tuned, seeds, None)
+        ),
+    }
+    shown = "  ".join(f"{k} {fmt(row[k]['rms_deg'])}" for k in [p[0] for p in policies])
+    print(f"realism {name:12s} {shown}  pd_tuned {fmt(metrics['rms_deg'])} deg", flush=True)
+    return row
 
 
 def on_its_pd(kwargs: dict[str, Any], tuned: dict[str, Any], model: Path | None) -> dict[str, Any]:
@@ -184,12 +207,23 @@ class Args:
 
     episodes: Annotated[int, arg("evaluation episodes per arm (seeds 0 .. N-1)")] = 3
     out: Annotated[str, arg("folder for realism.md and realism.json")] = "research/results"
+    workers: Annotated[int, arg("evaluate this many arms at once in local worker processes")] = 1
+    cluster: Annotated[
+        str | None, arg("evaluate the arms on a Ray cluster: auto (or RAY_ADDRESS) or HOST:PORT")
+    ] = None
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
+    from tendon2r_gym.training.executors import entered, make_executor, without_executor_flags
+
     args = parse(Args, argv, __doc__)
-    command = command_line(argv, "python -m research.studies.realism")
-    result = {"command": command, "episodes": args.episodes, "rows": realism(args.episodes)}
+    executor = make_executor(args.workers, args.cluster, 1)  # --workers, --cluster checked
+    # the same results, and the same command recorded, on every executor
+    command = command_line(without_executor_flags(sys.argv[1:] if argv is None else argv),
+                           "python -m research.studies.realism")  # fmt: skip
+    with entered(executor) as ex:
+        rows = realism(args.episodes, ex)
+    result = {"command": command, "episodes": args.episodes, "rows": rows}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "realism.json").write_text(json.dumps(result, indent=1))
