@@ -24,11 +24,17 @@ PD they trained with.  Summary per bundle, against PD tuned on the same arm: arm
 <= PD tuned on both joints, the median and largest worst-joint ratio, its RMS tension and
 tension rate as multiples of PD tuned's (median and largest), and the arms where it keeps the
 smoothness limits (tendon2r_gym.evaluation.metrics).
+
+Each arm is one job (``arm_job``) of an executor (tendon2r_gym.training.executors):
+``--workers N`` runs N arms at once in local processes, ``--cluster auto`` (or HOST:PORT) on a
+Ray cluster.  An arm's rows depend only on the arm, its bundles and the evaluation seeds, so
+the results are the same on every executor; the partial file is written as each arm ends.
 """
 
 from __future__ import annotations
 
 import json
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any
@@ -142,6 +148,22 @@ def evaluate_arm(
     return rows
 
 
+@dataclass(frozen=True)
+class ArmJob:
+    """One arm of the study: evaluate_arm's arguments."""
+
+    name: str
+    kwargs: dict[str, Any]
+    bundles: list[str]
+    seeds: list[int]
+    done: dict[str, Any] | None = None
+
+
+def arm_job(job: ArmJob) -> dict[str, Any]:
+    """An executor's job: evaluate_arm on one arm."""
+    return evaluate_arm(job.kwargs, job.bundles, job.seeds, job.done)
+
+
 def summarize(arms: dict[str, Any]) -> dict[str, Any]:
     """Returns, per bundle and kind of arm, the module docstring's summary against PD tuned."""
     from tendon2r_gym.evaluation.metrics import beats, smooth_enough, smoothness_x_pd, worst_ratio
@@ -252,6 +274,10 @@ class Args:
             ".json), measuring again only the bundles retrained since"
         ),
     ] = False
+    workers: Annotated[int, arg("evaluate this many arms at once in local worker processes")] = 1
+    cluster: Annotated[
+        str | None, arg("evaluate the arms on a Ray cluster: auto (or RAY_ADDRESS) or HOST:PORT")
+    ] = None
 
 
 def earlier_arms(out: Path, partial: Path) -> dict[str, Any]:
@@ -264,10 +290,15 @@ def earlier_arms(out: Path, partial: Path) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
+    from research.studies.envelope_generalists import arm_job  # by name, also under -m
     from tendon2r_gym.policies.runs import command_line
+    from tendon2r_gym.training.executors import entered, make_executor, without_executor_flags
 
     args = parse(Args, argv, __doc__)
-    command = command_line(argv, "python -m research.studies.envelope_generalists")
+    executor = make_executor(args.workers, args.cluster, 1)  # --workers, --cluster checked
+    # the same results, and the same command recorded, on every executor
+    command = command_line(without_executor_flags(sys.argv[1:] if argv is None else argv),
+                           "python -m research.studies.envelope_generalists")  # fmt: skip
     seeds = list(range(args.episodes))
 
     out = Path(args.out)
@@ -278,22 +309,28 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                  "real": lambda: real_arms(args.arms, SEED),
                  "one_geometry": lambda: one_geometry_arms(args.one_geometry, SEED)}  # fmt: skip
         done = earlier_arms(out, partial) if args.resume else {}
-        arms: dict[str, Any] = {}
-        for kind in args.kinds:
-            for name, arm in draws[kind]().items():
-                same = name in done and done[name]["kwargs"] == json.loads(
-                    json.dumps(arm["kwargs"])
-                )
-                rows = evaluate_arm(arm["kwargs"], arm["bundles"], seeds,
-                                    done[name]["rows"] if same else None)  # fmt: skip
-                arm["rows"] = rows
-                arms[name] = arm
-                if same and rows == done[name]["rows"]:
-                    continue  # done by an earlier run, every bundle as shipped now
-                shown = {b: r.get("rms_deg", "refused") for b, r in arm["rows"].items()}
-                print(name, json.dumps(shown), flush=True)
-                out.mkdir(parents=True, exist_ok=True)  # a crash or Ctrl-C keeps these
-                partial.write_text(json.dumps({**done, **arms}, indent=1) + "\n")
+        drawn = {name: arm for kind in args.kinds for name, arm in draws[kind]().items()}
+        same = {name: name in done and done[name]["kwargs"] == json.loads(json.dumps(arm["kwargs"]))
+                for name, arm in drawn.items()}  # fmt: skip
+        jobs = [ArmJob(name, arm["kwargs"], arm["bundles"], seeds,
+                       done[name]["rows"] if same[name] else None)
+                for name, arm in drawn.items()]  # fmt: skip
+        finished: dict[str, Any] = {}
+
+        def record(i: int, rows: dict[str, Any]) -> None:  # in this process, as each arm ends
+            name = jobs[i].name
+            finished[name] = {**drawn[name], "rows": rows}
+            if same[name] and rows == done[name]["rows"]:
+                return  # done by an earlier run, every bundle as shipped now
+            shown = {b: r.get("rms_deg", "refused") for b, r in rows.items()}
+            print(name, json.dumps(shown), flush=True)
+            out.mkdir(parents=True, exist_ok=True)  # a crash or Ctrl-C keeps these
+            partial.write_text(json.dumps({**done, **finished}, indent=1) + "\n")
+
+        with entered(executor) as ex:
+            results = ex.map(arm_job, jobs, [f"arm {job.name}" for job in jobs], record)
+        arms = {job.name: {**drawn[job.name], "rows": rows}
+                for job, rows in zip(jobs, results, strict=True)}  # fmt: skip
         return {"command": command, "seed": SEED, "seeds": seeds, "arms": arms,
                 "summary": summarize(arms)}  # fmt: skip
 
