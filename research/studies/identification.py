@@ -22,6 +22,12 @@ In closed loop, on the true arm (EPISODES held-out episodes of its reference):
 
 The gap closed is (nominal - identified) / (nominal - true) of the worst joint's RMS error,
 where the nominal choice loses more than NO_GAP against the true one.
+
+Each true arm is one job (``arm_job``) of an executor (tendon2r_gym.training.executors):
+``--workers N`` runs N arms at once in local processes, ``--cluster auto`` (or HOST:PORT) on a
+Ray cluster.  An arm's row depends only on the arm and its index (the recording's seed), so
+the results are the same on every executor (the fit's seconds aside); each job then fits with
+one thread unless ``--threads`` says otherwise (the fit does not depend on it).
 """
 
 from __future__ import annotations
@@ -180,7 +186,7 @@ def no_gap(cl: dict[str, Any], key: str) -> bool | None:
     return idf <= (1 + NO_GAP) * tru if nom <= (1 + NO_GAP) * tru else None
 
 
-def ideal_check(threads: int | None) -> dict[str, Any]:
+def ideal_check(threads: int | None, duration: float | None = None) -> dict[str, Any]:
     """The default (ideal) arm, recorded noise-free with its excitation and identified with
     the default fields: what comes back for each field (nominal: density_scale 1, the loop
     delay 0, the others 0)."""
@@ -188,9 +194,10 @@ def ideal_check(threads: int | None) -> dict[str, Any]:
     from tendon2r_gym.identification.excitation import design, record
     from tendon2r_gym.identification.identify import identify
 
+    duration = DURATION if duration is None else duration
     arm = EnvConfig.make("default")
-    signal, _ = design(arm, DURATION)
-    ident = identify([record(arm, "pd", DURATION, 0, signal)], arm, None, threads)
+    signal, _ = design(arm, duration)
+    ident = identify([record(arm, "pd", duration, 0, signal)], arm, None, threads)
     return {
         "fields": {e.field: {"nominal": e.nominal, "value": e.value, "half_width": e.half_width,
                              "identified": e.identified, "used": e.used}
@@ -201,63 +208,104 @@ def ideal_check(threads: int | None) -> dict[str, Any]:
     }  # fmt: skip
 
 
+@dataclass(frozen=True)
+class ArmJob:
+    """One true arm of the study: its index (the recording's seed), its env kwargs, the
+    excitation, the gains PD is tuned to on the nominal arm, the fit's threads and the
+    recording's seconds."""
+
+    index: int
+    kwargs: dict[str, Any]
+    signal: Any  # the excitation (tendon2r_gym.identification.excitation.MultiSine)
+    tuned_nominal: dict[str, Any]
+    threads: int | None
+    duration: float = DURATION
+
+
 def study(n: int, threads: int | None, partial: Path | None = None,
-          resume: bool = False) -> dict[str, Any]:  # fmt: skip
+          resume: bool = False, executor: Any = None,
+          duration: float | None = None) -> dict[str, Any]:  # fmt: skip
+    """The study on ``n`` true arms (module docstring), each arm one job of ``executor``
+    (None: one after another in this process); the rows written to ``partial`` as each ends,
+    and with ``resume`` those it holds kept."""
+    from research.studies.identification import arm_job  # by name, also under python -m
     from tendon2r_gym.envs.env_config import EnvConfig
     from tendon2r_gym.evaluation.tuning import tune_pd
-    from tendon2r_gym.identification.excitation import design, record
-    from tendon2r_gym.identification.identify import identify
+    from tendon2r_gym.identification.excitation import design
 
+    duration = DURATION if duration is None else duration
     nominal = EnvConfig.make(NOMINAL)
-    signal, _ = design(nominal, DURATION)
-    nominal_kw = {"preset": NOMINAL}
-    tuned_nominal = tune_pd(nominal_kw, 2).gains.to_dict()
+    signal, _ = design(nominal, duration)
+    tuned_nominal = tune_pd({"preset": NOMINAL}, 2).gains.to_dict()
     rows = json.loads(partial.read_text()) if resume and partial and partial.is_file() else []
-    for i, kw in enumerate(true_arms(n)):
-        if i < len(rows):  # done before a crash or Ctrl-C
-            continue
-        truth_cfg = EnvConfig.make(**kw)
-        rec = record(truth_cfg, "pd", DURATION, seed=i, signal=signal)
-        rec.source = f"true arm {i}"
-        ident = identify([rec], nominal, None, threads)
-        fields = {}
-        for e in ident.estimates:
-            true = float(getattr(truth_cfg.mechanism, e.field))
-            fields[e.field] = {
-                "true": true, "nominal": e.nominal, "value": e.value, "half_width": e.half_width,
-                "identified": e.identified, "used": e.used,
-                "rel_error": (e.value - true) / true if true else math.inf,
-                "covered": bool(e.interval[0] <= true <= e.interval[1]),
-            }  # fmt: skip
-        true_loop = truth_cfg.mechanism.motor_delay + truth_cfg.observation_delay
-        beliefs = {"nominal": nominal_kw, "identified": {"preset": NOMINAL, **ident.changes},
-                   "true": kw}  # fmt: skip
-        tuned = {"nominal": tuned_nominal}
-        for b in ("identified", "true"):
-            tuned[b] = tune_pd(beliefs[b], 2).gains.to_dict()
-        cl = closed_loop(kw, beliefs, tuned)
-        # What is left once the recording's blind spots are filled in: a fourth belief.
-        hidden = {"hidden_true": hidden_true(beliefs["identified"], kw, fields)}
-        tuned["hidden_true"] = tune_pd(hidden["hidden_true"], 2).gains.to_dict()
-        cl.update(closed_loop(kw, hidden, tuned))
-        row = {
-            "arm": i, "seconds": ident.seconds, "fields": fields,
-            "identified": beliefs["identified"],
-            "loop_delay_ms": {"true": true_loop * 1e3, "found": ident.loop_delay_s * 1e3,
-                              "identified": ident.delay_identified},
-            "closed_loop": cl,
-            "gap_closed": {"pd": gap_closed(cl, "pd_rms_deg"),
-                           "residual": gap_closed(cl, "residual_rms_deg")},
-        }  # fmt: skip
+    done = {r["arm"] for r in rows}  # done before a crash or Ctrl-C
+    jobs = [ArmJob(i, kw, signal, tuned_nominal, threads, duration)
+            for i, kw in enumerate(true_arms(n)) if i not in done]  # fmt: skip
+
+    def record(_: int, row: dict[str, Any]) -> None:  # in this process, as each arm ends
         rows.append(row)
+        rows.sort(key=lambda r: r["arm"])
         if partial is not None:  # what is done survives a crash or Ctrl-C
             partial.write_text(json.dumps(rows, indent=1) + "\n")
         ok = all((not f["identified"]) or (abs(f["rel_error"]) <= 0.1 and f["covered"])
-                 for f in fields.values())  # fmt: skip
-        print(f"arm {i:2d}: {ident.seconds:5.1f} s, fields ok {ok}, delay "
+                 for f in row["fields"].values())  # fmt: skip
+        print(f"arm {row['arm']:2d}: {row['seconds']:5.1f} s, fields ok {ok}, delay "
               f"{row['loop_delay_ms']}, gap {row['gap_closed']}", flush=True)  # fmt: skip
-    return {"nominal": NOMINAL, "arms": n, "seed": SEED, "duration_s": DURATION,
-            "episodes": EPISODES, "ideal": ideal_check(threads), "rows": rows}  # fmt: skip
+
+    labels = [f"arm {job.index}" for job in jobs]
+    if executor is None:
+        for k, job in enumerate(jobs):
+            record(k, arm_job(job))
+    else:
+        executor.map(arm_job, jobs, labels, record)
+    return {"nominal": NOMINAL, "arms": n, "seed": SEED, "duration_s": duration,
+            "episodes": EPISODES, "ideal": ideal_check(threads, duration),
+            "rows": rows}  # fmt: skip
+
+
+def arm_job(job: ArmJob) -> dict[str, Any]:
+    """An executor's job: one true arm's row (module docstring)."""
+    from tendon2r_gym.envs.env_config import EnvConfig
+    from tendon2r_gym.evaluation.tuning import tune_pd
+    from tendon2r_gym.identification.excitation import record
+    from tendon2r_gym.identification.identify import identify
+
+    i, kw, nominal_kw = job.index, job.kwargs, {"preset": NOMINAL}
+    nominal = EnvConfig.make(NOMINAL)
+    truth_cfg = EnvConfig.make(**kw)
+    rec = record(truth_cfg, "pd", job.duration, seed=i, signal=job.signal)
+    rec.source = f"true arm {i}"
+    ident = identify([rec], nominal, None, job.threads)
+    fields = {}
+    for e in ident.estimates:
+        true = float(getattr(truth_cfg.mechanism, e.field))
+        fields[e.field] = {
+            "true": true, "nominal": e.nominal, "value": e.value, "half_width": e.half_width,
+            "identified": e.identified, "used": e.used,
+            "rel_error": (e.value - true) / true if true else math.inf,
+            "covered": bool(e.interval[0] <= true <= e.interval[1]),
+        }  # fmt: skip
+    true_loop = truth_cfg.mechanism.motor_delay + truth_cfg.observation_delay
+    beliefs = {"nominal": nominal_kw, "identified": {"preset": NOMINAL, **ident.changes},
+               "true": kw}  # fmt: skip
+    tuned = {"nominal": job.tuned_nominal}
+    for b in ("identified", "true"):
+        tuned[b] = tune_pd(beliefs[b], 2).gains.to_dict()
+    cl = closed_loop(kw, beliefs, tuned)
+    # What is left once the recording's blind spots are filled in: a fourth belief.
+    hidden = {"hidden_true": hidden_true(beliefs["identified"], kw, fields)}
+    tuned["hidden_true"] = tune_pd(hidden["hidden_true"], 2).gains.to_dict()
+    cl.update(closed_loop(kw, hidden, tuned))
+    row = {
+        "arm": i, "seconds": ident.seconds, "fields": fields,
+        "identified": beliefs["identified"],
+        "loop_delay_ms": {"true": true_loop * 1e3, "found": ident.loop_delay_s * 1e3,
+                          "identified": ident.delay_identified},
+        "closed_loop": cl,
+        "gap_closed": {"pd": gap_closed(cl, "pd_rms_deg"),
+                       "residual": gap_closed(cl, "residual_rms_deg")},
+    }  # fmt: skip
+    return row
 
 
 def lines(result: dict[str, Any]) -> list[str]:
@@ -454,10 +502,19 @@ class Args:
     resume: Annotated[
         bool, arg("continue after the arms done so far (identification.partial.json)")
     ] = False
+    workers: Annotated[int, arg("fit this many arms at once in local worker processes")] = 1
+    cluster: Annotated[
+        str | None, arg("fit the arms on a Ray cluster: auto (or RAY_ADDRESS) or HOST:PORT")
+    ] = None
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
+    from tendon2r_gym.training.executors import InProcess, entered, make_executor
+
     args = parse(Args, argv)
+    executor = make_executor(args.workers, args.cluster, 1)  # --workers, --cluster checked
+    # jobs at once: one fit thread each unless --threads says otherwise (same fit)
+    job_threads = args.threads if isinstance(executor, InProcess) else args.threads or 1
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     if args.only_report:
@@ -469,7 +526,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                   "rows": rows}  # fmt: skip
         (out / "identification.json").write_text(json.dumps(result, indent=1) + "\n")
     else:
-        result = study(args.arms, args.threads, out / "identification.partial.json", args.resume)
+        with entered(executor) as ex:
+            result = study(args.arms, job_threads, out / "identification.partial.json",
+                           args.resume, ex)  # fmt: skip
         (out / "identification.json").write_text(json.dumps(result, indent=1) + "\n")
     (out / "identification.md").write_text("\n".join(lines(result)) + "\n")
     return result
