@@ -107,9 +107,9 @@ def triton_loaded():
     return any("libtriton" in line for line in open("/proc/self/maps"))
 
 print(int(triton_loaded()), end=" ")
-gym.make("Tendon2R-v1")
+gym.make("Tendon2R-v2")
 print(int(triton_loaded()), end=" ")
-gym.make("Tendon2R-v1", render_mode="rgb_array")
+gym.make("Tendon2R-v2", render_mode="rgb_array")
 print(int(triton_loaded()), int("torch" in sys.modules))
 """
     proc = _start(backend, code)
