@@ -66,3 +66,14 @@ def test_need_units_are_refused_on_tension_commands():
         ResidualPDWrapper(env, 1.0, residual_units="need")
     with pytest.raises(ValueError, match=r"residual_units = 'torque'.*one of"):
         ResidualPDWrapper(env, 1.0, residual_units="torque")
+
+
+def test_gym_make_vec_gives_pd_in_every_env():
+    envs = gym.make_vec(RESIDUAL_ID, num_envs=2, vectorization_mode="sync")
+    obs, info = envs.reset(seed=[5, 6])
+    obs, reward, terminated, truncated, info = envs.step(np.zeros((2, 2), dtype=np.float32))
+    single = gym.make(RESIDUAL_ID)
+    single.reset(seed=5)
+    first, *_ = single.step(np.zeros(2, dtype=np.float32))
+    np.testing.assert_array_equal(obs[0], first)
+    envs.close()
