@@ -132,14 +132,14 @@ def test_envelope_generalists_on_two_workers_writes_the_same_results(tmp_path, s
 def test_identification_on_two_workers_writes_the_same_results(tmp_path, monkeypatch,
                                                                 short_workers):  # fmt: skip
     """Two true arms, a 5 s recording each: the same rows (the fit's seconds aside), in arm
-    order in the partial file; --resume keeps the arms done."""
+    order in the partial file; --resume runs only the arms missing from it."""
     from research.studies import identification as study
 
     monkeypatch.setattr(study, "DURATION", 5.0)  # the fit needs about 4.5 s
     # the ideal arm's check, a fit in this process after the arms' jobs: not the executors'
     monkeypatch.setattr(study, "ideal_check", lambda *a: {"fields": {}, "loop_delay_ms": 0.0})
     argv = ["--arms", "2", "--threads", "1"]
-    study.main([*argv, "--out", str(tmp_path / "one")])
+    one = study.main([*argv, "--out", str(tmp_path / "one")])
     two = study.main([*argv, "--out", str(tmp_path / "two"), "--workers", "2"])
     assert [r["arm"] for r in two["rows"]] == [0, 1]
     files = {d: json.loads((tmp_path / d / "identification.json").read_text())
@@ -147,7 +147,11 @@ def test_identification_on_two_workers_writes_the_same_results(tmp_path, monkeyp
     assert _without(files["two"], {"seconds"}) == _without(files["one"], {"seconds"})
     partial = json.loads((tmp_path / "two" / "identification.partial.json").read_text())
     assert [r["arm"] for r in partial] == [0, 1]
-    # --resume with one arm lost from the partial file fits that arm alone, the same again
+    # --resume with arm 0 lost from the partial file runs that arm alone (here a stand-in
+    # for its fit: the one process's row) and keeps arm 1 where it belongs
     (tmp_path / "two" / "identification.partial.json").write_text(json.dumps(partial[1:]))
-    again = study.main([*argv, "--out", str(tmp_path / "two"), "--workers", "2", "--resume"])
+    jobs = []
+    monkeypatch.setattr(study, "arm_job", lambda job: jobs.append(job.index) or one["rows"][0])
+    again = study.main([*argv, "--out", str(tmp_path / "two"), "--resume"])
+    assert jobs == [0]
     assert _without(again, {"seconds"}) == _without(two, {"seconds"})
