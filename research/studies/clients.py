@@ -214,7 +214,7 @@ def train_one(setting: str, client: str, seed: int, steps: int, eval_every: int,
         "final": evaluations[-1], "first_beats_pd_steps": first, "pd": pd,
         "evaluations": evaluations, "train_wall_s": wall,
     }  # fmt: skip
-    path = run_path(out, setting, client, seed)
+    path = run_path(out, setting, client, seed, steps)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp")
     tmp.write_text(json.dumps(result, indent=1))
@@ -222,9 +222,10 @@ def train_one(setting: str, client: str, seed: int, steps: int, eval_every: int,
     return result
 
 
-def run_path(out: Path, setting: str, client: str, seed: int) -> Path:
+def run_path(out: Path, setting: str, client: str, seed: int, steps: int) -> Path:
     """Returns the result file of one run."""
-    return out / "clients_runs" / setting.replace(" ", "_") / client / f"seed_{seed}.json"
+    folder = out / "clients_runs" / setting.replace(" ", "_") / client
+    return folder / f"seed_{seed}_steps_{steps}.json"
 
 
 @dataclass
@@ -270,7 +271,7 @@ def main(argv: list[str] | None = None) -> None:
         if name not in SETTINGS:
             raise ValueError(f"--settings {name!r} is invalid; allowed: {list(SETTINGS)}")
     out = Path(args.out)
-    todo = [j for j in jobs(args) if not run_path(out, *j[:3]).exists()]
+    todo = [j for j in jobs(args) if not run_path(out, *j).exists()]
     if not args.only_report and todo:
         ctx = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(args.workers, mp_context=ctx) as pool:
@@ -281,8 +282,7 @@ def main(argv: list[str] | None = None) -> None:
                 print(f"{r['setting']} {r['client']} seed {r['seed']}: "
                       f"{joints(r['final']['rms_deg'], 4)} deg (PD "
                       f"{joints(r['pd']['rms_deg'], 4)})", flush=True)  # fmt: skip
-    runs = [json.loads(run_path(out, *j[:3]).read_text()) for j in jobs(args)
-            if run_path(out, *j[:3]).exists()]  # fmt: skip
+    runs = [json.loads(p.read_text()) for p in sorted((out / "clients_runs").glob("*/*/*.json"))]
     result = {"clients": CLIENTS, "settings": {k: list(v) for k, v in SETTINGS.items()},
               "zoo_entry": zoo_reacher(), "runs": runs, "eval_seeds": args.eval_seeds}  # fmt: skip
     save_json(out, "clients", result)
@@ -305,8 +305,8 @@ def report(result: dict[str, Any]) -> str:
     ]
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for r in result["runs"]:
-        groups.setdefault((r["setting"], r["client"]), []).append(r)
-    for (setting, client), runs in groups.items():
+        groups.setdefault((r["setting"], r["client"], r["steps"]), []).append(r)
+    for (setting, client, _), runs in groups.items():
         runs.sort(key=lambda r: r["seed"])
         finals = "; ".join(joints(r["final"]["rms_deg"], 4) for r in runs)
         pd = runs[0]["pd"]
