@@ -255,9 +255,12 @@ def test_the_generators_import_no_research_code():
 
 
 def test_per_joint_pairs_have_one_implementation():
-    """Only tendon2r_gym.app.markdown.pair joins figures with " / " in the report writers."""
-    for path in ("scripts/gen_docs.py", "scripts/gen_figures.py", "tendon2r_gym/app/report.py"):
-        assert '" / ".join' not in (ROOT / path).read_text(), path
+    """Only tendon2r_gym.formatting.pair joins figures with " / ": in the library, the scripts
+    and the research studies."""
+    sources = [*ROOT.glob("tendon2r_gym/**/*.py"), *ROOT.glob("scripts/*.py"),
+               *ROOT.glob("research/**/*.py")]  # fmt: skip
+    joining = {str(p.relative_to(ROOT)) for p in sources if '" / ".join' in p.read_text()}
+    assert joining == {"tendon2r_gym/formatting.py"}
 
 
 # -- the site ------------------------------------------------------------------------------------

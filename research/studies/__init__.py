@@ -15,7 +15,9 @@ from typing import Any
 
 def joints(values: Sequence[float], digits: int = 3) -> str:
     """Returns per-joint (or per-tendon) figures as the tables show them: ``A / B``."""
-    return " / ".join(f"{x:.{digits}f}" for x in values)
+    from tendon2r_gym.formatting import pair
+
+    return pair(values, f".{digits}f")
 
 
 def one_or_more(flag: str, values: list[Any], allowed: str) -> list[Any]:

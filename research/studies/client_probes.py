@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from tendon2r_gym.formatting import pair
+
 #: rl_zoo3's shipped Reacher-v2 entry (research/studies/clients.py reads it from rl_zoo3).
 ZOO = dict(batch_size=32, n_steps=512, gamma=0.9, learning_rate=0.000104019,
            ent_coef=7.52585e-08, clip_range=0.3, n_epochs=5, gae_lambda=1.0,
@@ -146,10 +148,8 @@ def report() -> None:
     for r in rows:
         ppo, pd = r["ppo"], r["pd"]
         cells = [r["env"], json.dumps(r["kw"]), r["client"], r["steps"], r["seed"],
-                 " / ".join(f"{x:.4f}" for x in ppo["rms"]),
-                 " / ".join(f"{x:.4f}" for x in pd["rms"]),
-                 " / ".join(f"{x:.1f}" for x in ppo["rate"]),
-                 " / ".join(f"{x:.1f}" for x in pd["rate"])]  # fmt: skip
+                 pair(ppo["rms"]), pair(pd["rms"]), pair(ppo["rate"], ".1f"),
+                 pair(pd["rate"], ".1f")]  # fmt: skip
         lines.append("| " + " | ".join(str(c) for c in cells) + " |")
     (here / "client_probes.md").write_text("\n".join(lines) + "\n")
 

@@ -48,6 +48,7 @@ from tendon2r_gym.evaluation.metrics import (
     smoothness_x_pd,
     worst_ratio,
 )
+from tendon2r_gym.formatting import pair
 from tendon2r_gym.policies.bundle import bundle_meta, bundle_names, bundled_model
 from tendon2r_gym.policies.model_env import (
     feature_ranges,
@@ -604,13 +605,13 @@ def write(result: dict[str, Any], out: Path) -> None:
     ]
     for name, arm in result["arms"].items():
         m = arm["env_kwargs"]["mechanism"]
-        geo = " / ".join(f"{1000 * m[k]:.0f}" for k in ("R1", "R2", "a", "b", "c"))
+        geo = pair([1000 * m[k] for k in ("R1", "R2", "a", "b", "c")], ".0f")
         rows = arm["rows"]
         pd = rows["pd"]["rms_deg"]
         spec = arm.get("specialist_rms_deg") or {}
         specs = "; ".join(f"{mode} {fmt(v)}" for mode, v in spec.items()) or "-"
         authority = arm.get("control_authority")
-        authority = " / ".join(f"{x:.3g}" for x in authority) if authority else "-"
+        authority = pair(authority, ".3g") if authority else "-"
         lines.append(
             f"| {name} | {geo} | {authority} | {fmt(pd)} | {fmt(rows['ct']['rms_deg'])} | "
             f"{specs} | " + " | ".join(cell(rows[b], pd) for b in bundles) + " |"

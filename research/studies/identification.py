@@ -41,6 +41,7 @@ from typing import Annotated, Any
 import numpy as np
 
 from tendon2r_gym.app.args import arg, parse
+from tendon2r_gym.formatting import pair
 
 NOMINAL, ARMS, SEED, DURATION, EPISODES = "real_arm", 16, 2026, 10.0, 2
 RESIDUAL = "real_arm"
@@ -476,7 +477,7 @@ def effort_lines(rows: list[dict[str, Any]]) -> list[str]:
                 runs += 1
 
         def cells(values: list[float | None]) -> str:
-            return " / ".join("-" if v is None else f"{v:.3g}" for v in values)
+            return pair(values, ".3g")
 
         out.append(
             f"| {r['arm']} | {cells([max(pd[b]['rms_tension_N']) for b in beliefs])} | "

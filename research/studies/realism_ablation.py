@@ -30,6 +30,7 @@ from tendon2r_gym.envs.env_config import EnvConfig
 from tendon2r_gym.evaluation.evaluator import evaluate
 from tendon2r_gym.evaluation.metrics import beats, worst_ratio
 from tendon2r_gym.evaluation.tuning import tune_pd
+from tendon2r_gym.formatting import pair
 from tendon2r_gym.policies.model_env import trained_on_drawn_gains
 from tendon2r_gym.policies.runs import BEST_METRICS, CONFIG, SUMMARY, RunFolder, command_line
 from tendon2r_gym.task import observation
@@ -188,8 +189,8 @@ def write(result: dict[str, Any], out: Path) -> None:
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for i, r in enumerate(result["runs"], 1):
-        tension = " / ".join(f"{x:.2f}" for x in r["best_rms_tension_N"])
-        rate = " / ".join(f"{x:.1f}" for x in r["best_rms_tension_rate_N_per_s"])
+        tension = pair(r["best_rms_tension_N"], ".2f")
+        rate = pair(r["best_rms_tension_rate_N_per_s"], ".1f")
         lines.append(
             f"| {i} | `{r['command']}` | {_sees(r)} | {_network_and_pd(r)} | "
             f"{r['timesteps']:,} ({r['best_timesteps']:,}) | {r['wall_time_s']:.0f} | "

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from research.studies import learnability, speed
+from tendon2r_gym.formatting import pair
 from tendon2r_gym.policies.bundle import bundle_names
 from tendon2r_gym.simulation.mechanism import Mechanism
 
@@ -269,7 +270,7 @@ def test_generalist_study_end_to_end(tmp_path):
     for name, arm in out["arms"].items():
         assert arm["rows"]["ct"]["rms_deg"][0] < arm["rows"]["pd"]["rms_deg"][0]
         authority = EnvConfig.make(**arm["env_kwargs"]).needs.control_authority
-        shown = " / ".join(f"{x:.3g}" for x in authority)
+        shown = pair(authority, ".3g")
         assert f"| {name} | " in text and f" | {shown} | " in text
     assert worst_ratio([1.0, 3.0], [2.0, 1.0]) == 3.0
 

@@ -9,14 +9,9 @@ import re
 from collections.abc import Iterable, Sequence
 from typing import Any
 
-#: What a missing figure shows.
-MISSING = "-"
+from tendon2r_gym.formatting import MISSING, pair
 
-
-def pair(values: Iterable[float] | None, spec: str = ".4f") -> str:
-    """Returns per-joint (or per-tendon) figures as "A / B" in the format ``spec`` ("-" for
-    none): ``pair([0.1, 0.25], ".2f")`` is "0.10 / 0.25"."""
-    return MISSING if values is None else " / ".join(f"{v:{spec}}" for v in values)
+__all__ = ["MISSING", "code", "code_block", "indented", "page", "pair", "rows_of", "table"]
 
 
 def code(text: Any) -> str:

@@ -24,6 +24,7 @@ from tendon2r_gym.evaluation.metrics import (
     within_limits,
 )
 from tendon2r_gym.evaluation.rollout import rollouts
+from tendon2r_gym.formatting import pair
 from tendon2r_gym.policies.baselines import PDPolicy
 from tendon2r_gym.policies.files import NormStats
 from tendon2r_gym.policies.learned import PPOPolicy
@@ -205,8 +206,8 @@ class TrackingEvalCallback(BaseCallback):
         return metrics
 
 
-def _fmt(pair: list[float]) -> str:
-    return " / ".join(f"{v:.4f}" for v in pair)
+def _fmt(values: list[float]) -> str:
+    return pair(values, ".4f")
 
 
 class StopOnSignal(BaseCallback):
