@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 export MUJOCO_GL ?= egl
 
-.PHONY: venv test cluster-test research-test lint docs properties wheel-smoke benchmark benchmark-check speed learnability view clean
+.PHONY: venv test slow-test cluster-test research-test lint docs properties wheel-smoke benchmark benchmark-check speed learnability view clean
 
 # The venv is rebuilt only when pyproject.toml changes (torch is a large download).
 $(BIN)/activate: pyproject.toml
@@ -17,8 +17,12 @@ venv: $(BIN)/activate
 
 test: venv
 	$(BIN)/ruff check tendon2r_gym scripts tests research
-	$(BIN)/python -m pytest -q -n auto -m "not cluster" tests research/tests
+	$(BIN)/python -m pytest -q -n auto -m "not cluster and not slow" tests research/tests
 	$(MAKE) wheel-smoke
+
+# Tests of minutes (a study's fits on two workers), kept out of make test's ten minutes.
+slow-test: venv
+	$(BIN)/python -m pytest -q -n auto -m slow tests research/tests
 
 # The executors on a real two-node Ray cluster on 127.0.0.1 (one process: one cluster).
 cluster-test: venv

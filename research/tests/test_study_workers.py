@@ -129,6 +129,7 @@ def test_envelope_generalists_on_two_workers_writes_the_same_results(tmp_path, s
     assert study.main([*argv, "--workers", "2", "--resume"])["arms"] == two["arms"]
 
 
+@pytest.mark.slow  # four fits: minutes (make slow-test)
 def test_identification_on_two_workers_writes_the_same_results(tmp_path, monkeypatch,
                                                                 short_workers):  # fmt: skip
     """Two true arms, a 5 s recording each: the same rows (the fit's seconds aside), in arm
