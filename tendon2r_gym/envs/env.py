@@ -373,9 +373,12 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         """Returns (reward, scaled terms) from the observation's entries of the true state; the
         reward is the sum of the terms."""
         e1, e2 = entries[self._err]
-        (w1, w2), (v1, v2) = entries[obs_layout.DQ], entries[obs_layout.DQ_DES]
+        de1 = de2 = 0.0
+        if self.task.weighs_rate:  # the error's rate, read only where it is weighed
+            (w1, w2), (v1, v2) = entries[obs_layout.DQ], entries[obs_layout.DQ_DES]
+            de1, de2 = v1 - w1, v2 - w2
         terms = self.task.reward_terms(
-            SCALAR, e1, e2, action, last, self._rate_inv, diverged, v1 - w1, v2 - w2
+            SCALAR, e1, e2, action, last, self._rate_inv, diverged, de1, de2
         )
         return self.task.scale(terms)
 

@@ -138,6 +138,8 @@ class Task:
         ]
         self.form = config.tracking_form
         self.horizon = config.tracking_horizon
+        #: Whether tracking_rate is weighed: only then does the reward read the error's rate.
+        self.weighs_rate = self.scales["tracking_rate"] != 0.0
         self.alpha = config.action_filter_alpha
         # The effort term charges the commanded tension as a fraction of the force limit
         # (Mechanism.command_map: (command + 1) / 2 for pull-only motors, whose -1 is slack) in
@@ -375,7 +377,7 @@ class Task:
         quadratic = -(e1 * e1 + e2 * e2)
         tracking = self._tracking(ops, e1, e2, quadratic)
         ahead = 0.0 * quadratic  # a zero per arm, unless weighed
-        if self.scales["tracking_rate"] != 0.0:  # the error tracking_horizon s ahead (deg)
+        if self.weighs_rate:  # the error tracking_horizon s ahead (deg)
             h = self.horizon / RAD_PER_DEG
             a1, a2 = e1 + h * de1, e2 + h * de2
             ahead = self._tracking(ops, a1, a2, -(a1 * a1 + a2 * a2))

@@ -401,10 +401,12 @@ class Tendon2RVectorEnv(VectorEnv):
         self, obs: np.ndarray, a: np.ndarray, last: np.ndarray, diverged: np.ndarray
     ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         e = obs[:, obs_layout.ERROR]
-        de = obs[:, obs_layout.DQ_DES] - obs[:, obs_layout.DQ]
+        de1 = de2 = 0.0
+        if self.task.weighs_rate:  # the error's rate, read only where it is weighed
+            de = obs[:, obs_layout.DQ_DES] - obs[:, obs_layout.DQ]
+            de1, de2 = de[:, 0], de[:, 1]
         terms = self.task.reward_terms(
-            BATCH, e[:, 0], e[:, 1], list(a.T), list(last.T), self._rate_inv, diverged,
-            de[:, 0], de[:, 1],
+            BATCH, e[:, 0], e[:, 1], list(a.T), list(last.T), self._rate_inv, diverged, de1, de2
         )
         return self.task.scale(terms)
 
