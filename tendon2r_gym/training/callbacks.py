@@ -36,6 +36,7 @@ from tendon2r_gym.policies.runs import (
     RunFolder,
     stats_files,
 )
+from tendon2r_gym.training.executors import STOP_REQUESTED
 
 #: pd_eval.json's key of PD's metrics on the eval seeds started on the reference.
 ON_REFERENCE = "on_reference"
@@ -212,7 +213,9 @@ def _fmt(values: list[float]) -> str:
 
 class StopOnSignal(BaseCallback):
     """Ctrl-C (SIGINT) or SIGTERM during ``learn`` asks training to stop at the next env step,
-    so that no signal lands inside torch or MuJoCo; a second signal interrupts at once."""
+    so that no signal lands inside torch or MuJoCo; a second signal interrupts at once.  A
+    stop requested earlier (executors.STOP_REQUESTED: a local worker's SIGINT during its job's
+    set-up) holds from the start."""
 
     def __init__(self) -> None:
         super().__init__()
@@ -225,6 +228,7 @@ class StopOnSignal(BaseCallback):
             signal.signal(sig, old)
 
     def __enter__(self) -> StopOnSignal:
+        self.stopped = self.stopped or STOP_REQUESTED.is_set()
         try:
             for sig in (signal.SIGINT, signal.SIGTERM):
                 self._old[sig] = signal.signal(sig, self._request)

@@ -154,13 +154,23 @@ def _environ(values: Mapping[str, str]) -> Iterator[None]:
                 os.environ[k] = v
 
 
+#: Set in a local worker asked to stop (SIGINT) before its training's own handlers were in
+#: place: the training's StopOnSignal then starts stopped.
+STOP_REQUESTED = threading.Event()
+
+
+def _request_stop(signum: int, frame: Any) -> None:
+    STOP_REQUESTED.set()
+
+
 def _init_worker(threads: int, parent: int) -> None:
-    """Starts a local worker: torch and BLAS pinned to ``threads``; SIGINT ignored outside a
-    training (a training's own handler saves and stops; the driver sends each worker one
-    SIGINT on Ctrl-C, and an idle worker must not die of it); a watchdog that sends this
-    process SIGTERM if the driver ``parent`` dies, so that no worker trains on unowned."""
+    """Starts a local worker: torch and BLAS pinned to ``threads``; SIGINT outside a
+    training's ``learn`` recorded, not raised (the driver sends each worker one SIGINT on
+    Ctrl-C: an idle worker must not die of it, and a job still setting up stops, with its
+    state saved, as its training starts); a watchdog that sends this process SIGTERM if the
+    driver ``parent`` dies, so that no worker trains on unowned."""
     pin_threads(threads)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGINT, _request_stop)
 
     def watch() -> None:
         while os.getppid() == parent:

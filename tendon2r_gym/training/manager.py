@@ -345,7 +345,7 @@ def train_planned(plan: RunPlan, command: str = "", progress_bar: bool = False) 
             ]
             remaining = hp.total_timesteps - segment.start_steps
             with stop:
-                if remaining > 0:
+                if remaining > 0 and not stop.stopped:
                     model.learn(
                         remaining,
                         callback=CallbackList(callbacks),
