@@ -12,7 +12,7 @@ import yaml
 CONF = Path(__file__).resolve().parent.parent / "configs" / "rl_zoo3" / "ppo.yml"
 
 
-@pytest.mark.parametrize("env_id", ["Tendon2R-v1", "Tendon2RResidual-v1"])
+@pytest.mark.parametrize("env_id", ["Tendon2R-v2", "Tendon2RResidual-v1", "Tendon2RResidual-v2"])
 def test_rl_zoo3_trains_with_our_hyperparameter_file(tmp_path, env_id):
     cmd = [sys.executable, "-m", "rl_zoo3.train", "--algo", "ppo", "--env", env_id,
            "--gym-packages", "tendon2r_gym", "--conf-file", str(CONF), "-n", "256",
@@ -23,11 +23,11 @@ def test_rl_zoo3_trains_with_our_hyperparameter_file(tmp_path, env_id):
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert (tmp_path / "ppo" / f"{env_id}_1" / f"{env_id}.zip").is_file()
-    if env_id == "Tendon2RResidual-v1":
-        assert (
-            "ResidualPDWrapper"
-            in (tmp_path / "ppo" / f"{env_id}_1" / env_id / "config.yml").read_text()
-        )
+    wrapped = (
+        "ResidualPDWrapper"
+        in (tmp_path / "ppo" / f"{env_id}_1" / env_id / "config.yml").read_text()
+    )
+    assert wrapped == (env_id == "Tendon2RResidual-v1")  # v2's id has PD inside already
 
 
 def test_the_zoo_file_is_generated_from_ours():
@@ -42,7 +42,7 @@ def test_the_zoo_file_is_generated_from_ours():
         hp = Hyperparams.from_entry(name)
         assert zoo[env_id]["env_kwargs"] == hp.env_kwargs
         assert zoo[env_id]["n_timesteps"] == hp.total_timesteps
-        assert ("env_wrapper" in zoo[env_id]) == (hp.residual_scale > 0)
+        assert ("env_wrapper" in zoo[env_id]) == (hp.residual_scale > 0 and env_id.endswith("v1"))
 
 
 def test_the_residual_trains_on_the_registered_reward():

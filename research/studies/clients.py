@@ -15,7 +15,10 @@ the id's own defaults and nothing else changed:
   builds it;
 - ``cleanrl``: CleanRL's ``ppo_continuous_action.py`` defaults (CleanRL is a script, not a
   package): SB3's defaults with the learning rate annealed linearly to 0, observations and
-  rewards normalized and clipped at 10.
+  rewards normalized and clipped at 10;
+- ``project``: the project's own entry for the id in ``configs/rl_zoo3/ppo.yml`` (what
+  ``rl_zoo3.train --conf-file configs/rl_zoo3/ppo.yml`` trains), for an id whose entry keeps
+  the id's defaults (``Tendon2RResidual-v2``: the residual recipe's PPO settings).
 
 Every run evaluates its policy deterministically every ``--eval-every`` steps and at the end,
 on the eval seeds, beside PD on the same episodes.  One result file per run under
@@ -45,7 +48,10 @@ CLIENTS: dict[str, str] = {
     "sb3_raw": "SB3 PPO defaults, no normalization",
     "zoo_reacher": "rl_zoo3's Reacher-v2 entry (gamma 0.9, n_steps 512, batch 32)",
     "cleanrl": "CleanRL ppo_continuous_action defaults (in SB3)",
+    "project": "the project's own entry for the id (configs/rl_zoo3/ppo.yml)",
 }
+#: The project's rl_zoo3 file (the ``project`` client's settings).
+PROJECT_ZOO_FILE = Path(__file__).resolve().parents[2] / "configs" / "rl_zoo3" / "ppo.yml"
 ZOO_ENTRY = "Reacher-v2"
 #: What a client trains on: a name -> (registered id, env kwargs over the id's defaults).  The
 #: ids themselves (no kwargs) are what a user gets; the others change one factor of v1 at a
@@ -70,21 +76,46 @@ def zoo_reacher() -> dict[str, Any]:
     return dict(yaml.safe_load(path.read_text())[ZOO_ENTRY])
 
 
-def client_settings(client: str) -> tuple[dict[str, Any], dict[str, Any] | None]:
-    """Returns (PPO keyword arguments, VecNormalize keyword arguments or None) of a client."""
+def project_entry(setting: str) -> dict[str, Any]:
+    """Returns the project's rl_zoo3 entry for a setting's id; a ValueError unless the setting
+    is the id itself and the entry trains on the id's defaults (no wrapper, the default arm)."""
+    env_id, kwargs = SETTINGS[setting]
+    entry = yaml.safe_load(PROJECT_ZOO_FILE.read_text()).get(env_id)
+    if (
+        kwargs
+        or entry is None
+        or "env_wrapper" in entry
+        or entry["env_kwargs"] != {"preset": "default"}
+    ):
+        raise ValueError(
+            f"--clients project is invalid on {setting!r}; allowed: a setting that is an id "
+            "whose project entry keeps its defaults (Tendon2RResidual-v2)"
+        )
+    return entry
+
+
+def client_settings(
+    client: str, setting: str = "Tendon2R-v2"
+) -> tuple[dict[str, Any], dict[str, Any] | None, int]:
+    """Returns (PPO keyword arguments, VecNormalize keyword arguments or None, n_envs) of a
+    client on a setting."""
     if client == "sb3":
-        return {}, {}
+        return {}, {}, 1
     if client == "sb3_raw":
-        return {}, None
+        return {}, None, 1
     if client == "cleanrl":
-        return {"learning_rate": _linear(3e-4)}, {"clip_obs": 10.0, "clip_reward": 10.0}
-    if client == "zoo_reacher":
-        entry = zoo_reacher()
-        ppo = {k: v for k, v in entry.items() if k not in ZOO_ONLY}
+        return {"learning_rate": _linear(3e-4)}, {"clip_obs": 10.0, "clip_reward": 10.0}, 1
+    if client in ("zoo_reacher", "project"):
+        entry = zoo_reacher() if client == "zoo_reacher" else project_entry(setting)
+        ppo = {k: v for k, v in entry.items() if k not in (*ZOO_ONLY, "env_kwargs")}
+        if isinstance(ppo.get("learning_rate"), str):  # rl_zoo3's "lin_<start>"
+            ppo["learning_rate"] = _linear(float(ppo["learning_rate"].removeprefix("lin_")))
+        n_envs = int(entry.get("n_envs", 1))
         norm = entry.get("normalize", False)
         if not norm:
-            return ppo, None
-        return ppo, {"gamma": ppo.get("gamma", 0.99), **(norm if isinstance(norm, dict) else {})}
+            return ppo, None, n_envs
+        norm = {"gamma": ppo.get("gamma", 0.99), **(norm if isinstance(norm, dict) else {})}
+        return ppo, norm, n_envs
     raise ValueError(f"client {client!r} is invalid; allowed: {list(CLIENTS)}")
 
 
@@ -182,8 +213,8 @@ def train_one(setting: str, client: str, seed: int, steps: int, eval_every: int,
     import tendon2r_gym  # noqa: F401  (registers the ids)
 
     torch.set_num_threads(1)
-    ppo_kwargs, norm = client_settings(client)
-    venv: Any = DummyVecEnv([lambda: make(setting)])
+    ppo_kwargs, norm, n_envs = client_settings(client, setting)
+    venv: Any = DummyVecEnv([lambda: make(setting)] * n_envs)
     if norm is not None:
         venv = VecNormalize(venv, **norm)
     model = PPO("MlpPolicy", venv, seed=seed, verbose=0, device="cpu", **ppo_kwargs)
@@ -196,11 +227,17 @@ def train_one(setting: str, client: str, seed: int, steps: int, eval_every: int,
         row["steps"] = int(model.num_timesteps)
         row["beats_pd"] = all(p <= d for p, d in zip(row["rms_deg"], pd["rms_deg"], strict=True))
         evaluations.append(row)
+        partial = run_path(out, setting, client, seed, steps).with_suffix(".partial")
+        partial.parent.mkdir(parents=True, exist_ok=True)  # a run cut off keeps its evaluations
+        partial.write_text(json.dumps({"pd": pd, "evaluations": evaluations}, indent=1))
 
     class Every(BaseCallback):
+        next_eval = eval_every
+
         def _on_step(self) -> bool:
-            if self.num_timesteps % eval_every == 0:
+            if self.num_timesteps >= self.next_eval:  # n_envs steps at a time
                 evaluate_now()
+                self.next_eval += eval_every
             return True
 
     start = time.perf_counter()
@@ -219,6 +256,7 @@ def train_one(setting: str, client: str, seed: int, steps: int, eval_every: int,
     tmp = path.with_suffix(".tmp")
     tmp.write_text(json.dumps(result, indent=1))
     tmp.replace(path)
+    path.with_suffix(".partial").unlink(missing_ok=True)
     return result
 
 
