@@ -274,7 +274,15 @@ def test_the_motor_lag_is_exact_outside_rk4():
 
 
 def test_implicitfast_integrates_damping_that_rk4_cannot():
-    gym.make("Tendon2R-v0", mechanism={"joint_damping": 0.01, "integrator": "implicitfast"})
+    """Joint damping 3 times RK4's limit at the default step: RK4 diverges from a moving start
+    and the env refuses it; implicitfast integrates the same arm and the env accepts it."""
+    damped = {"joint_damping": 0.01, "max_tendon_force": 0.5}
+    assert damped["joint_damping"] > 3 * _limit("joint_damping", "RK4")
+    assert _diverges(Mechanism(integrator="RK4", **damped))
+    with pytest.raises(ValueError, match=r"Mechanism.joint_damping = 0.01 is invalid; allowed: "):
+        gym.make("Tendon2R-v0", mechanism={"integrator": "RK4", **damped})
+    assert not _diverges(Mechanism(integrator="implicitfast", **damped))
+    gym.make("Tendon2R-v0", mechanism={"integrator": "implicitfast", **damped})
 
 
 # -- diverged steps stay bounded ------------------------------------------------------------------
