@@ -7,9 +7,11 @@
 - ``models.md`` and ``models/<name>.md``: scripts/docs_models.py.
 - ``results.md``, ``studies/<name>.md`` and ``reports/<name>.md``: scripts/docs_results.py.
 - The figures under ``images/``: scripts/gen_figures.py, which ``--check`` checks too.
-- README's generated tables and results/benchmark.md (tendon2r_gym.app.report).
+- README's generated tables, the training page's clients summary (between its
+  ``<!-- clients:begin -->`` and ``<!-- clients:end -->`` lines, from
+  research/results/clients.json) and results/benchmark.md (tendon2r_gym.app.report).
 
-No page is edited by hand.
+No generated page or block is edited by hand.
 """
 
 from __future__ import annotations
@@ -112,6 +114,24 @@ def readme_models_block() -> str:
     return "\n".join([MODELS_BEGIN, *table(["model", "what it is"], rows), MODELS_END])
 
 
+#: The training page's summary of what each PPO client learns on each id.
+CLIENTS_BEGIN, CLIENTS_END = "<!-- clients:begin -->", "<!-- clients:end -->"
+
+
+def blocks(root: Path = ROOT) -> dict[Path, str]:
+    """Returns the text of each hand-written file that holds generated blocks (README's
+    tables, the training page's clients summary), its blocks rewritten."""
+    readme = root / "README.md"
+    text = with_readme_block(readme.read_text(), readme_block(root))
+    text = with_readme_block(text, readme_models_block(), MODELS_BEGIN, MODELS_END)
+    training = root / DOCS / "training.md"
+    clients = "\n".join([CLIENTS_BEGIN, *docs_results.clients_block(root), CLIENTS_END])
+    return {
+        readme: text,
+        training: with_readme_block(training.read_text(), clients, CLIENTS_BEGIN, CLIENTS_END),
+    }
+
+
 def with_readme_block(
     readme: str, block: str, begin: str = README_BEGIN, end: str = README_END
 ) -> str:
@@ -157,9 +177,7 @@ def main(argv: list[str] | None = None) -> int:
     if not args.check:
         gen_figures.write(args.root)
     pages = generate(args.root)
-    readme = args.root / "README.md"
-    text = with_readme_block(readme.read_text(), readme_block(args.root))
-    text = with_readme_block(text, readme_models_block(), MODELS_BEGIN, MODELS_END)
+    hand = blocks(args.root)
     reports = report_pages(args.root)
     if args.check:
         out = [str(docs / n) for n in stale(pages, docs)]
@@ -167,8 +185,7 @@ def main(argv: list[str] | None = None) -> int:
         images = docs / gen_figures.IMAGES
         out += [f"{images / f} (scripts/gen_figures.py)" for f in gen_figures.stale(args.root)]
         out += [f"{docs}/{m} (no such image)" for m in missing_images(pages, docs, args.root)]
-        if readme.read_text() != text:
-            out.append(str(readme))
+        out += [str(path) for path, hand_text in hand.items() if path.read_text() != hand_text]
         if out:
             print("out of date (run python scripts/gen_docs.py):", *out, sep="\n  ",
                   file=sys.stderr)  # fmt: skip
@@ -186,8 +203,10 @@ def main(argv: list[str] | None = None) -> int:
     for path, page_text in reports.items():
         path.write_text(page_text)
         print("wrote", path)
-    readme.write_text(text)
-    print("wrote", readme)
+    for path, hand_text in hand.items():
+        if path.read_text() != hand_text:
+            path.write_text(hand_text)
+            print("wrote", path)
     return 0
 
 

@@ -11,6 +11,9 @@ or version in their metadata, so the same inputs and versions give the same byte
 
 - ``results_rms.png``: RMS error per joint of PD, CT, plain and residual PPO on each bundled
   preset (results/benchmark.json), log scale, each training seed a dot.
+- ``results_profile.png``: the performance profile of plain and residual PPO over their
+  training seeds on the bundled presets (results/benchmark.json): the fraction of runs whose
+  worst-joint RMS ratio to PD is <= tau, with stratified bootstrap bands (presets as strata).
 - ``mechanism_geometry.png`` and ``mechanism_routings.png``: the default arm's links, pulleys
   and tendon paths from its compiled MuJoCo model (tendon2r_gym.simulation.model.build_model),
   and one panel per named routing.
@@ -40,6 +43,7 @@ PACKAGE = ROOT / "tendon2r_gym"
 IMAGES = "images"
 MANIFEST = "figures.json"
 RESULTS_FIGURE = "results_rms.png"
+PROFILE_FIGURE = "results_profile.png"
 GEOMETRY_FIGURE = "mechanism_geometry.png"
 ROUTINGS_FIGURE = "mechanism_routings.png"
 IDENTIFY_FIGURE = "identify_excitation.png"
@@ -106,6 +110,33 @@ def draw_results(root: Path, path: Path) -> None:
     fig.suptitle("RMS error per joint on each bundled preset (dots: each training seed)")
     fig.tight_layout()
     save(fig, path)
+
+
+def profile_ratios(rows: list[dict]) -> dict[str, dict[str, list[float]]]:
+    """Returns, per learned policy of the chart (POLICIES) and preset, each training seed's
+    worst-joint RMS ratio to the preset's PD (the rows' ``rms_deg_per_seed``)."""
+    from tendon2r_gym.evaluation.statistics import worst_ratios
+
+    pd = {r["env"]: r["rms_deg"] for r in rows if r["policy"] == "pd" and "rms_deg" in r}
+    out: dict[str, dict[str, list[float]]] = {}
+    for label, legend, _ in POLICIES[2:]:
+        runs = {r["env"]: r["rms_deg_per_seed"] for r in rows
+                if r["policy"].startswith(f"{label} (") and "rms_deg_per_seed" in r
+                and r["env"] in pd}  # fmt: skip
+        if runs:
+            out[legend] = worst_ratios(runs, {env: pd[env] for env in runs})
+    return out
+
+
+def draw_profile(root: Path, path: Path) -> None:
+    """The performance profile of the learned rows over their training seeds and presets."""
+    from tendon2r_gym.app.benchmark import BOOTSTRAP_SEED
+    from tendon2r_gym.app.plots import plot_performance_profile
+    from tendon2r_gym.evaluation.statistics import performance_profile
+
+    rows = json.loads((root / "results" / "benchmark.json").read_text())["rows"]
+    profile = performance_profile(profile_ratios(rows), seed=BOOTSTRAP_SEED)
+    plot_performance_profile(profile, path, title="Learned policies over seeds and presets")
 
 
 # -- the mechanism -------------------------------------------------------------------------------
@@ -317,6 +348,14 @@ def figures(root: Path = ROOT) -> dict[str, Figure]:
 
     out = {
         RESULTS_FIGURE: Figure(("results/benchmark.json",), draw_results),
+        PROFILE_FIGURE: Figure(
+            (
+                "results/benchmark.json",
+                "tendon2r_gym/evaluation/statistics.py",
+                "tendon2r_gym/app/plots.py",
+            ),
+            draw_profile,
+        ),  # fmt: skip
         GEOMETRY_FIGURE: Figure(MECHANISM_INPUTS, draw_geometry),
         ROUTINGS_FIGURE: Figure(MECHANISM_INPUTS, draw_routings),
         IDENTIFY_FIGURE: Figure(

@@ -164,21 +164,31 @@ def test_summary_and_the_note_on_few_runs():
     ("call", "match"),
     [
         (lambda: iqm_interval([]), r"^runs = \[\] is invalid; allowed: a non-empty list of runs"),
-        (lambda: iqm_interval([[1.0, float("nan")], [1.0, 2.0]]),
-         r"^runs\[0\]\[1\] = nan is invalid; allowed: a finite number"),
-        (lambda: iqm_interval([[1.0, 2.0], [1.0]]),
-         r"^runs\[1\] = \[1.0\] is invalid; allowed: 2 per-joint scores"),
-        (lambda: iqm_interval({"a": [[1.0, 2.0]], "b": [[1.0, 2.0], [2.0, 1.0]]}),
-         r"^runs\['a'\] = \[\[1.0, 2.0\]\] is invalid; allowed: 2 or more runs"),
+        (
+            lambda: iqm_interval([[1.0, float("nan")], [1.0, 2.0]]),
+            r"^runs\[0\]\[1\] = nan is invalid; allowed: a finite number",
+        ),
+        (
+            lambda: iqm_interval([[1.0, 2.0], [1.0]]),
+            r"^runs\[1\] = \[1.0\] is invalid; allowed: 2 per-joint scores",
+        ),
+        (
+            lambda: iqm_interval({"a": [[1.0, 2.0]], "b": [[1.0, 2.0], [2.0, 1.0]]}),
+            r"^runs\['a'\] = \[\[1.0, 2.0\]\] is invalid; allowed: 2 or more runs",
+        ),
         (lambda: iqm_interval({}), r"^runs = \{\} is invalid"),
         (lambda: iqm_interval([[1.0], [2.0]], seed=-1), r"^seed = -1 is invalid"),
         (lambda: iqm_interval([[1.0], [2.0]], confidence=1.0), r"^confidence = 1.0 is invalid"),
-        (lambda: beat_probability([[1.0, 2.0]], [1.0]),
-         r"^baseline = \[1.0\] is invalid; allowed: 2 per-joint scores, each > 0"),
+        (
+            lambda: beat_probability([[1.0, 2.0]], [1.0]),
+            r"^baseline = \[1.0\] is invalid; allowed: 2 per-joint scores, each > 0",
+        ),
         (lambda: beat_probability({"a": [[1.0]]}, {"b": [1.0]}), r"^baseline = \['b'\]"),
         (lambda: performance_profile({"ppo": [1.0]}), r"^ratios\['ppo'\] = \[1.0\] is invalid"),
-        (lambda: performance_profile({"ppo": [1.0, -2.0]}),
-         r"^ratios\['ppo'\]\[1\] = -2.0 is invalid; allowed: a finite number in \(0"),
+        (
+            lambda: performance_profile({"ppo": [1.0, -2.0]}),
+            r"^ratios\['ppo'\]\[1\] = -2.0 is invalid; allowed: a finite number in \(0",
+        ),
         (lambda: performance_profile({"ppo": [1.0, 2.0]}, taus=[2.0, 1.0]), r"^taus = \[2.0, 1.0"),
         (lambda: performance_profile({}), r"^ratios = \{\} is invalid"),
     ],
@@ -186,3 +196,32 @@ def test_summary_and_the_note_on_few_runs():
 def test_bad_input_names_the_field_the_value_and_what_is_allowed(call, match):
     with pytest.raises(ValueError, match=match):
         call()
+
+
+def test_the_report_shows_each_multi_seed_row_s_iqm_interval_and_share_as_recorded():
+    """The benchmark's table over training seeds is its rows' ``statistics``, cell for cell:
+    the IQM and its interval per joint, the share beating PD with its interval, each seed's
+    worst-joint ratio; a row without statistics (one seed, a baseline) has no line."""
+    from tendon2r_gym.app import markdown, report
+    from tendon2r_gym.app.benchmark import uncertainty
+
+    pd = [0.10, 0.07]
+    rms = [[0.02, 0.01], [0.03, 0.02], [0.12, 0.01], [0.025, 0.015]]
+    learned = {"env": "default", "policy": "ppo residual (4 seeds)", "rms_deg": pd,
+               "statistics": uncertainty(rms, pd)}  # fmt: skip
+    rows = [{"env": "default", "policy": "pd", "rms_deg": pd}, learned]
+    lines = report.seeds_table(rows)
+    body = [line for line in lines if line.startswith("| default")]
+    assert len(body) == 1
+    cells = [c.strip() for c in body[0].strip("|").split("|")]
+    s = learned["statistics"]
+    low, high = zip(*s["rms_deg_iqm_ci"], strict=True)
+    assert cells[2:5] == [str(len(rms)), markdown.pair(s["rms_deg_iqm"], ".4f"),
+                          f"{report.fmt(list(low))} – {report.fmt(list(high))}"]  # fmt: skip
+    assert (
+        cells[5].startswith(f"{s['beats_pd']['wins']} of {len(rms)} ")
+        and s["beats_pd"]["wins"] == 3
+    )
+    assert cells[6] == ", ".join(f"{max(r[0] / pd[0], r[1] / pd[1]):.2f}" for r in rms)
+    assert s["note"] is not None  # 4 runs: fewer than statistics.MIN_RUNS
+    assert report.seeds_table(rows[:1]) == []

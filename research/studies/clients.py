@@ -16,6 +16,8 @@ the id's own defaults and nothing else changed:
 - ``cleanrl``: CleanRL's ``ppo_continuous_action.py`` defaults (CleanRL is a script, not a
   package): SB3's defaults with the learning rate annealed linearly to 0, observations and
   rewards normalized and clipped at 10;
+- ``zoo_reacher_gamma_0.99``: the same entry with SB3's default discount (a diagnosis: is
+  the entry's 10-step horizon what fails?);
 - ``project``: the project's own entry for the id in ``configs/rl_zoo3/ppo.yml`` (what
   ``rl_zoo3.train --conf-file configs/rl_zoo3/ppo.yml`` trains), for an id whose entry keeps
   the id's defaults (``Tendon2RResidual-v2``: the residual recipe's PPO settings).
@@ -49,6 +51,7 @@ CLIENTS: dict[str, str] = {
     "zoo_reacher": "rl_zoo3's Reacher-v2 entry (gamma 0.9, n_steps 512, batch 32)",
     "cleanrl": "CleanRL ppo_continuous_action defaults (in SB3)",
     "project": "the project's own entry for the id (configs/rl_zoo3/ppo.yml)",
+    "zoo_reacher_gamma_0.99": "rl_zoo3's Reacher-v2 entry with gamma 0.99 (a diagnosis)",
 }
 #: The project's rl_zoo3 file (the ``project`` client's settings).
 PROJECT_ZOO_FILE = Path(__file__).resolve().parents[2] / "configs" / "rl_zoo3" / "ppo.yml"
@@ -105,8 +108,10 @@ def client_settings(
         return {}, None, 1
     if client == "cleanrl":
         return {"learning_rate": _linear(3e-4)}, {"clip_obs": 10.0, "clip_reward": 10.0}, 1
-    if client in ("zoo_reacher", "project"):
-        entry = zoo_reacher() if client == "zoo_reacher" else project_entry(setting)
+    if client in ("zoo_reacher", "zoo_reacher_gamma_0.99", "project"):
+        entry = project_entry(setting) if client == "project" else zoo_reacher()
+        if client == "zoo_reacher_gamma_0.99":
+            entry["gamma"] = 0.99
         ppo = {k: v for k, v in entry.items() if k not in (*ZOO_ONLY, "env_kwargs")}
         if isinstance(ppo.get("learning_rate"), str):  # rl_zoo3's "lin_<start>"
             ppo["learning_rate"] = _linear(float(ppo["learning_rate"].removeprefix("lin_")))

@@ -154,6 +154,40 @@ def training_table(rows: list[dict[str, Any]]) -> list[str]:
     return markdown.table(head, out)
 
 
+def seeds_table(rows: list[dict[str, Any]]) -> list[str]:
+    """Returns the table of the learned rows over their training seeds (their ``statistics``,
+    tendon2r_gym.evaluation.statistics): the interquartile mean of the RMS error per joint
+    with its stratified-bootstrap interval, the share of seeds that beat PD on both joints
+    with its Wilson interval, each seed's worst-joint ratio to PD, and a note where the
+    seeds are too few for the intervals to mean much."""
+    head = ["env", "policy", "seeds", "IQM RMS A / B (deg)", "interval A / B (deg)",
+            "beats PD (interval)", "worst joint / PD per seed"]  # fmt: skip
+    out, notes = [], {}
+    for name, group in _by_env(rows):
+        for r in group:
+            if not (s := r.get("statistics")):
+                continue
+            low, high = zip(*s["rms_deg_iqm_ci"], strict=True)
+            beat = s.get("beats_pd")
+            share = (f"{beat['wins']} of {beat['pairs']} ({beat['low']:.2f}–{beat['high']:.2f})"
+                     if beat else "-")  # fmt: skip
+            ratios = ", ".join(f"{x:.2f}" for x in s.get("worst_ratio_to_pd", [])) or "-"
+            out.append([name, shown_policy(r), s["runs"], fmt(s["rms_deg_iqm"]),
+                        f"{fmt(list(low))} – {fmt(list(high))}", share, ratios])  # fmt: skip
+            if s.get("note"):
+                notes.setdefault(s["note"], None)
+    if not out:
+        return []
+    confidence = next(r["statistics"]["confidence"] for r in rows if r.get("statistics"))
+    return [
+        *markdown.table(head, out),
+        "",
+        f"Intervals at {confidence:.0%}: the IQM's by a stratified bootstrap over the seeds, the "
+        "share's by Wilson's score interval.",
+        *(f"{note[0].upper()}{note[1:]}." for note in notes),
+    ]
+
+
 def tables(
     rows: list[dict[str, Any]],
     quoted: dict[str, tuple] | None = None,
@@ -166,6 +200,8 @@ def tables(
              f"{h} Effort", "", *effort_table(rows)]  # fmt: skip
     if any("train_steps" in r for r in rows):
         lines += ["", f"{h} Training cost", "", *training_table(rows)]
+    if seeds := seeds_table(rows):
+        lines += ["", f"{h} Over training seeds", "", *seeds]
     return lines
 
 
