@@ -48,3 +48,39 @@ def test_no_tracked_file_narrates_its_own_making():
 def test_the_package_holds_no_study():
     assert not (ROOT / "tendon2r_gym" / "studies").exists()
     assert (ROOT / "research" / "studies").is_dir()
+
+
+#: A dotted pointer into the package, as docstrings, pages and results name code.
+POINTER = re.compile(r"\btendon2r_gym(?:\.[A-Za-z_]\w*)+")
+#: Files whose pointers are history: they name the code as it was when it changed.
+HISTORY = ("CHANGELOG.md", "docs/changelog.md")
+
+
+def _resolves(pointer: str) -> bool:
+    """Whether ``a.b.c`` is a module, or an attribute path from the longest importable one."""
+    import importlib
+
+    parts = pointer.split(".")
+    for i in range(len(parts), 0, -1):
+        try:
+            obj = importlib.import_module(".".join(parts[:i]))
+        except ImportError:
+            continue
+        for name in parts[i:]:
+            if not hasattr(obj, name):
+                return False
+            obj = getattr(obj, name)
+        return True
+    return False
+
+
+def test_every_code_pointer_in_the_repository_resolves():
+    """A pointer such as ``tendon2r_gym.task.arms.draw_arms`` in any tracked text names a
+    module or an attribute that exists (history aside), so none goes stale when code moves."""
+    pointers: dict[str, set[str]] = {}
+    for name, text in _tracked_text().items():
+        if name not in HISTORY:
+            for m in POINTER.finditer(text):
+                pointers.setdefault(m.group(0).rstrip("."), set()).add(name)
+    stale = {p: sorted(files)[:3] for p, files in pointers.items() if not _resolves(p)}
+    assert pointers and not stale

@@ -640,8 +640,9 @@ def transient_lines(arms: dict[str, Any], bundles: list[str]) -> list[str]:
         "",
         f"RMS error (deg, A / B) over whole episodes, and after each episode's first "
         f"{1000 * SETTLE_S:g} ms (settled: the transient that closes the reset's noise left "
-        f"out; tendon2r_gym.evaluation.metrics.settled_rms_deg), for the generalist's seeds; the "
-        f"specialist ({mode} mode) over whole episodes, all the sweep records.",
+        f"out; settled_rms_deg of tendon2r_gym.evaluation.metrics.tracking_metrics), for the "
+        f"generalist's seeds; the specialist ({mode} mode) over whole episodes, all the sweep "
+        "records.",
         "",
         "| arm | specialist | " + " | ".join(f"{b}: whole (settled)" for b in shown) + " |",
         "|---|---|" + "---|" * len(shown),
