@@ -38,10 +38,18 @@ def short_episodes(monkeypatch):
     instead of its config's: for the tests of a command's end-to-end plumbing (files, rows,
     pages), whose properties do not depend on how long an episode is.  A model still loads
     against its full env contract; only the rollouts are shorter."""
+    import dataclasses
+
     from tendon2r_gym.envs import vector_env
+    from tendon2r_gym.envs.env_config import EnvConfig
 
     class Short(vector_env.Tendon2RVectorEnv):
         def __init__(self, num_envs, *args, **kwargs):
+            config = kwargs.pop("config", None) or (args[0] if args else None)
+            if isinstance(config, EnvConfig):  # a resolved config: its episodes shortened
+                short = dataclasses.replace(config, episode_duration=SHORT_EPISODE_S)
+                super().__init__(num_envs, short, *args[1:], **kwargs)
+                return
             super().__init__(num_envs, *args, **{**kwargs, "episode_duration": SHORT_EPISODE_S})
 
     monkeypatch.setattr(vector_env, "Tendon2RVectorEnv", Short)

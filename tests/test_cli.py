@@ -167,7 +167,7 @@ def test_generalist_real_runs_zero_shot_on_a_real_arm(tmp_path, monkeypatch, sho
     assert "missing" not in row and len(row["rms_deg"]) == 2, row
     tuned = next(r for r in rows if r["policy"] == "PD tuned")["pd_gains"]
     ran = [kw for p, kw, *rest in seen if p == "ppo" and "generalist_real" in str(rest)]
-    assert ran and all(kw["pd_gains"] == tuned for kw in ran)
+    assert ran and all(kw.pd_gains.to_dict() == tuned for kw in ran)  # resolved configs
 
 
 def test_benchmark_fine_tunes_the_generalist_on_an_arm_it_covers(

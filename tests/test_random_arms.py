@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from tendon2r_gym.envs.env_config import EnvConfig
+from tendon2r_gym.envs.timing import Timing
 from tendon2r_gym.policies.baselines import ComputedTorquePolicy, PDPolicy
 from tendon2r_gym.policies.model_env import check_model_env
 from tendon2r_gym.simulation.mechanism import Mechanism
@@ -19,6 +20,7 @@ from tendon2r_gym.task.arms import (
     NAMED_RANGES,
     ArmRanges,
     MechanismRanges,
+    draw_episode_arm,
     reference_ranges,
 )
 from tendon2r_gym.task.reference import Reference
@@ -145,8 +147,9 @@ REAL = {"tendon_elasticity": 4000.0, "motor_tau": 0.002}
       "mechanism_ranges": [DELAYS, {"pd_bandwidth_hz": [10.0, 40.0]}]}],
 )  # fmt: skip
 def test_a_random_episode_is_the_episode_of_its_arms_experiment_file(kwargs):
-    """The drawn arm, as a static config (EnvConfig.for_arm: the arm, its reference, its own
-    auto force limit), runs the same episode under PD, bit for bit; PD follows the arm."""
+    """The drawn arm, as a static config (tendon2r_gym.task.arms.arm_config: the arm, its
+    reference, its own auto force limit), runs the same episode under PD, bit for bit; PD
+    follows the arm."""
     rand = gym.make("Tendon2R-v0", reset_noise_scale=0.0, **kwargs)
     pd = PDPolicy.from_env(rand)
     for seed in (0, 1):
@@ -266,7 +269,8 @@ def test_delays_and_noise_are_drawn_per_episode_in_whole_steps():
     env = gym.make("Tendon2R-v0", preset="real_arm", mechanism_ranges="real_arm", observe=["arm"])
     cfg = env.unwrapped.config
     ranges, dt = cfg.mechanism_ranges, cfg.ctrl_dt
-    assert cfg.delay_capacity == cfg.observation_delay_capacity == 2
+    timing = env.unwrapped.timing
+    assert timing.delay_capacity == timing.observation_delay_capacity == 2
     seen = set()
     for seed in range(8):
         obs, info = env.reset(seed=seed)
@@ -279,7 +283,7 @@ def test_delays_and_noise_are_drawn_per_episode_in_whole_steps():
         assert info["mechanism"]["motor_delay"] == arm.mechanism.motor_delay
         where = observation.arm_slice(cfg.preview_steps, cfg.n_actions, len(ranges.names))
         np.testing.assert_allclose(obs[where], ranges.features(arm), rtol=0, atol=1e-12)
-        seen.add((arm.delay_steps, arm.observation_delay_steps))
+        seen.add((Timing.of(arm).delay_steps, Timing.of(arm).observation_delay_steps))
     assert len(seen) > 2  # several delay combinations drawn
 
 
@@ -397,7 +401,7 @@ def test_a_tuned_phase_draws_each_arms_bandwidth_as_a_tuning_would_pick_it():
     )  # the bandwidth is seen, not the phase
     rng, clipped, inside = np.random.default_rng(0), 0, 0
     for _ in range(200):
-        arm = cfg.draw_arm(rng)
+        arm = draw_episode_arm(cfg, rng)
         f = arm.pd_gains.bandwidth_hz
         m = arm.mechanism
         tau = loop_delay(m, arm.observation_delay, cfg.ctrl_dt)

@@ -34,7 +34,7 @@ def _wrapper(env: gym.Env) -> ResidualPDWrapper:
 def test_gym_make_gives_pd_inside():
     env = gym.make(RESIDUAL_ID)
     assert isinstance(_wrapper(env), ResidualPDWrapper)
-    assert env.spec.max_episode_steps == env.unwrapped.config.max_episode_steps
+    assert env.spec.max_episode_steps == env.unwrapped.timing.max_episode_steps
     assert env.action_space.shape == (2,)
 
 

@@ -20,6 +20,7 @@ from tendon2r_gym.policies.baselines import ComputedTorquePolicy, PDPolicy
 from tendon2r_gym.policies.learned import PPOPolicy
 from tendon2r_gym.policies.residual import Residual, ResidualPDWrapper
 from tendon2r_gym.simulation.mechanism import Mechanism
+from tendon2r_gym.task.arms import arm_config
 from tendon2r_gym.task.gains import Gains, default_gains, loop_delay
 
 #: An arm whose motor lag and delays make the default 30 Hz PD diverge.
@@ -142,8 +143,10 @@ def test_scheduled_pd_is_the_fixed_pd_of_each_drawn_arms_bandwidth():
     for seed in (0, 1):
         obs, info = env.reset(seed=seed)
         pd.reset(info)
-        arm = env.unwrapped.config.for_arm(
-            Mechanism.from_dict(info["mechanism"]), observation_delay=info["observation_delay"]
+        arm = arm_config(
+            env.unwrapped.config,
+            Mechanism.from_dict(info["mechanism"]),
+            observation_delay=info["observation_delay"],
         )
         np.testing.assert_array_equal(pd.predict(obs)[0], fixed_pd(arm).predict(obs)[0])
     venv = gym.make_vec("Tendon2R-v0", 3, vectorization_mode="vector_entry_point", **kwargs)

@@ -69,6 +69,7 @@ def ideal_arms(n: int, seed: int) -> dict[str, dict[str, Any]]:
 def real_arms(n: int, seed: int) -> dict[str, dict[str, Any]]:
     """Returns ``n`` arms drawn as generalist_real's training env draws them, by name."""
     from tendon2r_gym.envs.env_config import EnvConfig
+    from tendon2r_gym.task.arms import draw_episode_arm
     from tendon2r_gym.training import Hyperparams
 
     kwargs = Hyperparams.from_entry(REAL).env_kwargs
@@ -76,7 +77,7 @@ def real_arms(n: int, seed: int) -> dict[str, dict[str, Any]]:
     rng = np.random.default_rng(seed)
     out = {}
     for i in range(n):
-        arm = env.draw_arm(rng).to_dict()
+        arm = draw_episode_arm(env, rng).to_dict()
         content = {"preset": kwargs["preset"], "mechanism": arm["mechanism"],
                    "reference": arm["reference"], "fit_to_workspace": True,
                    "observation_noise": arm["observation_noise"],

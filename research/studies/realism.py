@@ -51,15 +51,16 @@ REALISM_POLICIES = (
 def perturbed_arms(preset: str, n: int, seed: int) -> list[dict[str, Any]]:
     """Returns the env kwargs (experiment-file content) of ``n`` arms: ``preset`` with every
     PERTURBATIONS value drawn from ``np.random.default_rng(seed)`` as a randomized env draws
-    them (EnvConfig.draw_arm with ``mechanism_ranges: real_arm``)."""
+    them (tendon2r_gym.task.arms.draw_episode_arm with ``mechanism_ranges: real_arm``)."""
     from tendon2r_gym.envs.env_config import EnvConfig
     from tendon2r_gym.simulation.realism import PERTURBATIONS
+    from tendon2r_gym.task.arms import draw_episode_arm
 
     randomized = EnvConfig.make(preset, mechanism_ranges="real_arm")
     rng = np.random.default_rng(seed)
     arms = []
     for _ in range(n):
-        arm = randomized.draw_arm(rng, randomized.reference)
+        arm = draw_episode_arm(randomized, rng, randomized.reference)
         drawn = arm.to_dict()
         arms.append(
             {

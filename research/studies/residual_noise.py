@@ -38,7 +38,7 @@ def noisy_pd(units: str, scale: float, seeds: tuple[int, ...] = SEEDS) -> list[f
         env = ResidualPDWrapper(base, scale, residual_units=units)
         env.reset(seed=seed)
         rng = np.random.default_rng(seed)
-        for _ in range(base.config.max_episode_steps):
+        for _ in range(base.timing.max_episode_steps):
             *_, terminated, _, info = env.step(rng.normal(size=2).astype(np.float32))
             errors.append(info["tracking_error_deg"])
             if terminated:

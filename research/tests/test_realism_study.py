@@ -9,6 +9,7 @@ from research.studies import realism
 from research.studies.realism import on_its_pd, perturbed_arms, realism_lines
 from tendon2r_gym.app.report import PRINTED
 from tendon2r_gym.envs.env_config import EnvConfig
+from tendon2r_gym.envs.timing import Timing
 from tendon2r_gym.evaluation.evaluator import evaluate
 from tendon2r_gym.simulation.mechanism import REALISM_LIMITS
 from tendon2r_gym.simulation.realism import PERTURBATIONS
@@ -64,7 +65,7 @@ def test_real_arm_preset_and_perturbed_arms():
     seeded and inside PERTURBATIONS; PD keeps real_arm stable."""
 
     real, ideal = EnvConfig.make("real_arm"), EnvConfig.make("pull_only")
-    assert all(getattr(real.mechanism, k) > 0 for k in REALISM_LIMITS) and real.sensed
+    assert all(getattr(real.mechanism, k) > 0 for k in REALISM_LIMITS) and Timing.of(real).sensed
     assert real.mechanism.ideal() == ideal.mechanism  # same arm, same auto force limit
     arms = perturbed_arms("real_arm", 4, 7)
     assert arms == perturbed_arms("real_arm", 4, 7) != perturbed_arms("real_arm", 4, 8)

@@ -25,6 +25,7 @@ import numpy as np
 from tendon2r_gym.app import report
 from tendon2r_gym.app.plots import plot_trace
 from tendon2r_gym.app.report import fmt, tol
+from tendon2r_gym.envs.env_config import resolve
 from tendon2r_gym.envs.registration import make as make_env
 from tendon2r_gym.evaluation.evaluator import (
     BASELINE,
@@ -160,8 +161,9 @@ def _row(
     plots: Path | None,
 ) -> dict[str, Any]:
     start = time.perf_counter()
-    metrics, traces = evaluate(policy, env_kwargs, seeds, model)
-    jittered = jittered_rms(policy, env_kwargs, seeds, model)
+    config = resolve(env_kwargs)  # once for the row's evaluations
+    metrics, traces = evaluate(policy, config, seeds, model)
+    jittered = jittered_rms(policy, config, seeds, model)
     row = {
         **metrics,
         "reproducible_to": reproducible_to(metrics["rms_deg"], jittered),
@@ -321,7 +323,7 @@ def held_out() -> list[dict[str, Any]]:
     if not shipped:
         return [{"policy": "ppo", "missing": "no shipped model of random references installed"}]
     models = [bundled_model(n) for n in shipped]
-    env_kwargs = training_record(models[0])["env_kwargs"]
+    config = resolve(training_record(models[0])["env_kwargs"])
     rows = []
     # PD is the baseline that needs no knowledge of the reference.
     for label, policy, learned in [
@@ -334,8 +336,8 @@ def held_out() -> list[dict[str, Any]]:
         errs, jittered = [], []
         for i, ref in enumerate(HELD_OUT):
             options = {"reference": ref}
-            errs.append(evaluate(policy, env_kwargs, [i], learned, options)[0]["rms_deg"])
-            jittered.append(jittered_rms(policy, env_kwargs, [i], learned, options))
+            errs.append(evaluate(policy, config, [i], learned, options)[0]["rms_deg"])
+            jittered.append(jittered_rms(policy, config, [i], learned, options))
         mean = np.mean(errs, axis=0).tolist()
         rows.append(
             {"policy": label, "rms_deg_per_reference": errs, "rms_deg_mean": mean,
@@ -367,11 +369,10 @@ def benchmark_own_arm(
     (tendon2r_gym.training.executors.make_executor: in this process, local workers, or a Ray
     cluster, which is joined before anything else runs); a seed trains to the same bits on
     each.  The rows are trained one after another, each row's seeds at once."""
-    from tendon2r_gym.envs.env_config import EnvConfig
     from tendon2r_gym.training import Hyperparams
     from tendon2r_gym.training.executors import InProcess, entered, make_executor
 
-    config = EnvConfig.make(env_config)  # every error before any training
+    config = resolve(env_config)  # every error before any training
     entries = dict(LEARNED) | FINETUNED
     if labels is not None:
         if unknown := set(labels) - set(entries):

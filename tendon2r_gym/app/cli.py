@@ -161,6 +161,7 @@ class EvaluateArgs:
 def evaluate_main(argv: list[str] | None = None) -> dict[str, Any]:
 
     import tendon2r_gym  # noqa: F401  (registers Tendon2R-v0)
+    from tendon2r_gym.envs.env_config import resolve
     from tendon2r_gym.evaluation.evaluator import evaluate, make_policy, resolve_model
     from tendon2r_gym.evaluation.rollout import rollout
     from tendon2r_gym.validation import choice, integer
@@ -177,8 +178,9 @@ def evaluate_main(argv: list[str] | None = None) -> dict[str, Any]:
 
         env_kwargs = in_model_settings(model, env_kwargs)
     seeds = list(range(args.seed, args.seed + args.episodes))
+    config = resolve(env_kwargs)  # once: the evaluation and the video
     with trusting_pickle(args.trust_pickle):  # --model of an earlier version
-        metrics, traces = evaluate(args.policy, env_kwargs, seeds, model)
+        metrics, traces = evaluate(args.policy, config, seeds, model)
     metrics["env_kwargs"], metrics["model"] = env_kwargs, None if model is None else str(model)
     keys = ("policy", "rms_deg", "max_deg", "rms_tension_N", "saturated_fraction", "steps")
     print(json.dumps({k: metrics[k] for k in keys}))
@@ -194,7 +196,7 @@ def evaluate_main(argv: list[str] | None = None) -> dict[str, Any]:
     if args.video:
         from tendon2r_gym.envs.registration import make as make_env_as_given
 
-        env = make_env_as_given(render_mode="rgb_array", width=480, height=360, **env_kwargs)
+        env = make_env_as_given(render_mode="rgb_array", width=480, height=360, config=config)
         with trusting_pickle(args.trust_pickle):
             trace = rollout(make_policy(args.policy, env, model), env, seeds[0], render=True)
         every = max(1, round(1 / 30 / env.unwrapped.ctrl_dt))  # ~30 fps of real time

@@ -38,12 +38,13 @@ def excite_main(argv: list[str] | None = None) -> dict[str, Any]:
     import numpy as np
     import yaml
 
+    from tendon2r_gym.envs.env_config import resolve
     from tendon2r_gym.identification.excitation import design
     from tendon2r_gym.validation import number
 
     args = parse(ExciteArgs, argv)
     number("--duration", args.duration, 0.0, 3600.0, lo_open=True)
-    signal, rehearsal = design(args.env_config, args.duration)
+    signal, rehearsal = design(resolve(args.env_config), args.duration)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rows = [np.concatenate([[t], *signal.q(t)]) for t in rehearsal.time]
@@ -83,12 +84,13 @@ class RecordArgs:
 
 
 def record_main(argv: list[str] | None = None) -> Path:
+    from tendon2r_gym.envs.env_config import resolve
     from tendon2r_gym.identification.excitation import design, record
 
     args = parse(RecordArgs, argv)
-    signal = design(args.excitation, args.duration)[0] if args.excitation else None
-    rec = record(args.env_config, args.policy, args.duration, args.seed, signal, args.tensions,
-                 args.model)  # fmt: skip
+    signal = design(resolve(args.excitation), args.duration)[0] if args.excitation else None
+    config = resolve(args.env_config)
+    rec = record(config, args.policy, args.duration, args.seed, signal, args.tensions, args.model)
     path = rec.save(args.out)
     print(f"wrote {path} ({len(rec.time)} rows)")
     return path
@@ -131,12 +133,12 @@ def identify_main(argv: list[str] | None = None) -> Any:
             f"tendon2r-identify needs MuJoCo's sysid toolbox ({e.name} is missing): "
             'pip install "tendon2r_gym[identify]"'
         ) from None
-    from tendon2r_gym.envs.env_config import EnvConfig
+    from tendon2r_gym.envs.env_config import resolve
     from tendon2r_gym.identification.identify import identify, load_recordings
     from tendon2r_gym.identification.report import save_experiment, save_html
 
     args = parse(IdentifyArgs, argv)
-    config = EnvConfig.make(args.env_config)
+    config = resolve(args.env_config)
     recs = load_recordings(args.recording, config)
     ident = identify(recs, config, args.fit, args.threads)
     print("\n".join(ident.lines()))

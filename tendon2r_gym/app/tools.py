@@ -45,14 +45,14 @@ def view_main(argv: list[str] | None = None) -> Path | None:
     import mujoco
     import numpy as np
 
-    from tendon2r_gym.envs.env_config import EnvConfig
+    from tendon2r_gym.envs.env_config import resolve
     from tendon2r_gym.simulation.model import CAMERA, build_model
     from tendon2r_gym.validation import integer, pair
 
     args = parse(ViewArgs, argv)
     integer("--width", args.width, 1, MAX_IMAGE_SIDE)
     integer("--height", args.height, 1, MAX_IMAGE_SIDE)
-    mech = EnvConfig.make(args.env_config).mechanism
+    mech = resolve(args.env_config).mechanism
     q_deg = pair("--q-deg", args.q_deg, *mech.joint_range_deg)
     model = build_model(mech)
     model.vis.global_.offwidth, model.vis.global_.offheight = args.width, args.height
@@ -105,11 +105,13 @@ class ExportArgs:
 def export_note(cfg: EnvConfig, name: str) -> str:
     """Returns the exported XML's top comment: its env config, how the env steps the model,
     and what of ``cfg`` the env does in Python (ExportArgs)."""
-    mech = cfg.mechanism
+    from tendon2r_gym.envs.timing import Timing
+
+    mech, timing = cfg.mechanism, Timing.of(cfg)
     lines = [
         f"Tendon2R-v0's model of {name} (tendon2r-export), exactly as the env steps it.",
         "ctrl: each motor's normalized command in [-1, 1]; an action holds it for ctrl_dt "
-        f"{cfg.ctrl_dt:g} s = {cfg.n_substeps} x timestep.",
+        f"{cfg.ctrl_dt:g} s = {timing.n_substeps} x timestep.",
     ]
     python = []
     from tendon2r_gym.simulation.realism import STEP_FIELDS
@@ -117,7 +119,7 @@ def export_note(cfg: EnvConfig, name: str) -> str:
     python += [
         f"{k} {getattr(mech, k):g} ({what})" for k, what in STEP_FIELDS.items() if getattr(mech, k)
     ]
-    if cfg.sensed:
+    if timing.sensed:
         noise, delay = list(cfg.observation_noise), cfg.observation_delay
         python.append(f"observation_noise {noise}, observation_delay {delay:g} s")
     if cfg.action_filter_tau > 0:
@@ -134,11 +136,11 @@ def export_note(cfg: EnvConfig, name: str) -> str:
 
 
 def export_main(argv: list[str] | None = None) -> Path:
-    from tendon2r_gym.envs.env_config import EnvConfig
+    from tendon2r_gym.envs.env_config import resolve
     from tendon2r_gym.simulation.model import to_xml
 
     args = parse(ExportArgs, argv)
-    cfg = EnvConfig.make(args.env_config)
+    cfg = resolve(args.env_config)
     name = Path(args.env_config).stem
     out = Path(args.out or f"build/{name}.xml")
     xml = to_xml(cfg.mechanism, export_note(cfg, name))

@@ -12,8 +12,9 @@ from gymnasium import spaces
 from gymnasium.envs.mujoco.mujoco_env import DEFAULT_SIZE, MujocoEnv
 from gymnasium.utils import EzPickle
 
-from tendon2r_gym.envs.env_config import EnvConfig
+from tendon2r_gym.envs.env_config import EnvConfig, resolve
 from tendon2r_gym.envs.task import DIVERGENCE_WARNING_IDS, Task, arm_params, reference_params
+from tendon2r_gym.envs.timing import Timing
 from tendon2r_gym.llvm import load_triton
 from tendon2r_gym.ops import SCALAR
 from tendon2r_gym.simulation.actuation import MomentArms, TorqueToTension, cond_of_rows
@@ -35,6 +36,9 @@ CARD_SECTIONS = (
     "Arguments",
     "Version History",
 )
+
+#: Tendon2REnv's own arguments besides the experiment (its preset or config): rendering.
+RENDER_ARGS = ("render_mode", "width", "height", "camera_name")
 
 
 class Tendon2REnv(MujocoEnv, EzPickle):
@@ -101,11 +105,13 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     (its version's, over the preset's values).
 
     Args:
-        preset: A bundled preset name or an experiment-file path (.yaml).
+        preset: A bundled preset name or an experiment-file path (.yaml), or an EnvConfig.
         render_mode: "human", "rgb_array" or "depth_array" (None: no rendering).
         width: The render width (px).
         height: The render height (px).
         camera_name: The camera that frames the whole arm ("side"), or None for a free one.
+        config: A resolved EnvConfig (EnvConfig.make) in place of ``preset`` and the
+            experiment's arguments (EnvConfig's fields): it is not resolved again.
 
     Real tendons, motors and the model's errors (``mechanism`` fields, off by default) are on
     [real tendons](real_tendons.md), arms drawn at every reset (``mechanism_ranges``) on
@@ -129,14 +135,17 @@ class Tendon2REnv(MujocoEnv, EzPickle):
 
     def __init__(
         self,
-        preset: str | os.PathLike = "default",
+        preset: EnvConfig | str | os.PathLike = "default",
         render_mode: str | None = None,
         width: int = DEFAULT_SIZE,
         height: int = DEFAULT_SIZE,
         camera_name: str | None = CAMERA,
+        config: EnvConfig | None = None,
         **kwargs: Any,
     ) -> None:
-        EzPickle.__init__(self, preset, render_mode, width, height, camera_name, **kwargs)
+        EzPickle.__init__(
+            self, preset, render_mode, width, height, camera_name, config=config, **kwargs
+        )
         # Every argument is checked before the model is built.
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise invalid(
@@ -148,7 +157,8 @@ class Tendon2REnv(MujocoEnv, EzPickle):
             raise invalid("camera_name", camera_name, f"None (free camera) or {CAMERA!r}")
         if render_mode is not None:  # before a GL context can bring Mesa's LLVM in
             load_triton()  # tendon2r_gym.llvm: triton loaded after it segfaults
-        self.config = cfg = EnvConfig.make(preset, **kwargs)
+        self.config = cfg = resolve(preset, config, **kwargs)
+        self.timing = Timing.of(cfg)
         self.mechanism = cfg.mechanism  # the current episode's arm (self.arm: its config)
         self.data: mujoco.MjData | None = None
         self.nominal_reference = self.reference = cfg.reference
@@ -166,7 +176,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         MujocoEnv.__init__(
             self,
             __file__,
-            cfg.n_substeps,
+            self.timing.n_substeps,
             observation_space=spaces.Box(-np.inf, np.inf, (n_obs,), np.float64),
             render_mode=render_mode,
             width=width,
@@ -190,16 +200,16 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     def _resolve_ids(self) -> None:
         """Caches views and constants used on every step (no name look-ups in the hot path)."""
         self.task = Task(self.config)
-        cfg = self.config
+        cfg, timing = self.config, self.timing
         self._delay: CommandDelay | None = None
-        if cfg.delay_capacity:
-            self._delay = CommandDelay(cfg.delay_capacity, 1, cfg.mechanism.n_tendons)
+        if timing.delay_capacity:
+            self._delay = CommandDelay(timing.delay_capacity, 1, cfg.mechanism.n_tendons)
         self._sensing: Sensors | None = None
-        if cfg.sensed:  # the observation is a measurement; reward and info are true
-            self._sensing = Sensors(cfg.observation_delay_capacity, 1, cfg.noisy)
+        if timing.sensed:  # the observation is a measurement; reward and info are true
+            self._sensing = Sensors(timing.observation_delay_capacity, 1, timing.noisy)
         self._last_truth: np.ndarray | None = None
         self._n = self.config.n_actions
-        self._filtered = self.config.action_filter_alpha != 1.0
+        self._filtered = timing.action_filter_alpha != 1.0
         self._err = obs_layout.ERROR
         self._fixed_reference: Reference | None = None
         self._bind_arm(self.config)
@@ -226,10 +236,12 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         # per access on every step.  The arm's joints are the first two (spools follow).
         self._qpos, self._qvel, self._ctrl = d.qpos[:2], d.qvel[:2], d.ctrl
         self.drive = Drive(self.model, self.mechanism)
-        if self._delay is not None:
-            self._delay.set_arm(0, arm.delay_steps, self.drive.ctrl)
-        if self._sensing is not None:
-            self._sensing.set_arm(0, arm.observation_delay_steps, arm.observation_noise)
+        if self._delay is not None or self._sensing is not None:
+            timing = self.timing if arm is self.config else Timing.of(arm)
+            if self._delay is not None:
+                self._delay.set_arm(0, timing.delay_steps, self.drive.ctrl)
+            if self._sensing is not None:
+                self._sensing.set_arm(0, timing.observation_delay_steps, arm.observation_noise)
         self._last_action = self.task.rest_command(arm)
         self._torque_map: TorqueToTension | None = None
         max_torque = None

@@ -5,12 +5,16 @@ overrides (`tendon2r_gym.presets.merge_env_kwargs`), checks every value, fits th
 to the workspace if asked, and sizes ``max_tendon_force: auto``.  Every error is raised here,
 before any MuJoCo model is built.  ``to_dict()`` is what a training run records, and what a
 trained model is checked against when it is loaded.
+
+An experiment is resolved once, where it enters (a CLI, ``gym.make``'s keywords, a library
+function given env kwargs: `resolve`), and the EnvConfig is passed down: the envs take one.
+Drawing an episode's arm is tendon2r_gym.task.arms.draw_episode_arm; the control steps and
+sensing the envs derive from a config are tendon2r_gym.envs.timing.Timing.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 import warnings
 from collections.abc import Mapping
@@ -22,17 +26,8 @@ import numpy as np
 from tendon2r_gym.presets import SECTIONS, load_preset, merge_env_kwargs
 from tendon2r_gym.simulation.mechanism import AUTO, Mechanism
 from tendon2r_gym.task import observation
-from tendon2r_gym.task.arms import (
-    CONTROLLER,
-    DELAYS,
-    MAX_TRIES,
-    SENSING,
-    TUNED_PHASE,
-    MechanismRanges,
-    gain_field,
-    reference_ranges,
-)
-from tendon2r_gym.task.gains import Gains, gains_of, tuned_bandwidth
+from tendon2r_gym.task.arms import MechanismRanges, draw_episode_arm, reference_ranges
+from tendon2r_gym.task.gains import Gains, gains_of
 from tendon2r_gym.task.needs import Needs, force_needs
 from tendon2r_gym.task.reference import Reference, ReferenceRanges, checked_reference
 from tendon2r_gym.task.rewards import ERROR_UNITS, MAX_REWARD_WEIGHT, REWARD_SCALES, TRACKING_FORMS
@@ -79,7 +74,7 @@ class EnvConfig:
     reference: Reference
     #: ReferenceRanges (a dict): draw a new reference every reset.
     reference_ranges: ReferenceRanges | None = None
-    #: Draw a new arm and its reference at every reset (draw_arm), each pair valid with its
+    #: Draw a new arm and its reference at every reset (draw_episode_arm), each pair valid with its
     #: own ``auto`` force limit: {field: [lo, hi]} of Mechanism, sensor or PD gain fields, a
     #: named set ("course", "envelope", "real_arm") or a list of these
     #: (tendon2r_gym.task.arms.MechanismRanges).
@@ -247,7 +242,7 @@ class EnvConfig:
         self._check_reference()
         self._size_force_limit()
         if self.mechanism_ranges is not None:  # raises now if no valid arm can be drawn
-            self.draw_arm(np.random.default_rng(0))
+            draw_episode_arm(self, np.random.default_rng(0))
 
     def _check_reference(self) -> None:
         ref = checked_reference(
@@ -294,71 +289,6 @@ class EnvConfig:
                     "a list without 'feedforward' on an arm with a joint no tendon spans",
                 )
 
-    # -- random arms ---------------------------------------------------------------------------
-    def draw_arm(self, rng: np.random.Generator, reference: Reference | None = None) -> EnvConfig:
-        """Returns the config of a random arm of ``mechanism_ranges`` and its episode's
-        reference (``reference``, else a draw of reference_ranges on that arm, else the
-        nominal one): `for_arm`.  Draws again until the pair is valid (a Mechanism,
-        stable, the reference's bias in its workspace); raises after MAX_TRIES draws."""
-        ranges = self.mechanism_ranges
-        if ranges is None:
-            return self
-        for _ in range(MAX_TRIES):
-            drawn = ranges.sample(rng)
-            for k in DELAYS:  # whole control steps
-                if k in drawn:
-                    drawn[k] = round(drawn[k] / self.ctrl_dt) * self.ctrl_dt
-            noise = [
-                drawn.pop(k, v) for k, v in zip(SENSING[1:], self.observation_noise, strict=True)
-            ]
-            delay = drawn.pop("observation_delay", self.observation_delay)
-            gains = {gain_field(k): drawn.pop(k) for k in CONTROLLER if k in drawn}
-            phase = drawn.pop(TUNED_PHASE, None)
-            try:
-                mech = self.base_mechanism.replace(**drawn)
-                if phase is not None:  # the bandwidth a tuning would pick on this arm
-                    f = tuned_bandwidth(mech, delay, self.ctrl_dt, phase)
-                    lo, hi = dict(ranges.ranges)["pd_bandwidth_hz"]
-                    gains["bandwidth_hz"] = min(max(f, lo), hi)
-                ref = reference
-                if ref is None and self.reference_ranges is not None:
-                    ref = self.reference_ranges.sample(rng, mech)
-                drawn_env = {"observation_noise": tuple(noise), "observation_delay": delay}
-                if gains:
-                    drawn_env["pd_gains"] = dataclasses.replace(gains_of(self.pd_gains), **gains)
-                return self.for_arm(mech, ref, **drawn_env)
-            except ValueError:
-                continue
-        raise invalid(
-            "mechanism_ranges",
-            ranges.to_dict(),
-            f"ranges where a valid arm (with this reference) is found in {MAX_TRIES} draws",
-        )
-
-    def for_arm(
-        self, mechanism: Mechanism, reference: Reference | None = None, **drawn_env: Any
-    ) -> EnvConfig:
-        """Returns the config of one arm and one reference (default: the nominal one), as a
-        user's experiment file gives them: nothing drawn, the reference's amplitudes fitted
-        to the arm's workspace (quietly), and an ``auto`` force limit sized for this arm and
-        this reference; ``drawn_env``: its observation_noise, observation_delay and pd_gains,
-        if drawn.
-        An env with this config runs the randomized env's episode exactly."""
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            return dataclasses.replace(
-                self,
-                mechanism=mechanism,
-                base_mechanism=None,
-                reference=self.reference if reference is None else reference,
-                reference_ranges=None,
-                mechanism_ranges=None,
-                observe=tuple(x for x in self.observe if x != "arm"),
-                arm_feature_ranges=None,
-                fit_to_workspace=True,
-                **drawn_env,
-            )
-
     # -- derived quantities ------------------------------------------------------------------
     @property
     def observation(self) -> observation.Layout:
@@ -375,66 +305,10 @@ class EnvConfig:
         return self.arm_feature_ranges or self.mechanism_ranges
 
     @property
-    def n_substeps(self) -> int:
-        """Returns the physics steps per control step."""
-        return round(self.ctrl_dt / self.mechanism.sim_dt)
-
-    @property
     def n_actions(self) -> int:
         """Returns the action's length: one per tendon ("tension") or per joint
         ("joint_torque")."""
         return self.mechanism.n_tendons if self.action_mode == "tension" else 2
-
-    @property
-    def delay_steps(self) -> int:
-        """Returns the control steps each motor command is held back (mechanism.motor_delay)."""
-        return round(self.mechanism.motor_delay / self.ctrl_dt)
-
-    @property
-    def observation_delay_steps(self) -> int:
-        """Returns the control steps each measurement is late (observation_delay)."""
-        return round(self.observation_delay / self.ctrl_dt)
-
-    def _drawn_high(self, name: str, value: float) -> float:
-        """Returns the largest value of field ``name`` an episode can have: ``value`` (the
-        config's), or the top of its range if mechanism_ranges draws it."""
-        ranges = self.mechanism_ranges
-        return value if ranges is None or name not in ranges.names else ranges.high(name)
-
-    @property
-    def delay_capacity(self) -> int:
-        """Returns the most control steps any episode holds a command back (0: no delay)."""
-        return round(self._drawn_high("motor_delay", self.mechanism.motor_delay) / self.ctrl_dt)
-
-    @property
-    def observation_delay_capacity(self) -> int:
-        """Returns the most control steps any episode's measurements are late."""
-        return round(self._drawn_high("observation_delay", self.observation_delay) / self.ctrl_dt)
-
-    @property
-    def noisy(self) -> bool:
-        """Returns whether any episode's measurements can carry noise."""
-        return any(
-            self._drawn_high(k, v) > 0
-            for k, v in zip(SENSING[1:], self.observation_noise, strict=True)
-        )
-
-    @property
-    def sensed(self) -> bool:
-        """Returns whether the observation is (or in some episode may be) a measurement, noisy
-        or late, not the state."""
-        return self.observation_delay_capacity > 0 or self.noisy
-
-    @property
-    def action_filter_alpha(self) -> float:
-        """Returns the weight of a new action in the applied command, 1 - exp(-ctrl_dt / tau)
-        (1: no filter)."""
-        return low_pass_alpha(self.action_filter_tau, self.ctrl_dt)
-
-    @property
-    def max_episode_steps(self) -> int:
-        """Returns the control steps per episode: episode_duration / ctrl_dt."""
-        return round(self.episode_duration / self.ctrl_dt)
 
     def to_dict(self) -> dict[str, Any]:
         """Returns the config as plain YAML-friendly env kwargs (an experiment file)."""
@@ -463,9 +337,27 @@ def arguments() -> list[str]:
 assert set(SECTIONS) <= set(arguments())
 
 
-def low_pass_alpha(tau: float, dt: float) -> float:
-    """Returns the weight of a new input to a first-order low-pass of time constant ``tau``
-    sampled every ``dt``, y <- y + alpha (x - y): alpha = 1 - exp(-dt / tau), 1 for ``tau =
-    0`` (no filter).  The env's action filter and a residual's filter (learned.ResidualFilter)
-    both use it."""
-    return 1.0 if tau == 0.0 else -math.expm1(-dt / tau)
+def resolve(
+    env: EnvConfig | Mapping[str, Any] | str | os.PathLike = "default",
+    config: EnvConfig | None = None,
+    **overrides: Any,
+) -> EnvConfig:
+    """Returns the EnvConfig of ``env``: itself if it is one (or ``config``, its keyword form;
+    then no ``overrides``), else the config of env kwargs (a mapping, ``preset`` among them)
+    or of a preset name or experiment-file path, with ``overrides``.  The one door from
+    kwargs to a config: the envs' keyword path and every library function given env kwargs
+    go through it."""
+    if config is not None:
+        if not (isinstance(env, str) and env == "default"):
+            raise invalid("config", type(env).__name__, "alone, not beside a preset")
+        env = config
+    if isinstance(env, EnvConfig):
+        if overrides:
+            raise invalid(
+                "config", sorted(overrides), "alone: an EnvConfig is resolved, give no env kwarg"
+            )
+        return env
+    if isinstance(env, Mapping):
+        overrides = {**env, **overrides}
+        env = overrides.pop("preset", "default")
+    return EnvConfig.make(env, **overrides)

@@ -8,15 +8,27 @@ from typing import Any
 
 import gymnasium as gym
 
-from tendon2r_gym.envs.env import Tendon2REnv
+from tendon2r_gym.envs.env import RENDER_ARGS, Tendon2REnv
+from tendon2r_gym.envs.env_config import EnvConfig, resolve
 
 
-def make_env(preset: str | os.PathLike = "default", **kwargs: Any) -> gym.Env:
+def make_env(preset: EnvConfig | str | os.PathLike = "default", **kwargs: Any) -> gym.Env:
     """The registered entry point: Tendon2REnv under a TimeLimit of episode_duration / ctrl_dt
     steps, so ``gym.make(..., episode_duration=X, ctrl_dt=Y)`` gives X / Y steps (the TimeLimit
-    is the one source of truth for truncation, and ``env.spec.max_episode_steps`` reports it)."""
-    env = Tendon2REnv(preset, **kwargs)
-    return gym.wrappers.TimeLimit(env, env.config.max_episode_steps)
+    is the one source of truth for truncation, and ``env.spec.max_episode_steps`` reports it).
+    The experiment is resolved here, once (or given resolved: ``config=``), and passed down."""
+    config, render = resolved(preset, kwargs)
+    env = Tendon2REnv(config, **render)
+    return gym.wrappers.TimeLimit(env, env.timing.max_episode_steps)
+
+
+def resolved(
+    preset: EnvConfig | str | os.PathLike, kwargs: dict[str, Any]
+) -> tuple[EnvConfig, dict[str, Any]]:
+    """Returns the EnvConfig of an entry point's ``preset`` and ``kwargs`` (``config``
+    among them, if resolved already), and the rendering arguments among them (RENDER_ARGS)."""
+    render = {k: kwargs.pop(k) for k in RENDER_ARGS if k in kwargs}
+    return resolve(preset, **kwargs), render
 
 
 #: The id the library's own tools make envs with: Tendon2R-v0 adds no defaults over a preset,

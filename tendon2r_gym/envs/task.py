@@ -21,9 +21,11 @@ from typing import TYPE_CHECKING, Any
 import mujoco
 import numpy as np
 
+from tendon2r_gym.envs.timing import low_pass_alpha
 from tendon2r_gym.ops import Ops
 from tendon2r_gym.presets import merge_reference
 from tendon2r_gym.task import observation as L
+from tendon2r_gym.task.arms import draw_episode_arm
 from tendon2r_gym.task.gains import gains_of
 from tendon2r_gym.task.reference import Reference
 from tendon2r_gym.task.rewards import MULTISCALE, TERMS
@@ -140,7 +142,7 @@ class Task:
         self.horizon = config.tracking_horizon
         #: Whether tracking_rate is weighed: only then does the reward read the error's rate.
         self.weighs_rate = self.scales["tracking_rate"] != 0.0
-        self.alpha = config.action_filter_alpha
+        self.alpha = low_pass_alpha(config.action_filter_tau, config.ctrl_dt)
         # The effort term charges the commanded tension as a fraction of the force limit
         # (Mechanism.command_map: (command + 1) / 2 for pull-only motors, whose -1 is slack) in
         # tension mode, the normalized joint torque in joint-torque mode.
@@ -186,11 +188,12 @@ class Task:
     ) -> tuple[EnvConfig, Reference]:
         """Returns the episode's arm config and reference.  With ``mechanism_ranges``: a drawn
         arm and its reference (``fixed``, else a draw of reference_ranges, else the nominal
-        one; EnvConfig.draw_arm), the arm's force limit sized for it.  Else the env's config
-        and ``fixed``, else a draw from ``reference_ranges``, else the nominal reference."""
+        one; tendon2r_gym.task.arms.draw_episode_arm), the arm's force limit sized for it.
+        Else the env's config and ``fixed``, else a draw from ``reference_ranges``, else the
+        nominal reference."""
         cfg = self.config
         if cfg.mechanism_ranges is not None:
-            arm = cfg.draw_arm(rng, fixed)
+            arm = draw_episode_arm(cfg, rng, fixed)
             return arm, arm.reference
         if fixed is not None:
             return cfg, fixed

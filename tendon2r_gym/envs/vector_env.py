@@ -26,8 +26,9 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from mujoco import batch as mj_batch
 
-from tendon2r_gym.envs.env_config import EnvConfig
+from tendon2r_gym.envs.env_config import EnvConfig, resolve
 from tendon2r_gym.envs.task import DIVERGENCE_WARNING_IDS, Task, arm_params, reference_params
+from tendon2r_gym.envs.timing import Timing
 from tendon2r_gym.envs.vector_info import autoreset, with_final, without_empty
 from tendon2r_gym.ops import BATCH
 from tendon2r_gym.simulation.actuation import TorqueToTension, cond_of_rows, sparse_rows
@@ -40,7 +41,8 @@ from tendon2r_gym.validation import boolean, integer, invalid, real_array
 
 class Tendon2RVectorEnv(VectorEnv):
     """N Tendon2R arms in one process (see the module docstring).  Takes the arguments of
-    the Tendon2R env (preset, mechanism, reference, ...) plus ``num_envs``, ``autoreset_mode``,
+    the Tendon2R env (preset, mechanism, reference, ..., or a resolved EnvConfig as ``preset``
+    or ``config``) plus ``num_envs``, ``autoreset_mode``,
     ``nthread`` (MuJoCo batch threads; None: one per ARMS_PER_THREAD arms, up to the CPUs this
     process may use; 0: one per CPU) and ``stagger`` (training: after each full reset, arm i's
     episode is already i / N of the way to its step limit, so the arms desynchronize; off by
@@ -51,20 +53,22 @@ class Tendon2RVectorEnv(VectorEnv):
     def __init__(
         self,
         num_envs: int,
-        preset: str | os.PathLike = "default",
+        preset: EnvConfig | str | os.PathLike = "default",
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
         nthread: int | None = None,
         max_episode_steps: int | None = None,
         stagger: bool = False,
+        config: EnvConfig | None = None,
         **kwargs: Any,
     ) -> None:
         self.num_envs = integer("num_envs", num_envs, 1, 1_000_000)
-        self.config = cfg = EnvConfig.make(preset, **kwargs)
+        self.config = cfg = resolve(preset, config, **kwargs)
+        self.timing = timing = Timing.of(cfg)
         mode = autoreset(autoreset_mode)
         self.metadata = {**type(self).metadata, "autoreset_mode": mode}
         self.autoreset_mode = mode
         self.max_episode_steps = (
-            cfg.max_episode_steps
+            timing.max_episode_steps
             if max_episode_steps is None
             else integer("max_episode_steps", max_episode_steps, 1, 10**9)
         )
@@ -100,14 +104,15 @@ class Tendon2RVectorEnv(VectorEnv):
             self._scratch = mujoco.MjData(self.model)
             self._act = b.bind("act")
         self._delay: CommandDelay | None = None
-        if cfg.delay_capacity:
+        if timing.delay_capacity:
             n_motors = cfg.mechanism.n_tendons
-            self._delay = CommandDelay(cfg.delay_capacity, self.num_envs, n_motors)
+            self._delay = CommandDelay(timing.delay_capacity, self.num_envs, n_motors)
         self._sensing: Sensors | None = None
-        if cfg.sensed:  # the observation is a measurement; reward and info are true
-            self._sensing = Sensors(cfg.observation_delay_capacity, self.num_envs, cfg.noisy)
+        if timing.sensed:  # the observation is a measurement; reward and info are true
+            n_late = timing.observation_delay_capacity
+            self._sensing = Sensors(n_late, self.num_envs, timing.noisy)
         for i in range(self.num_envs):
-            self._bind_delays(i, cfg, self.drive)
+            self._bind_delays(i, cfg, self.drive, timing)
         if cfg.mechanism.elastic:
             self._qfrc_passive = b.bind("qfrc_passive")  # the cables' force on their spools
         self.task = Task(cfg)
@@ -234,12 +239,18 @@ class Tendon2RVectorEnv(VectorEnv):
             max_torque = np.broadcast_to(self._torque_map.max_torque, need.shape)
         self._rate_inv = self.task.rate_need_inverse(need, max_torque)
 
-    def _bind_delays(self, i: int, arm: EnvConfig, drive: Drive) -> None:
-        """Gives slot i the motor delay, rest command and sensors of the arm config ``arm``."""
+    def _bind_delays(
+        self, i: int, arm: EnvConfig, drive: Drive, timing: Timing | None = None
+    ) -> None:
+        """Gives slot i the motor delay, rest command and sensors of the arm config ``arm``
+        (``timing``: its Timing, if known)."""
+        if self._delay is None and self._sensing is None:
+            return
+        timing = timing or Timing.of(arm)
         if self._delay is not None:
-            self._delay.set_arm(i, arm.delay_steps, drive.ctrl)
+            self._delay.set_arm(i, timing.delay_steps, drive.ctrl)
         if self._sensing is not None:
-            self._sensing.set_arm(i, arm.observation_delay_steps, arm.observation_noise)
+            self._sensing.set_arm(i, timing.observation_delay_steps, arm.observation_noise)
 
     def _settle(self, i: int, q: np.ndarray, dq: np.ndarray) -> None:
         """Puts arm i at rest with its motors and cables (realism.Drive.settle, as the single
@@ -290,7 +301,7 @@ class Tendon2RVectorEnv(VectorEnv):
         self._ctrl[active] = u[active]
         failed = np.zeros(n, dtype=bool)
         try:
-            self.batch.step(ids, nstep=self.config.n_substeps)
+            self.batch.step(ids, nstep=self.timing.n_substeps)
         except mj_batch.SimulationError as e:  # MuJoCo raised: those arms diverged
             failed[e.ids] = True
         diverged = self._check_divergence(active, failed)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -11,6 +11,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from tendon2r_gym.envs.env_config import EnvConfig, resolve
 from tendon2r_gym.envs.registration import make as make_env
 from tendon2r_gym.evaluation.metrics import tracking_metrics
 from tendon2r_gym.evaluation.rollout import Policy, Trace, rollouts
@@ -121,20 +122,22 @@ class Jittered:
 
 def evaluate(
     name: str,
-    env_kwargs: dict[str, Any],
+    env: EnvConfig | Mapping[str, Any],
     seeds: list[int],
     model: str | Path | None = None,
     options: dict[str, Any] | None = None,
     jitter: int | None = None,
 ) -> tuple[dict[str, Any], list[Trace]]:
-    """Rolls policy ``name`` out on ``seeds``; returns (metrics, traces).  ``jitter``: the
-    policy is `Jittered` with that seed."""
-    probe = make_env(**env_kwargs)
+    """Rolls policy ``name`` out on ``seeds`` of the env ``env`` (an EnvConfig, or env kwargs:
+    resolved once); returns (metrics, traces).  ``jitter``: the policy is `Jittered` with
+    that seed."""
+    config = resolve(env)
+    probe = make_env(config=config)
     policy = make_policy(name, probe, model)
     probe.close()
     if jitter is not None:
         policy = Jittered(policy, jitter)
-    traces = rollouts(policy, env_kwargs, seeds, options)
+    traces = rollouts(policy, config, seeds, options)
     return {"policy": name, **tracking_metrics(traces)}, traces
 
 
@@ -146,14 +149,16 @@ REPRO_RUNS = 2
 
 def jittered_rms(
     policy: str,
-    env_kwargs: dict[str, Any],
+    env: EnvConfig | Mapping[str, Any],
     seeds: list[int],
     model: str | Path | None,
     options: dict[str, Any] | None = None,
 ) -> list[list[float]]:
-    """Returns the RMS error per joint of each of the REPRO_RUNS jittered re-evaluations."""
+    """Returns the RMS error per joint of each of the REPRO_RUNS jittered re-evaluations (of
+    the env ``env``, resolved once)."""
+    config = resolve(env)
     return [
-        evaluate(policy, env_kwargs, seeds, model, options, jitter=k)[0]["rms_deg"]
+        evaluate(policy, config, seeds, model, options, jitter=k)[0]["rms_deg"]
         for k in range(1, REPRO_RUNS + 1)
     ]
 

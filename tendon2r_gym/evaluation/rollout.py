@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
 import gymnasium as gym
 import numpy as np
+
+from tendon2r_gym.envs.env_config import EnvConfig, resolve
 
 
 class Policy(Protocol):
@@ -71,18 +73,18 @@ def rollout(
 
 def rollouts(
     policy: Policy,
-    env_kwargs: dict[str, Any],
+    env: EnvConfig | Mapping[str, Any],
     seeds: Sequence[int],
     options: dict[str, Any] | None = None,
 ) -> list[Trace]:
     """Runs one deterministic episode per seed, all at once on the native vector env (one arm
-    per seed, the policy called on the batch of observations).  Each episode equals
-    ``rollout`` on ``tendon2r_gym.envs.registration.make(**env_kwargs)`` with that seed, bit for
-    bit."""
+    per seed, the policy called on the batch of observations) of ``env`` (an EnvConfig, or
+    env kwargs: resolved once).  Each episode equals ``rollout`` on
+    ``tendon2r_gym.envs.registration.make(config=config)`` with that seed, bit for bit."""
     from tendon2r_gym.envs.vector_env import Tendon2RVectorEnv
 
     n = len(seeds)
-    envs = Tendon2RVectorEnv(n, **env_kwargs)
+    envs = Tendon2RVectorEnv(n, resolve(env))
     try:
         obs, info = envs.reset(seed=list(seeds), options=options)
         _start_episode(policy, info)

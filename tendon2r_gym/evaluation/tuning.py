@@ -27,12 +27,11 @@ depends only on its gains and its seeds, so the scan is the same on every execut
 from __future__ import annotations
 
 import math
-import tempfile
-from dataclasses import dataclass
-from pathlib import Path
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
 from typing import Any
 
-from tendon2r_gym.envs.env_config import EnvConfig
+from tendon2r_gym.envs.env_config import EnvConfig, resolve
 from tendon2r_gym.evaluation.evaluator import evaluate
 from tendon2r_gym.evaluation.metrics import tracking_metrics
 from tendon2r_gym.task.gains import Gains, default_gains, gains_of
@@ -92,54 +91,35 @@ def delay_phase_grid() -> list[float]:
 
 @dataclass(frozen=True)
 class ScanPoint:
-    """One job of a scan: PD on ``env_kwargs`` (the point's gains set) over ``seeds``.
-    ``preset_file``: the bytes of the experiment file that ``env_kwargs["preset"]`` names, for
-    a node that may not see it (a Ray cluster), else None."""
+    """One job of a scan: PD on ``config`` (the env's, the point's gains set) over ``seeds``.
+    The config is resolved: a node that cannot see the experiment file (a Ray cluster) runs
+    it as it is."""
 
-    env_kwargs: dict[str, Any]
+    config: EnvConfig
     seeds: tuple[int, ...]
-    preset_file: bytes | None = None
 
 
 def scan_point(job: ScanPoint) -> tuple[float, ...]:
     """An executor's job: the worst-joint RMS error (deg) of each of ``job.seeds``'s episodes
-    of PD on ``job.env_kwargs``."""
-    if job.preset_file is None:
-        return _worst_per_episode(job.env_kwargs, list(job.seeds))
-    with tempfile.TemporaryDirectory(prefix="tendon2r-tune-") as tmp:
-        preset = Path(tmp, Path(str(job.env_kwargs["preset"])).name)
-        preset.write_bytes(job.preset_file)
-        return _worst_per_episode({**job.env_kwargs, "preset": str(preset)}, list(job.seeds))
-
-
-def _worst_per_episode(env_kwargs: dict[str, Any], seeds: list[int]) -> tuple[float, ...]:
-    _, traces = evaluate("pd", env_kwargs, seeds)
+    of PD on ``job.config``."""
+    _, traces = evaluate("pd", job.config, list(job.seeds))
     return tuple(max(tracking_metrics([t])["rms_deg"]) for t in traces)
 
 
-def _preset_file(env_kwargs: dict[str, Any], executor: Any) -> bytes | None:
-    """Returns the experiment file's bytes if ``executor``'s jobs may run on another machine
-    and ``env_kwargs`` names one by a path (a preset name is in the package on every node)."""
-    preset = env_kwargs.get("preset")
-    if not getattr(executor, "remote", False) or not isinstance(preset, (str, Path)):
-        return None
-    path = Path(preset)
-    return path.read_bytes() if path.suffix in (".yaml", ".yml") and path.is_file() else None
-
-
 def tune_pd(
-    env_kwargs: dict[str, Any],
+    env: EnvConfig | Mapping[str, Any],
     episodes: int = 3,
     scan: str = "bandwidth_hz",
     executor: Any = None,
 ) -> Scan:
     """Scans PD's ``scan`` gain (one of SCANS) on ``episodes`` held-out episodes of the env
-    (see the module docstring) and returns the scan with the chosen gains (the env's others
-    kept).  ``executor``: runs each grid point as one job (tendon2r_gym.training.executors;
-    None: one after another in this process); the scan is the same on every executor."""
+    ``env`` (an EnvConfig, or env kwargs: resolved once; see the module docstring) and
+    returns the scan with the chosen gains (the env's others kept).  ``executor``: runs each
+    grid point as one job (tendon2r_gym.training.executors; None: one after another in this
+    process); the scan is the same on every executor."""
     if scan not in SCANS:
         raise invalid("scan", scan, f"one of {SCANS}")
-    config = EnvConfig.make(**env_kwargs)
+    config = resolve(env)
     if config.mechanism_ranges is not None and config.mechanism_ranges.draws_gains:
         raise invalid(
             "mechanism_ranges",
@@ -154,8 +134,7 @@ def tune_pd(
         grid = delay_phase_grid()
         base["bandwidth_hz"] = max(bandwidth_grid(config))
     seeds = tuple(range(TUNE_SEED, TUNE_SEED + episodes))
-    preset = _preset_file(env_kwargs, executor)
-    jobs = [ScanPoint({**env_kwargs, "pd_gains": {**base, scan: value}}, seeds, preset)
+    jobs = [ScanPoint(replace(config, pd_gains=gains_of({**base, scan: value})), seeds)
             for value in grid]  # fmt: skip
     if executor is None:
         worst = [scan_point(job) for job in jobs]

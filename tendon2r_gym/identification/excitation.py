@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from tendon2r_gym.envs.env_config import EnvConfig
+from tendon2r_gym.envs.env_config import EnvConfig, resolve
 from tendon2r_gym.evaluation.rollout import Policy
 from tendon2r_gym.identification.recording import Recording
 from tendon2r_gym.task.observation import DQ, DQ_DES, Q_DES, Q
@@ -120,12 +120,12 @@ class Excitation:
         return self.policy.predict(obs, state, episode_start, deterministic)
 
 
-def _env(config: EnvConfig | str | os.PathLike, duration: float, **overrides: Any):
+def _env(cfg: EnvConfig, duration: float, **overrides: Any):
+    """The env of ``cfg`` with ``overrides`` for ``duration`` s: an experiment of its own,
+    resolved as its kwargs over the default preset."""
     from tendon2r_gym.envs.env import Tendon2REnv
 
-    cfg = config if isinstance(config, EnvConfig) else EnvConfig.make(config)
-    kwargs = {**cfg.to_dict(), **overrides, "episode_duration": duration}
-    return Tendon2REnv(**kwargs)
+    return Tendon2REnv(resolve({**cfg.to_dict(), **overrides, "episode_duration": duration}))
 
 
 def record(
@@ -145,8 +145,9 @@ def record(
     from tendon2r_gym.evaluation.evaluator import make_policy
 
     number("duration", duration, 0.0, 3600.0, lo_open=True)
-    overrides = {} if signal is None else _signal_overrides(config, signal)
-    env = _env(config, duration, **overrides)
+    cfg = resolve(config)
+    overrides = {} if signal is None else _signal_overrides(cfg, signal)
+    env = _env(cfg, duration, **overrides)
     try:
         pol = make_policy(policy, env, model) if isinstance(policy, str) else policy
         if signal is not None:
@@ -165,9 +166,8 @@ def record(
         env.close()
 
 
-def _signal_overrides(config: EnvConfig | str | os.PathLike, signal: MultiSine) -> dict[str, Any]:
+def _signal_overrides(cfg: EnvConfig, signal: MultiSine) -> dict[str, Any]:
     """The env's settings to track ``signal``: at rest at its start, with the arm's force limit."""
-    cfg = config if isinstance(config, EnvConfig) else EnvConfig.make(config)
     start = [math.degrees(b) for b in signal.bias_rad]
     return {
         "reference": {"amp_deg": [0.0, 0.0], "bias_deg": start},
@@ -188,7 +188,7 @@ def _rollout(env: Any, pol: Any, seed: int) -> tuple[dict[str, list], Any]:
     force = float(mech.max_tendon_force)
     rows: dict[str, list] = {"q": [], "dq": [], "command": [], "tension": []}
     tension = env.tendon_tensions()
-    for _ in range(env.config.max_episode_steps):
+    for _ in range(env.timing.max_episode_steps):
         action, _ = pol.predict(obs, deterministic=True)
         rows["q"].append(obs[Q])
         rows["dq"].append(obs[DQ])
@@ -223,7 +223,7 @@ def design(
 ) -> tuple[MultiSine, Recording]:
     """Returns the excitation of the arm of ``config`` (module docstring) and its rehearsal:
     the recording of PD tracking it on the nominal arm, noise-free."""
-    cfg = config if isinstance(config, EnvConfig) else EnvConfig.make(config)
+    cfg = resolve(config)
     nominal = EnvConfig.from_kwargs(
         {**cfg.to_dict(), "observation_noise": [0.0, 0.0], "observation_delay": 0.0}
     )

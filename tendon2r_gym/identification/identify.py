@@ -48,6 +48,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from tendon2r_gym.envs.env_config import EnvConfig
+from tendon2r_gym.envs.timing import Timing
 from tendon2r_gym.identification import recording
 from tendon2r_gym.identification.fit import (
     ANGLE_UNIT,
@@ -308,7 +309,8 @@ def _delay_scan(config: EnvConfig, asked: list[str]) -> tuple[range, int]:
 
 def _kept(config: EnvConfig) -> dict[str, int]:
     """The nominal delays (control steps)."""
-    return {"motor_delay": config.delay_steps, "observation_delay": config.observation_delay_steps}
+    timing = Timing.of(config)
+    return {"motor_delay": timing.delay_steps, "observation_delay": timing.observation_delay_steps}
 
 
 def _final_fit(prob: Problem, d: int, x: np.ndarray) -> np.ndarray:

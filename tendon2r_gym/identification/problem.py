@@ -17,6 +17,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from tendon2r_gym.envs.env_config import EnvConfig
+from tendon2r_gym.envs.timing import Timing
 from tendon2r_gym.identification.fit import PIECE_S, Pieces, Replay
 from tendon2r_gym.identification.recording import Recording
 from tendon2r_gym.identification.result import FIELDS
@@ -130,7 +131,7 @@ class Problem:
         pieces = Pieces(
             self.recordings, cfg.ctrl_dt, d, stage.piece_s, stage.spacing_s, first=self.first
         )
-        self.rep = Replay(pieces, cfg.n_substeps, self.threads)
+        self.rep = Replay(pieces, Timing.of(cfg).n_substeps, self.threads)
         self.rep.refine_starts(self.arm(x), passes)
         return self.rep
 

@@ -23,6 +23,7 @@ import mujoco
 import numpy as np
 
 from tendon2r_gym.envs.env_config import ACTION_MODES
+from tendon2r_gym.envs.timing import low_pass_alpha
 from tendon2r_gym.simulation.actuation import TorqueToTension
 from tendon2r_gym.simulation.mechanism import Mechanism
 from tendon2r_gym.task import observation
@@ -40,7 +41,7 @@ def _env_options(config: Any) -> dict[str, Any]:
     return {
         "gains": config.pd_gains,
         "action_mode": config.action_mode,
-        "action_filter": (config.action_filter_alpha, where),
+        "action_filter": (low_pass_alpha(config.action_filter_tau, config.ctrl_dt), where),
         "observation_delay": config.observation_delay,
     }
 

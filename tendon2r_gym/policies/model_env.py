@@ -7,13 +7,14 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
-from tendon2r_gym.envs.env_config import EnvConfig
+from tendon2r_gym.envs.env_config import EnvConfig, resolve
 from tendon2r_gym.policies.runs import training_record
 from tendon2r_gym.simulation.mechanism import Mechanism
 from tendon2r_gym.task import observation
@@ -79,11 +80,11 @@ def model_settings(model_path: str | Path) -> dict[str, Any]:
     return recorded_settings((training_record(model_path) or {}).get("env_config", {}))
 
 
-def settings_on(model_path: str | Path, env_kwargs: dict[str, Any]) -> dict[str, Any]:
-    """Returns the model's `model_settings` that differ from those of the env of
-    ``env_kwargs`` (an arm): with them added, the arm's env is one the model runs in, and a
-    report names them beside its row."""
-    config = EnvConfig.make(**env_kwargs)
+def settings_on(model_path: str | Path, env: EnvConfig | Mapping[str, Any]) -> dict[str, Any]:
+    """Returns the model's `model_settings` that differ from those of the env ``env`` (an
+    arm: an EnvConfig, or env kwargs, resolved once): with them added, the arm's env is one
+    the model runs in, and a report names them beside its row."""
+    config = resolve(env)
     ours = config_settings(config)
     out = {k: v for k, v in model_settings(model_path).items() if _plain(ours[k]) != _plain(v)}
     if "observe" in out and "arm" in config.observe:  # the env's own arm slice stays
@@ -184,8 +185,8 @@ def fine_tune_env_kwargs(model_path: str | Path, env_kwargs: dict[str, Any]) -> 
     its deployment see the arm as the model did."""
     out = in_model_settings(model_path, env_kwargs)
     recorded = (training_record(model_path) or {}).get("env_config", {})
-    if observes_arm(recorded):
-        observe = [n for n in EnvConfig.make(**out).observe if n != "arm"] + ["arm"]
+    if observes_arm(recorded):  # the observe list of the run's own experiment (``out``)
+        observe = [n for n in resolve(out).observe if n != "arm"] + ["arm"]
         out.update(observe=observe, arm_feature_ranges=feature_ranges(recorded).to_dict())
     return out
 

@@ -18,14 +18,17 @@ from __future__ import annotations
 
 import dataclasses
 import os
+from collections.abc import Mapping
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
 from tendon2r_gym.envs.env import Tendon2REnv
-from tendon2r_gym.envs.env_config import low_pass_alpha
+from tendon2r_gym.envs.env_config import EnvConfig, resolve
 from tendon2r_gym.envs.registration import make as make_env
+from tendon2r_gym.envs.registration import resolved
+from tendon2r_gym.envs.timing import low_pass_alpha
 from tendon2r_gym.policies.baselines import PDPolicy
 from tendon2r_gym.validation import invalid, number, real_array
 
@@ -182,7 +185,7 @@ def residual_command(
 
 
 def make_residual_env(
-    preset: str | os.PathLike = "default",
+    preset: EnvConfig | str | os.PathLike = "default",
     residual_scale: float = 1.0,
     residual_units: str = "need",
     residual_filter_tau: float = 0.0,
@@ -192,15 +195,18 @@ def make_residual_env(
     ``kwargs``) with PD inside (``ResidualPDWrapper``), under a TimeLimit of
     episode_duration / ctrl_dt steps.  ``gym.make`` gives what the name says: the action is a
     correction to PD's command, by default in multiples of each joint's torque need."""
-    env = Tendon2REnv(preset, **kwargs)
+    config, render = resolved(preset, kwargs)  # once, passed down
+    env = Tendon2REnv(config, **render)
     wrapped = ResidualPDWrapper(env, residual_scale, residual_filter_tau, residual_units)
-    return gym.wrappers.TimeLimit(wrapped, env.config.max_episode_steps)
+    return gym.wrappers.TimeLimit(wrapped, env.timing.max_episode_steps)
 
 
-def make_training_env(env_kwargs: dict[str, Any], residual: Residual = NO_RESIDUAL) -> gym.Env:
-    """Returns Tendon2R-v0 with the given kwargs, wrapped for residual learning if
-    ``residual`` is active."""
-    env = make_env(**env_kwargs)
+def make_training_env(
+    env_kwargs: EnvConfig | Mapping[str, Any], residual: Residual = NO_RESIDUAL
+) -> gym.Env:
+    """Returns Tendon2R-v0 of ``env_kwargs`` (an EnvConfig, or env kwargs: resolved once),
+    wrapped for residual learning if ``residual`` is active."""
+    env = make_env(config=resolve(env_kwargs))
     if not residual.active:
         return env
     return ResidualPDWrapper(env, **residual.to_record())

@@ -16,7 +16,7 @@ Each draw is an experiment file's content (``mechanism``, ``reference``,
 
 `MechanismRanges` is the one per-episode randomization of the arm, shared by the random
 geometry of "One policy for every arm" and the random cables and motors of "Real tendons":
-uniform ranges of Mechanism fields, drawn by ``EnvConfig.draw_arm`` at every reset, and the
+uniform ranges of Mechanism fields, drawn by `draw_episode_arm` at every reset, and the
 arm's features normalized over them (the optional ``arm`` slice of the observation).  It
 also draws the motor's dead time and what the sensors measure (noise and delay), so that one
 mechanism randomizes every effect of a real arm.
@@ -25,8 +25,9 @@ mechanism randomizes every effect of a real arm.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
@@ -37,7 +38,7 @@ from tendon2r_gym.simulation.mechanism import (
     REALISM_LIMITS,
     Mechanism,
 )
-from tendon2r_gym.task.gains import gains_of
+from tendon2r_gym.task.gains import gains_of, tuned_bandwidth
 from tendon2r_gym.task.reference import Reference, ReferenceRanges
 from tendon2r_gym.validation import invalid, mapping, pair
 
@@ -151,7 +152,7 @@ GAIN_UNITS = {"pd_bandwidth_hz": "Hz", "pd_max_delay_phase": "rad"}
 TUNED_PHASE = "pd_tuned_phase"
 #: Every field ``mechanism_ranges`` may draw.
 DRAWABLE = (*RANDOMIZABLE, *SENSING, *CONTROLLER)
-#: Drawn delays are rounded to whole control steps (EnvConfig.draw_arm).
+#: Drawn delays are rounded to whole control steps (`draw_episode_arm`).
 DELAYS = ("motor_delay", "observation_delay")
 #: Fields whose zero and non-zero values compile to models of different layouts (spools,
 #: friction tendons, actuator states): their range must not straddle 0.
@@ -289,7 +290,7 @@ class MechanismRanges:
 
     def sample(self, rng: np.random.Generator) -> dict[str, float]:
         """Returns a uniform draw of every field, in drawing order, then of the tuned phase
-        if set (EnvConfig.draw_arm makes it an arm and checks it)."""
+        if set (`draw_episode_arm` makes it an arm and checks it)."""
         out = {name: float(rng.uniform(lo, hi)) for name, (lo, hi) in self.ranges}
         if self.tuned_phase is not None:
             out[TUNED_PHASE] = float(rng.uniform(*self.tuned_phase))
@@ -328,3 +329,104 @@ def reference_ranges(value: Any) -> ReferenceRanges:
             amp_deg=(arm.amp_deg,) * 2, freq_hz=(arm.freq_hz,) * 2, bias_deg=(arm.bias_deg,) * 2
         )
     return ReferenceRanges.from_dict(mapping("reference_ranges", value))
+
+
+# -- an episode's arm ---------------------------------------------------------------------------
+class ArmConfig(Protocol):
+    """What drawing an episode's arm reads of an env config (an EnvConfig: tendon2r_gym.envs
+    is a later layer, so it is named by the fields it must have)."""
+
+    @property
+    def mechanism(self) -> Mechanism: ...
+    @property
+    def base_mechanism(self) -> Mechanism | None: ...
+    @property
+    def reference(self) -> Reference: ...
+    @property
+    def reference_ranges(self) -> ReferenceRanges | None: ...
+    @property
+    def mechanism_ranges(self) -> MechanismRanges | None: ...
+    @property
+    def observe(self) -> tuple[str, ...]: ...
+    @property
+    def ctrl_dt(self) -> float: ...
+    @property
+    def observation_noise(self) -> tuple[float, float]: ...
+    @property
+    def observation_delay(self) -> float: ...
+    @property
+    def pd_gains(self) -> Any: ...
+
+
+C = TypeVar("C", bound=ArmConfig)
+
+
+def draw_episode_arm(config: C, rng: np.random.Generator, reference: Reference | None = None) -> C:
+    """Returns the config of a random arm of ``config.mechanism_ranges`` (``config`` itself
+    without them) and its episode's reference (``reference``, else a draw of reference_ranges
+    on that arm, else the nominal one): `arm_config`.  Draws again until the pair is valid (a
+    Mechanism, stable, the reference's bias in its workspace); raises after MAX_TRIES draws."""
+    ranges = config.mechanism_ranges
+    if ranges is None:
+        return config
+    for _ in range(MAX_TRIES):
+        drawn = ranges.sample(rng)
+        for k in DELAYS:  # whole control steps
+            if k in drawn:
+                drawn[k] = round(drawn[k] / config.ctrl_dt) * config.ctrl_dt
+        sensed = zip(SENSING[1:], config.observation_noise, strict=True)
+        noise = [drawn.pop(k, v) for k, v in sensed]
+        delay = drawn.pop("observation_delay", config.observation_delay)
+        gains = {gain_field(k): drawn.pop(k) for k in CONTROLLER if k in drawn}
+        phase = drawn.pop(TUNED_PHASE, None)
+        try:
+            mech = config.base_mechanism.replace(**drawn)
+            if phase is not None:  # the bandwidth a tuning would pick on this arm
+                f = tuned_bandwidth(mech, delay, config.ctrl_dt, phase)
+                lo, hi = dict(ranges.ranges)["pd_bandwidth_hz"]
+                gains["bandwidth_hz"] = min(max(f, lo), hi)
+            ref = reference
+            if ref is None and config.reference_ranges is not None:
+                ref = config.reference_ranges.sample(rng, mech)
+            drawn_env = {"observation_noise": tuple(noise), "observation_delay": delay}
+            if gains:
+                drawn_env["pd_gains"] = dataclasses.replace(gains_of(config.pd_gains), **gains)
+            return arm_config(config, mech, ref, **drawn_env)
+        except ValueError:
+            continue
+    raise invalid(
+        "mechanism_ranges",
+        ranges.to_dict(),
+        f"ranges where a valid arm (with this reference) is found in {MAX_TRIES} draws",
+    )
+
+
+def arm_config(
+    config: C, mechanism: Mechanism, reference: Reference | None = None, **drawn_env: Any
+) -> C:
+    """Returns the config of one arm and one reference (default: ``config``'s nominal one), as
+    a user's experiment file gives them: nothing drawn, the reference's amplitudes fitted to
+    the arm's workspace (quietly), and an ``auto`` force limit sized for this arm and this
+    reference; ``drawn_env``: its observation_noise, observation_delay and pd_gains, if drawn.
+    An env with this config runs the randomized env's episode exactly."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return dataclasses.replace(  # type: ignore[type-var]
+            config,
+            mechanism=mechanism,
+            base_mechanism=None,
+            reference=config.reference if reference is None else reference,
+            reference_ranges=None,
+            mechanism_ranges=None,
+            observe=tuple(x for x in config.observe if x != "arm"),
+            arm_feature_ranges=None,
+            fit_to_workspace=True,
+            **drawn_env,
+        )
+
+
+def drawn_high(config: ArmConfig, name: str, value: float) -> float:
+    """Returns the largest value of field ``name`` an episode of ``config`` can have: ``value``
+    (the config's), or the top of its range if mechanism_ranges draws it."""
+    ranges = config.mechanism_ranges
+    return value if ranges is None or name not in ranges.names else ranges.high(name)

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from tendon2r_gym.envs.env_config import EnvConfig
+from tendon2r_gym.envs.env_config import EnvConfig, resolve
 from tendon2r_gym.policies.residual import Residual
 from tendon2r_gym.presets import PPO_CONFIG, load_yaml
 from tendon2r_gym.validation import check_keys, integer, invalid, mapping, number
@@ -154,10 +154,11 @@ class Hyperparams:
         for key in SCHEDULES:
             if key in self.ppo:
                 schedule(f"ppo.{key}", self.ppo[key])
-        env_config = EnvConfig.make(**self.env_kwargs)  # before any worker starts
+        env_config = resolve(self.env_kwargs)  # once, before any worker starts
         hidden = tuple(self.hide_from_actor or ())
         check_keys("hide_from_actor", hidden, env_config.observation.entries())
         set_("hide_from_actor", hidden)
+        set_("_env_config", env_config)  # not a field: no record holds it
 
     # -- construction --------------------------------------------------------------------------
     @classmethod
@@ -193,6 +194,12 @@ class Hyperparams:
         return out
 
     # -- derived quantities ----------------------------------------------------------------------
+    @property
+    def env_config(self) -> EnvConfig:
+        """Returns the EnvConfig of env_kwargs, resolved once (at construction): what the run's
+        envs are made of."""
+        return self._env_config
+
     @property
     def residual(self) -> Residual:
         """Returns how the policy's action joins PD's command (residual_scale and

@@ -231,13 +231,13 @@ def make_vec_env(hp: Hyperparams, seed: int) -> Any:
     if hp.vec_env == "native":
         from tendon2r_gym.training.vector_env_sb3 import make_native
 
-        return make_native(hp.n_envs, hp.env_kwargs, hp.residual, seed)
+        return make_native(hp.n_envs, hp.env_config, hp.residual, seed)
     subproc = hp.vec_env == "subproc" and hp.n_envs > 1
     return sb3_make_vec_env(
         make_training_env,
         n_envs=hp.n_envs,
         seed=seed,
-        env_kwargs={"env_kwargs": hp.env_kwargs, "residual": hp.residual},
+        env_kwargs={"env_kwargs": hp.env_config, "residual": hp.residual},
         vec_env_cls=SubprocVecEnv if subproc else DummyVecEnv,
     )
 
@@ -284,7 +284,7 @@ def plan_run(hp: Hyperparams, run: RunFolder, seed: int = 0, resume: bool = Fals
     the run's records), writing nothing: a refused run leaves its folder as it was."""
     if not resume:  # a resumed run keeps the env kwargs it recorded
         hp = fine_tune(hp)
-    env_config = EnvConfig.make(**hp.env_kwargs)
+    env_config = hp.env_config  # resolved once, by Hyperparams
     for name in (EVALUATIONS, BEST_METRICS, PD_EVAL):  # read by the eval callback
         run.read_json(name)
     previous = run.read_json(SUMMARY) if resume else None

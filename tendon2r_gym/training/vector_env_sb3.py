@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
+from tendon2r_gym.envs.env_config import EnvConfig, resolve
 from tendon2r_gym.policies.baselines import PDPolicy
 from tendon2r_gym.policies.residual import NO_RESIDUAL, Residual, ResidualFilter, residual_command
 from tendon2r_gym.task.gains import gains_of
@@ -94,18 +96,18 @@ class SB3VecEnv(VecEnv):
 
 def make_native(
     n_envs: int,
-    env_kwargs: dict[str, Any],
+    env: EnvConfig | Mapping[str, Any],
     residual: Residual = NO_RESIDUAL,
     seed: int | None = None,
 ) -> VecEnv:
-    """Returns the native vector env for SB3 training: N arms in one process with staggered
-    first episodes, batched PD for an active ``residual`` (its filter and scale), and SB3's
-    VecMonitor."""
+    """Returns the native vector env for SB3 training of ``env`` (an EnvConfig, or env
+    kwargs: resolved once): N arms in one process with staggered first episodes, batched PD
+    for an active ``residual`` (its filter and scale), and SB3's VecMonitor."""
     from stable_baselines3.common.vec_env import VecMonitor
 
     from tendon2r_gym.envs.vector_env import Tendon2RVectorEnv
 
-    native = Tendon2RVectorEnv(n_envs, autoreset_mode="SameStep", stagger=True, **env_kwargs)
+    native = Tendon2RVectorEnv(n_envs, resolve(env), autoreset_mode="SameStep", stagger=True)
     venv = SB3VecEnv(native, residual)
     venv.seed(seed)
     return VecMonitor(venv)
