@@ -25,7 +25,7 @@ import numpy as np
 from tendon2r_gym.app import report
 from tendon2r_gym.app.plots import plot_trace
 from tendon2r_gym.app.report import fmt, tol
-from tendon2r_gym.envs.env_config import resolve
+from tendon2r_gym.envs.env_config import EnvConfig, resolve
 from tendon2r_gym.envs.registration import make as make_env
 from tendon2r_gym.evaluation.evaluator import (
     BASELINE,
@@ -71,8 +71,9 @@ def compare(
     """Returns the rows of one env: PD, CT, and per learned label its primary model and the
     mean +- std (ddof 0) over all its training seeds, with its uncertainty (`_spread`)."""
     rows = []
+    config = resolve(env_kwargs)  # once for the baselines and the models' settings
     for policy in names(BASELINE):
-        rows.append(_row(name, policy, policy, env_kwargs, seeds, None, plots))
+        rows.append(_row(name, policy, policy, config, seeds, None, plots))
         _tick(progress)
     for label, models in learned.items():
         if not models:
@@ -80,8 +81,8 @@ def compare(
             continue
         # A model runs in the settings it was trained in (its action mode, timing...: the
         # same arm, reference and episodes as PD's), and its rows name those that differ.
-        tag = settings_on(models[0], env_kwargs)
-        kwargs = {**env_kwargs, **tag}
+        tag = settings_on(models[0], config)
+        kwargs = {**env_kwargs, **tag}  # an experiment of its own: resolved once by _row
         per_seed = []
         for i, model in enumerate(models):
             row = _row(name, label, "ppo", kwargs, seeds, model, plots if i == 0 else None)
@@ -155,7 +156,7 @@ def _row(
     name: str,
     label: str,
     policy: str,
-    env_kwargs: dict[str, Any],
+    env_kwargs: EnvConfig | dict[str, Any],
     seeds: list[int],
     model: Path | None,
     plots: Path | None,
