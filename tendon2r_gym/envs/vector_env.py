@@ -42,11 +42,11 @@ from tendon2r_gym.validation import boolean, integer, invalid, real_array
 class Tendon2RVectorEnv(VectorEnv):
     """N Tendon2R arms in one process (see the module docstring).  Takes the arguments of
     the Tendon2R env (preset, mechanism, reference, ..., or a resolved EnvConfig as ``preset``
-    or ``config``) plus ``num_envs``, ``autoreset_mode``,
-    ``nthread`` (MuJoCo batch threads; None: one per ARMS_PER_THREAD arms, up to the CPUs this
-    process may use; 0: one per CPU) and ``stagger`` (training: after each full reset, arm i's
-    episode is already i / N of the way to its step limit, so the arms desynchronize; off by
-    default, as it breaks the equality with single envs)."""
+    or ``config``) plus ``num_envs``, ``autoreset_mode``, ``nthread`` (MuJoCo batch threads;
+    None: one per ARMS_PER_THREAD arms, up to the CPUs this process may use; 0: one per CPU)
+    and ``stagger`` (training: after each full reset, arm i's episode is already i / N of the
+    way to its step limit, so the arms desynchronize; off by default, as it breaks the
+    equality with single envs)."""
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
 
