@@ -334,6 +334,8 @@ def main(argv: list[str] | None = None) -> None:
 
 def report(result: dict[str, Any]) -> str:
     """Returns the study's page: one row per (id, client), its seeds' final RMS against PD."""
+    from tendon2r_gym.evaluation.metrics import smoothness_x_pd
+
     lines = [
         "# Ordinary PPO clients on the registered ids",
         "",
@@ -355,10 +357,7 @@ def report(result: dict[str, Any]) -> str:
         pd = runs[0]["pd"]
         wins = sum(r["final"]["beats_pd"] for r in runs)
         firsts = ", ".join(str(r["first_beats_pd_steps"] or "-") for r in runs)
-        rate = ", ".join(
-            f"{_ratio(r['final']['rms_tension_rate_N_per_s'], pd['rms_tension_rate_N_per_s']):.1f}"
-            for r in runs
-        )
+        rate = ", ".join(f"{smoothness_x_pd(r['final'], pd)[1]:.1f}" for r in runs)
         seeds = ", ".join(str(r["seed"]) for r in runs)
         cells = [setting, client, seeds, runs[0]["steps"], finals, joints(pd["rms_deg"], 4),
                  f"{wins} of {len(runs)}", firsts, rate]  # fmt: skip
@@ -367,10 +366,6 @@ def report(result: dict[str, Any]) -> str:
     lines += ["", "Settings (registered id, env kwargs over its defaults):", ""]
     lines += [f"- {k}: `{v[0]}` {v[1] or ''}" for k, v in result["settings"].items()]
     return "\n".join(lines) + "\n"
-
-
-def _ratio(values: list[float], baseline: list[float]) -> float:
-    return float(np.sqrt(np.mean(np.square(values))) / np.sqrt(np.mean(np.square(baseline))))
 
 
 if __name__ == "__main__":
