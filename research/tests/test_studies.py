@@ -720,3 +720,13 @@ def test_identification_hidden_true_sets_only_what_the_recording_does_not_show()
     short = hidden_true({**identified, "observation_delay": 0.0,
                          "mechanism": {"motor_delay": 0.001}}, true_kw, {})  # fmt: skip
     assert short["observation_delay"] == 0.001 and short["mechanism"]["motor_delay"] == 0.0
+
+
+def test_site_length_counts_the_article_s_words_only():
+    from research.studies.site_length import words
+
+    html = (
+        "<html><nav>Home Env Results</nav><article><h1>The env</h1><p>It's 2R, v2 and "
+        "0.002 s.<br>One<img src='x.png'> more.</p></article><footer>x y</footer></html>"
+    )
+    assert words(html) == 10  # The env It's 2R v2 and 0.002 s One more: no nav, no footer
