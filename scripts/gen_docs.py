@@ -124,12 +124,14 @@ def blocks(root: Path = ROOT) -> dict[Path, str]:
     readme = root / "README.md"
     text = with_readme_block(readme.read_text(), readme_block(root))
     text = with_readme_block(text, readme_models_block(), MODELS_BEGIN, MODELS_END)
+    out = {readme: text}
     training = root / DOCS / "training.md"
-    clients = "\n".join([CLIENTS_BEGIN, *docs_results.clients_block(root), CLIENTS_END])
-    return {
-        readme: text,
-        training: with_readme_block(training.read_text(), clients, CLIENTS_BEGIN, CLIENTS_END),
-    }
+    if training.is_file():
+        clients = "\n".join([CLIENTS_BEGIN, *docs_results.clients_block(root), CLIENTS_END])
+        out[training] = with_readme_block(
+            training.read_text(), clients, CLIENTS_BEGIN, CLIENTS_END
+        )
+    return out
 
 
 def with_readme_block(

@@ -136,7 +136,8 @@ def draw_profile(root: Path, path: Path) -> None:
 
     rows = json.loads((root / "results" / "benchmark.json").read_text())["rows"]
     profile = performance_profile(profile_ratios(rows), seed=BOOTSTRAP_SEED)
-    plot_performance_profile(profile, path, title="Learned policies over seeds and presets")
+    colors = {legend: colour for _, legend, colour in POLICIES}
+    plot_performance_profile(profile, path, "Learned policies over seeds and presets", colors)
 
 
 # -- the mechanism -------------------------------------------------------------------------------

@@ -159,7 +159,7 @@ def test_each_argument_is_described_once_beside_its_field():
     comments = docs_env.field_comments()
     assert set(arguments()) <= set(comments)
     template, own = docs_env.own_arguments(docs_env.docstring_template(Tendon2REnv))
-    assert set(own) == {"preset", "render_mode", "width", "height", "camera_name", "config"}
+    assert set(own) == {"preset", "render_mode", "width", "height", "camera_name"}
     assert not re.search(r"^\| `\w+` \|", template, flags=re.M), "a hand-typed argument table"
     assert set(own).isdisjoint(comments)
 

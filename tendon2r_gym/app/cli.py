@@ -196,7 +196,7 @@ def evaluate_main(argv: list[str] | None = None) -> dict[str, Any]:
     if args.video:
         from tendon2r_gym.envs.registration import make as make_env_as_given
 
-        env = make_env_as_given(render_mode="rgb_array", width=480, height=360, config=config)
+        env = make_env_as_given(preset=config, render_mode="rgb_array", width=480, height=360)
         with trusting_pickle(args.trust_pickle):
             trace = rollout(make_policy(args.policy, env, model), env, seeds[0], render=True)
         every = max(1, round(1 / 30 / env.unwrapped.ctrl_dt))  # ~30 fps of real time

@@ -75,12 +75,16 @@ def save_video(frames: list[np.ndarray], path: str | Path, fps: int) -> Path:
 
 
 def plot_performance_profile(
-    profile: dict, path: str | Path, title: str = "Performance profile"
+    profile: dict,
+    path: str | Path,
+    title: str = "Performance profile",
+    colors: dict[str, str] | None = None,
 ) -> Path:
     """Writes a performance profile (tendon2r_gym.evaluation.statistics.performance_profile's
     data) as a PNG: per policy, the fraction of runs whose worst-joint RMS ratio to PD is <=
     tau, against tau on a log axis, with its bootstrap band; PD's own ratio (tau = 1) marked.
-    The file's bytes depend only on the data (no software version in its metadata)."""
+    ``colors``: a matplotlib colour per policy (default: the colour cycle's).  The file's
+    bytes depend only on the data (no software version in its metadata)."""
     import matplotlib.pyplot as plt
 
     path = Path(path)
@@ -89,6 +93,7 @@ def plot_performance_profile(
     fig, ax = plt.subplots(figsize=(6.5, 4))
     for policy, curve in profile["curves"].items():
         (line,) = ax.step(tau, curve["fraction"], where="post", lw=1.4,
+                          color=(colors or {}).get(policy),
                           label=f"{policy} ({curve['runs']} runs)")  # fmt: skip
         if curve.get("low") is not None:
             ax.fill_between(tau, curve["low"], curve["high"], step="post", alpha=0.2,

@@ -110,8 +110,6 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         width: The render width (px).
         height: The render height (px).
         camera_name: The camera that frames the whole arm ("side"), or None for a free one.
-        config: A resolved EnvConfig (EnvConfig.make) in place of ``preset`` and the
-            experiment's arguments (EnvConfig's fields): it is not resolved again.
 
     Real tendons, motors and the model's errors (``mechanism`` fields, off by default) are on
     [real tendons](real_tendons.md), arms drawn at every reset (``mechanism_ranges``) on
@@ -140,12 +138,9 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         width: int = DEFAULT_SIZE,
         height: int = DEFAULT_SIZE,
         camera_name: str | None = CAMERA,
-        config: EnvConfig | None = None,
         **kwargs: Any,
     ) -> None:
-        EzPickle.__init__(
-            self, preset, render_mode, width, height, camera_name, config=config, **kwargs
-        )
+        EzPickle.__init__(self, preset, render_mode, width, height, camera_name, **kwargs)
         # Every argument is checked before the model is built.
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise invalid(
@@ -157,7 +152,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
             raise invalid("camera_name", camera_name, f"None (free camera) or {CAMERA!r}")
         if render_mode is not None:  # before a GL context can bring Mesa's LLVM in
             load_triton()  # tendon2r_gym.llvm: triton loaded after it segfaults
-        self.config = cfg = resolve(preset, config, **kwargs)
+        self.config = cfg = resolve(preset, **kwargs)
         self.timing = Timing.of(cfg)
         self.mechanism = cfg.mechanism  # the current episode's arm (self.arm: its config)
         self.data: mujoco.MjData | None = None

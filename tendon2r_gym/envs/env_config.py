@@ -339,22 +339,19 @@ assert set(SECTIONS) <= set(arguments())
 
 def resolve(
     env: EnvConfig | Mapping[str, Any] | str | os.PathLike = "default",
-    config: EnvConfig | None = None,
     **overrides: Any,
 ) -> EnvConfig:
-    """Returns the EnvConfig of ``env``: itself if it is one (or ``config``, its keyword form;
-    then no ``overrides``), else the config of env kwargs (a mapping, ``preset`` among them)
-    or of a preset name or experiment-file path, with ``overrides``.  The one door from
-    kwargs to a config: the envs' keyword path and every library function given env kwargs
-    go through it."""
-    if config is not None:
-        if not (isinstance(env, str) and env == "default"):
-            raise invalid("config", type(env).__name__, "alone, not beside a preset")
-        env = config
+    """Returns the EnvConfig of ``env``: itself if it is one (then no ``overrides``), else the
+    config of env kwargs (a mapping, ``preset`` among them) or of a preset name or
+    experiment-file path, with ``overrides``.  The one door from kwargs to a config: the envs'
+    keyword path and every library function given env kwargs go through it."""
     if isinstance(env, EnvConfig):
         if overrides:
             raise invalid(
-                "config", sorted(overrides), "alone: an EnvConfig is resolved, give no env kwarg"
+                "preset",
+                f"an EnvConfig beside {sorted(overrides)}",
+                "an EnvConfig alone (it is resolved: give no env kwarg beside it; an id with "
+                "defaults of its own, such as Tendon2R-v2, adds them: make Tendon2REnv(config))",
             )
         return env
     if isinstance(env, Mapping):

@@ -16,7 +16,8 @@ def make_env(preset: EnvConfig | str | os.PathLike = "default", **kwargs: Any) -
     """The registered entry point: Tendon2REnv under a TimeLimit of episode_duration / ctrl_dt
     steps, so ``gym.make(..., episode_duration=X, ctrl_dt=Y)`` gives X / Y steps (the TimeLimit
     is the one source of truth for truncation, and ``env.spec.max_episode_steps`` reports it).
-    The experiment is resolved here, once (or given resolved: ``config=``), and passed down."""
+    The experiment is resolved here, once (or given resolved: an EnvConfig as ``preset``), and
+    passed down."""
     config, render = resolved(preset, kwargs)
     env = Tendon2REnv(config, **render)
     return gym.wrappers.TimeLimit(env, env.timing.max_episode_steps)
@@ -25,8 +26,8 @@ def make_env(preset: EnvConfig | str | os.PathLike = "default", **kwargs: Any) -
 def resolved(
     preset: EnvConfig | str | os.PathLike, kwargs: dict[str, Any]
 ) -> tuple[EnvConfig, dict[str, Any]]:
-    """Returns the EnvConfig of an entry point's ``preset`` and ``kwargs`` (``config``
-    among them, if resolved already), and the rendering arguments among them (RENDER_ARGS)."""
+    """Returns the EnvConfig of an entry point's ``preset`` (an EnvConfig if resolved already)
+    and ``kwargs``, and the rendering arguments among them (RENDER_ARGS)."""
     render = {k: kwargs.pop(k) for k in RENDER_ARGS if k in kwargs}
     return resolve(preset, **kwargs), render
 

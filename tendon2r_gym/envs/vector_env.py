@@ -58,11 +58,10 @@ class Tendon2RVectorEnv(VectorEnv):
         nthread: int | None = None,
         max_episode_steps: int | None = None,
         stagger: bool = False,
-        config: EnvConfig | None = None,
         **kwargs: Any,
     ) -> None:
         self.num_envs = integer("num_envs", num_envs, 1, 1_000_000)
-        self.config = cfg = resolve(preset, config, **kwargs)
+        self.config = cfg = resolve(preset, **kwargs)
         self.timing = timing = Timing.of(cfg)
         mode = autoreset(autoreset_mode)
         self.metadata = {**type(self).metadata, "autoreset_mode": mode}

@@ -132,7 +132,7 @@ def evaluate(
     resolved once); returns (metrics, traces).  ``jitter``: the policy is `Jittered` with
     that seed."""
     config = resolve(env)
-    probe = make_env(config=config)
+    probe = make_env(preset=config)
     policy = make_policy(name, probe, model)
     probe.close()
     if jitter is not None:

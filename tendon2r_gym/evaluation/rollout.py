@@ -80,7 +80,7 @@ def rollouts(
     """Runs one deterministic episode per seed, all at once on the native vector env (one arm
     per seed, the policy called on the batch of observations) of ``env`` (an EnvConfig, or
     env kwargs: resolved once).  Each episode equals ``rollout`` on
-    ``tendon2r_gym.envs.registration.make(config=config)`` with that seed, bit for bit."""
+    ``tendon2r_gym.envs.registration.make(preset=config)`` with that seed, bit for bit."""
     from tendon2r_gym.envs.vector_env import Tendon2RVectorEnv
 
     n = len(seeds)

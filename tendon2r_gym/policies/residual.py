@@ -206,7 +206,7 @@ def make_training_env(
 ) -> gym.Env:
     """Returns Tendon2R-v0 of ``env_kwargs`` (an EnvConfig, or env kwargs: resolved once),
     wrapped for residual learning if ``residual`` is active."""
-    env = make_env(config=resolve(env_kwargs))
+    env = make_env(preset=resolve(env_kwargs))
     if not residual.active:
         return env
     return ResidualPDWrapper(env, **residual.to_record())

@@ -31,7 +31,7 @@ def initial_model(hp: Hyperparams) -> tuple[Path, Path]:
     from tendon2r_gym.policies.residual import Residual
 
     source = hp.init_from
-    env = make_env(config=hp.env_config)
+    env = make_env(preset=hp.env_config)
     zip_path, stats, meta = trained_model(model_path(source), env, "init_from")
     if Residual.from_record(meta).active != hp.residual.active:
         kind = "a residual model (residual_scale > 0)" if hp.residual.active else "a plain model"
