@@ -173,7 +173,12 @@ def test_stiff_cables_on_a_light_spool_are_refused():
     omega = rates(build_model(PUSH_PULL), PUSH_PULL.replace(tendon_elasticity=1e5, motor_mass=0.01))
     assert omega["tendon_elasticity"] * PUSH_PULL.sim_dt > 2.7
     with pytest.raises(ValueError, match=r"Mechanism\.tendon_elasticity = 100000\.0.*<= "):
-        gym.make("Tendon2R-v0", mechanism={"tendon_elasticity": 1e5, "motor_mass": 0.01})
+        gym.make("Tendon2R-v0", mechanism={"tendon_elasticity": 1e5, "motor_mass": 0.01,
+                                           "sim_dt": 0.001})  # fmt: skip
+    # left out, the step sizes itself: ctrl_dt / k, small enough for the cable
+    cfg = gym.make("Tendon2R-v0", mechanism={"tendon_elasticity": 1e5, "motor_mass": 0.01})
+    dt = cfg.unwrapped.config.mechanism.sim_dt
+    assert omega["tendon_elasticity"] * dt <= 2.7 < omega["tendon_elasticity"] * 0.001
 
 
 @pytest.mark.parametrize(
@@ -281,7 +286,7 @@ def test_model_errors_change_the_simulated_arm_and_not_the_controllers_model():
     assert r1["joint_damping"] == pytest.approx(r0["joint_damping"] * 4 / 1.7, rel=1e-12)
     assert r1["tendon_stiffness"] == r0["tendon_stiffness"] == 0.0
     with pytest.raises(ValueError, match=r"joint_damping \+ extra_joint_damping = 0\.1 .*<= "):
-        gym.make("Tendon2R-v0", mechanism={"extra_joint_damping": 0.1})
+        gym.make("Tendon2R-v0", mechanism={"extra_joint_damping": 0.1, "sim_dt": 0.001})
 
 
 def test_a_model_of_the_ideal_arm_loads_on_the_real_one_only():

@@ -11,8 +11,9 @@ import pytest
 
 from tendon2r_gym import Mechanism, Reference, ReferenceRanges
 from tendon2r_gym.envs.env import Tendon2REnv
+from tendon2r_gym.envs.env_config import EnvConfig
 from tendon2r_gym.simulation.model import build_model
-from tendon2r_gym.simulation.stability import LIMITS, rates
+from tendon2r_gym.simulation.stability import LIMITS, check_stability, rates
 
 RANGES = {"amp_deg": [[5, 20], [5, 20]], "freq_hz": [[0.5, 3], [0.5, 3]],
           "bias_deg": [[-10, 10], [-10, 10]]}  # fmt: skip
@@ -65,7 +66,8 @@ BAD_ENV_KWARGS = [
     ({"reward_scales": {"ctrl": 1e308}}, r"reward_scales.ctrl = 1e\+308 is invalid.*1e\+06\]"),
     ({"observation_noise": [1e-4]}, r"observation_noise = \[0.0001\] is invalid"),
     ({"observation_noise": np.array([1e-4, np.inf])}, r"observation_noise = array"),
-    ({"mechanism": {"motor_tau": 1e-4}}, r"Mechanism.motor_tau = 0.0001 is invalid; allowed: >="),
+    ({"mechanism": {"motor_tau": 1e-4, "sim_dt": 1e-3}},
+     r"Mechanism.motor_tau = 0.0001 is invalid; allowed: >="),
     ({"reward_scales": [1, 2]}, r"reward_scales = \[1, 2\] is invalid"),
     ({"tracking_form": "cubic"}, r"tracking_form = 'cubic' is invalid"),
     ({"tracking_sigma_deg": 0}, r"tracking_sigma_deg = 0 is invalid"),
@@ -81,9 +83,10 @@ BAD_ENV_KWARGS = [
     ({"preset": "nope"}, r"unknown preset 'nope'"),
     ({"preset": "/no/such.yaml"}, r"preset = '/no/such.yaml' is invalid"),
     ({"preset": 3}, r"preset = 3 is invalid"),
-    ({"mechanism": {"joint_damping": 0.01}}, r"joint_damping = 0.01.*implicitfast"),
-    ({"mechanism": {"tendon_damping": 10}}, r"tendon_damping = 10.*sim_dt"),
-    ({"mechanism": {"tendon_stiffness": 1e5}}, r"tendon_stiffness = 100000.0.*sim_dt"),
+    ({"mechanism": {"joint_damping": 0.01, "sim_dt": 1e-3}}, r"joint_damping = 0.01.*implicitfast"),
+    ({"mechanism": {"tendon_damping": 10, "sim_dt": 1e-3}}, r"tendon_damping = 10.*sim_dt"),
+    ({"mechanism": {"tendon_stiffness": 1e5, "sim_dt": 1e-3}},
+     r"tendon_stiffness = 100000.0.*sim_dt"),
     ({"mechanism": {"b": 1e6}}, r"Mechanism.b = 1000000.0 is invalid; allowed: .*\(0, 1\]"),
     ({"mechanism": {"c": 1e6}}, r"Mechanism.c = 1000000.0 is invalid"),
     ({"mechanism": {"R1": 1e-9}}, r"Mechanism.link_radius = 0.002 is invalid; .*pulley radius"),
@@ -215,7 +218,7 @@ def test_stability_criterion_on_both_sides(field, integrator):
         assert not terminated
     above = {"integrator": integrator, field: 2.0 * limit}
     with pytest.raises(ValueError, match=rf"Mechanism.{field} = .* is invalid; allowed: <= "):
-        gym.make("Tendon2R-v0", mechanism=above)
+        gym.make("Tendon2R-v0", mechanism={**above, "sim_dt": 0.001})  # explicit: no resizing
     assert _diverges(Mechanism(max_tendon_force=0.5, **above)), "the refused value diverges"
 
 
@@ -262,7 +265,7 @@ def test_stability_criterion_covers_the_motor_lag_and_the_cable_damping(integrat
             assert not terminated and not info["diverged"], (field, inside[field], k)
         above = {**ELASTIC, "integrator": integrator, field: limit * outside}
         with pytest.raises(ValueError, match=rf"Mechanism.{field} = .* is invalid; allowed: "):
-            gym.make("Tendon2R-v0", mechanism=above)
+            gym.make("Tendon2R-v0", mechanism={**above, "sim_dt": dt})  # explicit: no resizing
         assert _drive_diverges(Mechanism(**above)), f"the refused {field} diverges"
 
 
@@ -280,7 +283,7 @@ def test_implicitfast_integrates_damping_that_rk4_cannot():
     assert damped["joint_damping"] > 3 * _limit("joint_damping", "RK4")
     assert _diverges(Mechanism(integrator="RK4", **damped))
     with pytest.raises(ValueError, match=r"Mechanism.joint_damping = 0.01 is invalid; allowed: "):
-        gym.make("Tendon2R-v0", mechanism={"integrator": "RK4", **damped})
+        gym.make("Tendon2R-v0", mechanism={"integrator": "RK4", "sim_dt": 0.001, **damped})
     assert not _diverges(Mechanism(integrator="implicitfast", **damped))
     gym.make("Tendon2R-v0", mechanism={"integrator": "implicitfast", **damped})
 
@@ -300,3 +303,26 @@ def test_a_diverged_step_returns_the_last_good_state():
     divergence = env.unwrapped.config.reward_scales["divergence"]
     assert -1.0 - divergence - 0.1 <= reward <= 0.0
     assert info["reward_divergence"] == -divergence
+
+
+def test_a_step_left_out_sizes_itself_to_what_the_integrator_keeps_stable():
+    """Damped series-elastic cables on a light motor: at an explicit 1 ms RK4 step the env
+    refuses them, naming the field and the fix; with sim_dt left out the experiment gets the
+    largest step that divides ctrl_dt and is stable, and its episode runs.  Arms stable at
+    1 ms keep it (every registered id: the contract tests)."""
+    damped = {"tendon_damping": 4.0, "motor_mass": 0.001}
+    with pytest.raises(ValueError, match=r"^Mechanism.tendon_damping = 4.0 is invalid; allowed: "):
+        gym.make("Tendon2R-v2", preset="real_arm", mechanism={**damped, "sim_dt": 0.001})
+    env = gym.make("Tendon2R-v2", preset="real_arm", mechanism=damped)
+    cfg = env.unwrapped.config
+    dt, n_sub = cfg.mechanism.sim_dt, round(cfg.ctrl_dt / cfg.mechanism.sim_dt)
+    assert dt < 0.001 and n_sub * dt == pytest.approx(cfg.ctrl_dt)
+    mech = cfg.mechanism
+    check_stability(build_model(mech.ideal()), mech)
+    with pytest.raises(ValueError):  # the next larger step is not stable: the largest is taken
+        check_stability(build_model(mech.ideal()), mech.replace(sim_dt=cfg.ctrl_dt / (n_sub - 1)))
+    env.reset(seed=0)
+    for _ in range(300):
+        *_, terminated, _, info = env.step(env.action_space.sample())
+        assert not terminated and not info["diverged"]
+    assert EnvConfig.make("real_arm").mechanism.sim_dt == 0.001

@@ -25,6 +25,7 @@ import numpy as np
 
 from tendon2r_gym.presets import SECTIONS, load_preset, merge_env_kwargs
 from tendon2r_gym.simulation.mechanism import AUTO, Mechanism
+from tendon2r_gym.simulation.stability import stable_sim_dt
 from tendon2r_gym.task import observation
 from tendon2r_gym.task.arms import MechanismRanges, draw_episode_arm, reference_ranges
 from tendon2r_gym.task.gains import Gains, gains_of
@@ -37,6 +38,7 @@ from tendon2r_gym.validation import (
     choice,
     integer,
     invalid,
+    is_number,
     mapping,
     number,
     pair,
@@ -148,7 +150,12 @@ class EnvConfig:
         check_keys("Tendon2R", kwargs, arguments())
         mech = kwargs.pop("mechanism", None)
         if not isinstance(mech, Mechanism):
-            mech = Mechanism.from_dict(mapping("mechanism", mech))
+            given = mapping("mechanism", mech)
+            mech = Mechanism.from_dict(given)
+            ctrl_dt = kwargs.get("ctrl_dt", cls.__dataclass_fields__["ctrl_dt"].default)
+            if "sim_dt" not in given and is_number(ctrl_dt) and 0 < ctrl_dt <= 0.1:
+                # left out: a step the integrator keeps stable (a bad ctrl_dt: refused below)
+                mech = mech.replace(sim_dt=stable_sim_dt(mech, float(ctrl_dt), MAX_SUBSTEPS))
         ref = kwargs.pop("reference", None)
         if not isinstance(ref, Reference):
             ref = Reference.from_dict(mapping("reference", ref))

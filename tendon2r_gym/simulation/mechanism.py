@@ -113,6 +113,8 @@ class Mechanism:
     # Simulation.
     # RK4 at 1 ms stays within 4e-4 deg of RK4 at 2e-5 s on both presets under PD, at 1/8 the
     # cost of the reports' RK4 at 1e-4 s (research/results/timestep_study.md).
+    # Left out of an experiment (EnvConfig.from_kwargs): 1 ms if the integrator keeps it
+    # stable for the arm, else the largest ctrl_dt / k that it does (stable_sim_dt).
     sim_dt: float = 1e-3  # physics time step (s)
     integrator: str = "RK4"
 

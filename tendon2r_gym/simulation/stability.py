@@ -171,3 +171,22 @@ def check_stability(model: mujoco.MjModel, mech: Mechanism) -> None:
             f"1 / motor_tau x sim_dt must stay <= {lag_max}; fix: a smaller sim_dt, or 0 for "
             "no lag, or integrator: implicitfast, which integrates the lag exactly)",
         )
+
+
+def stable_sim_dt(mech: Mechanism, ctrl_dt: float, max_substeps: int) -> float:
+    """Returns the step a mechanism whose sim_dt was left out gets: its own (the default) if
+    the integrator keeps it stable, else the largest ctrl_dt / k below it (k <= max_substeps)
+    that it does; its own if none does (the check then names the field and the fix).  A step
+    that can be integrated never changes, so no config that was accepted changes."""
+    from tendon2r_gym.simulation.model import build_model
+
+    model = build_model(mech.ideal())
+    first = max(1, math.ceil(ctrl_dt / mech.sim_dt - 1e-9))  # the substeps at its own step
+    for k in range(first, max_substeps + 1):
+        dt = mech.sim_dt if k == first else ctrl_dt / k
+        try:
+            check_stability(model, mech.replace(sim_dt=dt) if dt != mech.sim_dt else mech)
+        except ValueError:
+            continue
+        return dt
+    return mech.sim_dt
