@@ -342,11 +342,15 @@ def report(result: dict[str, Any]) -> str:
         "Produced by `python -m research.studies.clients` (research/studies/clients.py): each "
         "client trains on `gym.make(env_id)` with the id's defaults and nothing else changed, "
         "and is evaluated deterministically on the eval seeds "
-        f"{result['eval_seeds']}, beside PD on the same episodes.",
+        f"{result['eval_seeds']}, beside PD on the same episodes.  The ids start each episode "
+        "off the reference (reset_noise_scale 0.02 rad), so the whole episode's RMS holds the "
+        "transient that closes it; the settled RMS leaves the first 20 ms out "
+        "(settled_rms_deg of tendon2r_gym.evaluation.metrics.tracking_metrics).",
         "",
         "| setting | client | seeds | steps | final RMS A / B (deg) per seed | "
-        "PD RMS A / B (deg) | beats PD | first beat PD at (steps) | tension rate x PD |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "settled RMS A / B (deg) per seed | PD RMS A / B, settled (deg) | beats PD | "
+        "first beat PD at (steps) | tension rate x PD |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for r in result["runs"]:
@@ -359,7 +363,9 @@ def report(result: dict[str, Any]) -> str:
         firsts = ", ".join(str(r["first_beats_pd_steps"] or "-") for r in runs)
         rate = ", ".join(f"{smoothness_x_pd(r['final'], pd)[1]:.1f}" for r in runs)
         seeds = ", ".join(str(r["seed"]) for r in runs)
-        cells = [setting, client, seeds, runs[0]["steps"], finals, joints(pd["rms_deg"], 4),
+        settled = "; ".join(joints(r["final"]["settled_rms_deg"], 4) for r in runs)
+        pd_cell = f"{joints(pd['rms_deg'], 4)}, {joints(pd['settled_rms_deg'], 4)}"
+        cells = [setting, client, seeds, runs[0]["steps"], finals, settled, pd_cell,
                  f"{wins} of {len(runs)}", firsts, rate]  # fmt: skip
         lines.append("| " + " | ".join(str(c) for c in cells) + " |")
     lines += ["", "Clients:", ""] + [f"- `{k}`: {v}." for k, v in result["clients"].items()]
