@@ -35,7 +35,7 @@ from markdown.extensions.toc import slugify
 
 import tendon2r_gym
 from tendon2r_gym.app.field_docs import class_node, docstring_args, field_comments
-from tendon2r_gym.app.markdown import code, code_block, indented, page, table
+from tendon2r_gym.app.markdown import code, code_block, page, table
 from tendon2r_gym.envs.env import CARD_SECTIONS, Tendon2REnv
 from tendon2r_gym.envs.env_config import EnvConfig, arguments
 from tendon2r_gym.task import observation
@@ -173,10 +173,23 @@ def reward_table() -> list[str]:
         KERNEL,
         "$$",
         "",
-        '??? note "What each term is for (tendon2r_gym.task.rewards.TERMS)"',
-        "",
-        *indented(f"- `{k}`: {doc}." for k, (_, doc) in TERMS.items()),
+        "What each term is for, and why its weight: [reward terms](rewards.md).",
     ]
+
+
+def rewards_page(root: Path = ROOT) -> str:
+    """Returns docs/rewards.md: what each reward term is for (tendon2r_gym.task.rewards.TERMS),
+    the env card's Rewards table giving their weights and formulas."""
+    return page([
+        header("tendon2r_gym.task.rewards.TERMS"),
+        "",
+        "# Reward terms",
+        "",
+        "What each term of the reward is for. Their default weights and formulas are the env "
+        "card's [Rewards](env.md#rewards) table; `reward_scales` sets the weights.",
+        "",
+        *(f"- `{k}`: {doc}." for k, (_, doc) in TERMS.items()),
+    ])  # fmt: skip
 
 
 def observation_table(config: EnvConfig) -> list[str]:

@@ -3,7 +3,7 @@
     python scripts/gen_docs.py          # draws the stale figures, then writes every page
     python scripts/gen_docs.py --check  # exits 1, naming each page or figure that is stale
 
-- ``env.md`` and ``changelog.md``: scripts/docs_env.py.
+- ``env.md``, ``rewards.md`` and ``changelog.md``: scripts/docs_env.py.
 - ``models.md`` and ``models/<name>.md``: scripts/docs_models.py.
 - ``results.md``, ``studies/<name>.md`` and ``reports/<name>.md``: scripts/docs_results.py.
 - The figures under ``images/``: scripts/gen_figures.py, which ``--check`` checks too.
@@ -42,6 +42,7 @@ DOCS = "docs"
 PAGES: dict[str, Callable[[Path], str]] = {
     "env.md": docs_env.env_page,
     "changelog.md": docs_env.changelog_page,
+    "rewards.md": docs_env.rewards_page,
     "models.md": docs_models.models_page,
     "results.md": docs_results.results_page,
 }
