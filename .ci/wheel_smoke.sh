@@ -61,7 +61,7 @@ from pathlib import Path
 import gymnasium as gym
 
 import tendon2r_gym
-from tendon2r_gym.policies.bundle import bundled_model
+from tendon2r_gym.artifacts.bundle import bundled_model
 from tendon2r_gym.policies.learned import PPOPolicy
 from tendon2r_gym.policies.baselines import PDPolicy
 

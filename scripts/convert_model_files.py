@@ -4,7 +4,7 @@
 
 For each file: the statistics are equal, array for array, and so are the normalized
 observations of a fixed set of observations, bit for bit; with the model zip beside it, the
-policy built without pickle (tendon2r_gym.policies.files.load_policy) has the weights of SB3's
+policy built without pickle (tendon2r_gym.artifacts.files.load_policy) has the weights of SB3's
 ``PPO.load``, and on those normalized observations both give the same actions, bit for bit
 (the exact actor of tendon2r_gym.policies.inference, and SB3's own float32 predict).
 
@@ -27,8 +27,8 @@ import gymnasium as gym
 import numpy as np
 
 from tendon2r_gym.app.args import arg, parse
+from tendon2r_gym.artifacts.files import TRUST_HELP, convert_stats, load_policy, read_stats
 from tendon2r_gym.llvm import load_triton
-from tendon2r_gym.policies.files import TRUST_HELP, convert_stats, load_policy, read_stats
 
 #: Observations per check, and the scales they are drawn at (the largest are clipped).
 N_OBS = 64
@@ -69,8 +69,8 @@ def check(pkl: Path, npz: Path) -> str:
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import DummyVecEnv
 
+    from tendon2r_gym.artifacts.files import _unpickled_vecnormalize
     from tendon2r_gym.policies import inference
-    from tendon2r_gym.policies.files import _unpickled_vecnormalize
 
     old = _unpickled_vecnormalize(pkl)  # the trust option is required by main
     stats = read_stats(npz)

@@ -62,9 +62,9 @@ def figure(name: str, alt: str, prefix: str = "") -> str:
 
 
 def env_contract_hash(env_id: str) -> str:
-    """Returns the pinned contract hash of a registered id (tendon2r_gym.policies.contract),
+    """Returns the pinned contract hash of a registered id (tendon2r_gym.envs.contract),
     or "not pinned" for an id not pinned yet."""
-    from tendon2r_gym.policies.contract import pinned
+    from tendon2r_gym.envs.contract import pinned
 
     return pinned().get(env_id, "not pinned")
 

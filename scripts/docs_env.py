@@ -308,7 +308,7 @@ def env_page(root: Path = ROOT) -> str:
         raise ValueError(f"the Tendon2REnv docstring misses the sections {missing}")
     found["Version History"] = "\n".join(
         [
-            "Each id's contract is pinned (tendon2r_gym.policies.contract): a change that can "
+            "Each id's contract is pinned (tendon2r_gym.envs.contract): a change that can "
             "change learning results is a new version. The [changelog](changelog.md) has each "
             "release's details.",
             "",

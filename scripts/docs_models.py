@@ -1,5 +1,5 @@
 """The shipped models' pages, for scripts/gen_docs.py: docs/models.md (the overview, from the
-registry tendon2r_gym.policies.registry) and docs/models/<name>.md (one card per model from
+registry tendon2r_gym.artifacts.registry) and docs/models/<name>.md (one card per model from
 its bundle's files, with its learning curve from scripts/gen_figures.py).
 """
 
@@ -14,10 +14,10 @@ import gen_figures
 from docs_common import ROOT, benchmark_reports, figure, header, newest_id, shown
 
 from tendon2r_gym.app.markdown import code, code_block, page, pair, table
+from tendon2r_gym.artifacts import registry
+from tendon2r_gym.artifacts.bundle import MODELS_DIR, bundle_meta, bundled_model
+from tendon2r_gym.artifacts.runs import BEST_METRICS, SUMMARY, RunFolder
 from tendon2r_gym.envs.env_config import EnvConfig
-from tendon2r_gym.policies import registry
-from tendon2r_gym.policies.bundle import MODELS_DIR, bundle_meta, bundled_model
-from tendon2r_gym.policies.runs import BEST_METRICS, SUMMARY, RunFolder
 
 
 def primary_run(name: str, seed: int | None = None) -> RunFolder:
@@ -47,14 +47,14 @@ def benchmark_rows(model: str, reports: dict[str, dict[str, Any]]) -> list[list[
 def non_default_settings(model: Path) -> dict[str, Any]:
     """Returns the model's settings (learned.model_settings) that differ from EnvConfig's
     defaults: what the env it runs in must set, whatever the arm."""
-    from tendon2r_gym.policies.model_env import model_settings
+    from tendon2r_gym.artifacts.model_env import model_settings
 
     defaults = {f.name: f.default for f in dataclasses.fields(EnvConfig)}
     return {k: v for k, v in model_settings(model).items() if v != defaults[k]}
 
 
 #: The experiment file the CLI runs a model of each registry group on
-#: (tendon2r_gym.policies.registry GROUPS): its own preset ({env}), or your arm for a
+#: (tendon2r_gym.artifacts.registry GROUPS): its own preset ({env}), or your arm for a
 #: generalist; a model of another group needs its recorded env kwargs (the Python example).
 CLI_ENV = {"preset": "{env}", "realism": "{env}", "generalist": "my_arm.yaml"}
 
@@ -70,10 +70,10 @@ def use_it(line: registry.Shipped, shown_settings: str) -> list[str]:
     python = [
         "import gymnasium as gym",
         "import tendon2r_gym  # registers the ids",
-        "from tendon2r_gym.policies.bundle import bundled_model",
+        "from tendon2r_gym.artifacts.bundle import bundled_model",
         "from tendon2r_gym.policies.learned import PPOPolicy",
-        "from tendon2r_gym.policies.model_env import model_settings",
-        "from tendon2r_gym.policies.runs import training_record",
+        "from tendon2r_gym.artifacts.model_env import model_settings",
+        "from tendon2r_gym.artifacts.runs import training_record",
         "",
         f'model = bundled_model("{name}")  # the primary seed; bundled_model("{name}", seed)',
         f'env = gym.make("{env_id}", **training_record(model)["env_kwargs"])  # its training env',

@@ -35,7 +35,7 @@ from docs_common import ASSETS  # noqa: E402
 
 from tendon2r_gym.app import report  # noqa: E402
 from tendon2r_gym.app.markdown import pair, table  # noqa: E402
-from tendon2r_gym.policies import registry  # noqa: E402
+from tendon2r_gym.artifacts import registry  # noqa: E402
 
 DOCS = "docs"
 

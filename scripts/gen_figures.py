@@ -269,7 +269,7 @@ def draw_routings(root: Path, path: Path) -> None:
 # -- the shipped models --------------------------------------------------------------------------
 def model_inputs(name: str) -> list[str]:
     """Returns the files a model's learning curve is drawn from: its seeds' records."""
-    from tendon2r_gym.policies.registry import shipped
+    from tendon2r_gym.artifacts.registry import shipped
 
     line = shipped()[name]
     base = f"tendon2r_gym/data/models/{name}"
@@ -280,7 +280,7 @@ def model_inputs(name: str) -> list[str]:
 def draw_model(root: Path, path: Path, name: str) -> None:
     """A shipped model's RMS error per joint at each evaluation during training, one line per
     seed, with PD's on the same episodes."""
-    from tendon2r_gym.policies.registry import shipped
+    from tendon2r_gym.artifacts.registry import shipped
 
     line = shipped()[name]
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.4), sharey=True)
@@ -345,7 +345,7 @@ class Figure:
 
 def figures(root: Path = ROOT) -> dict[str, Figure]:
     """Returns every figure by its path under docs/images."""
-    from tendon2r_gym.policies.registry import shipped
+    from tendon2r_gym.artifacts.registry import shipped
 
     out = {
         RESULTS_FIGURE: Figure(("results/benchmark.json",), draw_results),

@@ -1,4 +1,4 @@
-"""Pins the contract of new env ids (tendon2r_gym.policies.contract).
+"""Pins the contract of new env ids (tendon2r_gym.envs.contract).
 
     python scripts/pin_contract.py Tendon2R-v2 Tendon2RResidual-v2
 
@@ -13,8 +13,7 @@ import json
 import sys
 
 import tendon2r_gym  # noqa: F401  (registers the ids)
-from tendon2r_gym.policies.contract import CONTRACTS, PINNED_DIR, env_contract, pinned
-from tendon2r_gym.policies.registry import contract_hash
+from tendon2r_gym.envs.contract import CONTRACTS, PINNED_DIR, contract_hash, env_contract, pinned
 
 
 def main(ids: list[str]) -> int:

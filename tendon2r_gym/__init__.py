@@ -35,7 +35,7 @@ __all__ = [
 __version__ = "0.7.1"
 
 #: The env's versions, each frozen (Gymnasium's rule: a change that can change learning results
-#: is a new version; CHANGELOG.md says what each changed; tendon2r_gym.policies.contract pins them).
+#: is a new version; CHANGELOG.md says what each changed; tendon2r_gym.envs.contract pins them).
 #: Each id's defaults, over its preset's values: v2 is what ordinary PPO settings learn (the
 #: clients study, research/results/clients.md); v1 is what the shipped plain-PPO entries learn
 #: on (training starts off the reference; the tracking error's rate is observed); v0 is the

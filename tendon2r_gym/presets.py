@@ -31,7 +31,7 @@ PRESET_DIR = DATA_DIR / "presets"
 PD_CONFIG = DATA_DIR / "pd.yaml"
 #: The PPO hyperparameters (``configs/ppo.yaml`` in the repository links here).
 PPO_CONFIG = DATA_DIR / "ppo.yaml"
-#: Bundled PPO models, one folder per bundle name (see tendon2r_gym.policies.bundle).
+#: Bundled PPO models, one folder per bundle name (see tendon2r_gym.artifacts.bundle).
 MODELS_DIR = DATA_DIR / "models"
 
 #: Sections of an experiment file that hold a mapping of fields.

@@ -166,7 +166,7 @@ def test_bad_action_filter_names_the_field():
 def test_a_model_runs_only_in_the_action_semantics_it_was_trained_in(field, trained, deployed):
     """A model's actions mean tensions or joint torques, filtered or not: another setting is a
     ValueError naming it, and a run recorded before the setting existed takes its default."""
-    from tendon2r_gym.policies.model_env import check_model_env
+    from tendon2r_gym.artifacts.model_env import check_model_env
 
     def recorded(**kw):
         config = gym.make("Tendon2R-v0", **kw).unwrapped.config

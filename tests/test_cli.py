@@ -220,8 +220,8 @@ def test_benchmark_runs_a_model_in_the_action_mode_it_trained_in(tmp_path, monke
     and its rows say so; PD's rows stay in the env's settings."""
     from research.studies import generalist as generalist_study
     from tendon2r_gym.app.report import shown_policy
+    from tendon2r_gym.artifacts.model_env import settings_on
     from tendon2r_gym.evaluation.evaluator import evaluate
-    from tendon2r_gym.policies.model_env import settings_on
     from tendon2r_gym.training import Experiment, Hyperparams
 
     env = {"preset": "default", "episode_duration": 0.05}
@@ -257,8 +257,8 @@ def test_evaluate_runs_a_bundle_in_the_settings_it_trained_in(tmp_path):
     runs the model in its own action mode, as the benchmark does, and records it."""
     from pathlib import Path
 
-    from tendon2r_gym.policies.bundle import bundled_model
-    from tendon2r_gym.policies.model_env import model_settings
+    from tendon2r_gym.artifacts.bundle import bundled_model
+    from tendon2r_gym.artifacts.model_env import model_settings
 
     arm = Path(__file__).resolve().parents[1] / "configs" / "examples" / "course_arm.yaml"
     out = tmp_path / "m.json"

@@ -1,4 +1,4 @@
-"""Each registered env id's contract is pinned (tendon2r_gym.policies.contract): changing the env's
+"""Each registered env id's contract is pinned (tendon2r_gym.envs.contract): changing the env's
 defaults, observation, reward, actions, reset or episode length fails here until the id's
 version is raised and CHANGELOG.md says what changed."""
 
@@ -10,7 +10,7 @@ import gymnasium as gym
 import pytest
 
 import tendon2r_gym
-from tendon2r_gym.policies.contract import changes, env_contract, pinned, pinned_contract
+from tendon2r_gym.envs.contract import changes, env_contract, pinned, pinned_contract
 
 IDS = sorted(i for i in gym.registry if re.fullmatch(r"Tendon2R(Residual)?-v\d+", i))
 CHANGELOG = Path(__file__).resolve().parents[1] / "CHANGELOG.md"

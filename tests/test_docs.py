@@ -20,8 +20,8 @@ import pytest
 import yaml
 
 from tendon2r_gym.app.markdown import rows_of
+from tendon2r_gym.artifacts.registry import shipped
 from tendon2r_gym.envs.env_config import arguments
-from tendon2r_gym.policies.registry import shipped
 
 ROOT = Path(__file__).resolve().parent.parent
 #: Sphinx roles that mkdocstrings leaves as text.

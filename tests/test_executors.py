@@ -24,7 +24,7 @@ from test_training import _start_training, _tiny, _train, _wait_for
 
 from tendon2r_gym.app.args import parse
 from tendon2r_gym.app.cli import TrainArgs, experiment, train_main
-from tendon2r_gym.policies.runs import RunFolder
+from tendon2r_gym.artifacts.runs import RunFolder
 from tendon2r_gym.training.executors import JobError, LocalWorkers, RayCluster
 from tendon2r_gym.training.jobs import train_experiment
 

@@ -16,9 +16,9 @@ import pytest
 
 import tendon2r_gym  # noqa: F401  (registers Tendon2R-v0)
 from tendon2r_gym.app import cli, tools
-from tendon2r_gym.policies import bundle
-from tendon2r_gym.policies.bundle import bundle_meta, bundle_names, bundle_runs, bundled_model
-from tendon2r_gym.policies.files import (
+from tendon2r_gym.artifacts import bundle
+from tendon2r_gym.artifacts.bundle import bundle_meta, bundle_names, bundle_runs, bundled_model
+from tendon2r_gym.artifacts.files import (
     PickleRefused,
     load_model,
     load_policy,

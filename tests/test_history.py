@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from stable_baselines3.common.vec_env import DummyVecEnv, VecFrameStack
 
-from tendon2r_gym.policies.history import FrameHistory, StridedFrameStack, stacked
+from tendon2r_gym.policies.history import FrameHistory
+from tendon2r_gym.training.frame_stack import StridedFrameStack, stacked
 
 KWARGS = {"preset": "default", "episode_duration": 0.012}  # 12 steps: episodes end
 

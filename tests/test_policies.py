@@ -206,7 +206,8 @@ def test_tendon_command_is_the_damped_inverse_of_the_moment_arms():
 
 
 def test_residual_wrapper_with_zero_residual_is_pd():
-    from tendon2r_gym.policies.residual import Residual, make_training_env
+    from tendon2r_gym.policies.residual import Residual
+    from tendon2r_gym.training.manager import make_training_env
 
     wrapped = make_training_env({"preset": "default"}, Residual(0.5))
     plain = Tendon2REnv()

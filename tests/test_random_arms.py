@@ -7,10 +7,10 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from tendon2r_gym.artifacts.model_env import check_model_env
 from tendon2r_gym.envs.env_config import EnvConfig
 from tendon2r_gym.envs.timing import Timing
 from tendon2r_gym.policies.baselines import ComputedTorquePolicy, PDPolicy
-from tendon2r_gym.policies.model_env import check_model_env
 from tendon2r_gym.simulation.mechanism import Mechanism
 from tendon2r_gym.task import observation
 from tendon2r_gym.task.arms import (
@@ -347,7 +347,7 @@ def test_a_model_trained_on_drawn_gains_runs_on_the_users_tuned_gains():
     """Deployed on one arm, a residual trained on drawn PD gains runs the PD of the arm's own
     gains (what tendon2r-tune-pd wrote) and sees them; gains outside its training range, or
     none where a phase was drawn, are refused by name."""
-    from tendon2r_gym.policies.model_env import arm_features, deployed_gains
+    from tendon2r_gym.artifacts.model_env import arm_features, deployed_gains
 
     ranges = ["real_arm", {"pd_bandwidth_hz": [10.0, 40.0]}]
     trained = EnvConfig.make("real_arm", mechanism_ranges=ranges, observe=["arm"],

@@ -292,7 +292,7 @@ def test_model_errors_change_the_simulated_arm_and_not_the_controllers_model():
 def test_a_model_of_the_ideal_arm_loads_on_the_real_one_only():
     """check_model_env compares the nominal arms: real cables and sensors are deployment
     conditions, another geometry is another arm."""
-    from tendon2r_gym.policies.model_env import check_model_env
+    from tendon2r_gym.artifacts.model_env import check_model_env
 
     recorded = gym.make("Tendon2R-v0", preset="pull_only").unwrapped.config.to_dict()
     from tendon2r_gym.task import observation

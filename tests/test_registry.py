@@ -6,10 +6,11 @@ import shlex
 
 import pytest
 
+from tendon2r_gym.artifacts.bundle import bundle_meta, bundle_names, bundled_model
+from tendon2r_gym.artifacts.registry import GROUPS, names, shipped
+from tendon2r_gym.artifacts.runs import RunFolder, stem_of
+from tendon2r_gym.envs.contract import contract_hash
 from tendon2r_gym.envs.env_config import EnvConfig
-from tendon2r_gym.policies.bundle import bundle_meta, bundle_names, bundled_model
-from tendon2r_gym.policies.registry import GROUPS, contract_hash, names, shipped
-from tendon2r_gym.policies.runs import RunFolder, stem_of
 from tendon2r_gym.task import observation
 from tendon2r_gym.training import Hyperparams
 

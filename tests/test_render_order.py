@@ -43,9 +43,9 @@ def renderer():
         assert r.render().shape == (48, 64, 3)
 
 def load():
-    from tendon2r_gym.policies.bundle import bundled_model
+    from tendon2r_gym.artifacts.bundle import bundled_model
     from tendon2r_gym.policies.learned import PPOPolicy
-    from tendon2r_gym.policies.model_env import model_settings
+    from tendon2r_gym.artifacts.model_env import model_settings
     model = bundled_model("default")
     env = gym.make("Tendon2R-v1", **model_settings(model))
     PPOPolicy.load(model, env).predict(env.reset(seed=0)[0])

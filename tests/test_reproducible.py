@@ -12,8 +12,8 @@ import pytest
 import torch
 from stable_baselines3 import PPO
 
+from tendon2r_gym.artifacts.bundle import bundled_model
 from tendon2r_gym.policies import inference
-from tendon2r_gym.policies.bundle import bundled_model
 
 #: A plain MlpPolicy (three commands, residual) and a SplitViewPolicy (masked actor input).
 BUNDLES = ("pull_only", "real_arm")
@@ -43,8 +43,8 @@ def test_the_exact_actor_is_sb3s_deterministic_predict_to_float32_rounding(bundl
 
 def test_every_model_the_benchmark_runs_has_an_exact_actor():
     from tendon2r_gym.app import benchmark
-    from tendon2r_gym.policies import registry
-    from tendon2r_gym.policies.bundle import bundle_meta
+    from tendon2r_gym.artifacts import registry
+    from tendon2r_gym.artifacts.bundle import bundle_meta
 
     names = set(registry.names("preset") + registry.names("references") + registry.names("realism"))
     assert {m.parent.parent.name for ms in benchmark.preset_models().values() for m in

@@ -18,8 +18,8 @@ from test_training import _tiny, _train
 
 from tendon2r_gym.app.args import parse
 from tendon2r_gym.app.cli import TrainArgs, experiment, train_main
+from tendon2r_gym.artifacts.runs import REMOVED, RunFolder, saved_steps, training_record
 from tendon2r_gym.policies.residual import Residual
-from tendon2r_gym.policies.runs import REMOVED, RunFolder, saved_steps, training_record
 from tendon2r_gym.training import Experiment, Hyperparams, manager
 from tendon2r_gym.training.records import RunWriteError, training_lock
 
@@ -113,7 +113,7 @@ def test_resume_on_a_corrupt_record_names_the_file_and_the_way_back(tmp_path, na
         train_main(["--run-dir", str(base), "--resume"])
     message = str(err.value)
     assert re.search(what, message), message
-    assert "; to recover, " in message and "\n" not in message
+    assert "; to recover: " in message and "\n" not in message
     assert _files(base) == before
 
 
@@ -130,7 +130,7 @@ def test_a_corrupt_run_json_is_named_where_a_model_is_read(tmp_path, text, what)
     run.file("run.json").write_text(text)
     model = run.file("best_model.zip")
     where = re.escape(str(run.file("run.json")))
-    with pytest.raises(ValueError, match=rf"^{where} is corrupt: {what}.*; to recover, restore"):
+    with pytest.raises(ValueError, match=rf"^{where} is corrupt: {what}.*; to recover: restore"):
         training_record(model)
     with pytest.raises(ValueError, match=rf"{where} is corrupt: {what}"):
         _train(_tiny(tmp_path), tmp_path / "tuned", "--init-from", str(model))
@@ -220,7 +220,7 @@ def test_a_failed_write_keeps_the_last_state_and_the_run_resumes(tmp_path, monke
     """A full disk while recording an evaluation: training stops with a RunWriteError (a
     ValueError: the command's one-line error) naming the folder and the OS error, after
     saving last_model where the run stood, from which --resume continues."""
-    from tendon2r_gym.policies.runs import RunFolder as Folder
+    from tendon2r_gym.artifacts.runs import RunFolder as Folder
 
     append = Folder.append_evaluation
 
@@ -318,7 +318,7 @@ def test_a_folder_that_another_process_trains_is_refused_and_freed_when_it_ends(
     base, run = _started_run(tmp_path)
     holder = subprocess.Popen(
         [sys.executable, "-c", "import sys, time\n"
-         "from tendon2r_gym.policies.runs import RunFolder\n"
+         "from tendon2r_gym.artifacts.runs import RunFolder\n"
          "from tendon2r_gym.training.records import training_lock\n"
          "with training_lock([RunFolder(sys.argv[1])]):\n"
          "    print('held', flush=True)\n    time.sleep(120)\n", str(run.path)],

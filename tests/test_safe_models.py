@@ -1,4 +1,4 @@
-"""Model files that cannot run code (tendon2r_gym.policies.files): a pickle dropped into a bundle,
+"""Model files that cannot run code (tendon2r_gym.artifacts.files): a pickle dropped into a bundle,
 passed as --model or --init-from, or left in a run folder by an earlier version is refused
 without the trust option, naming the file and the option, and never unpickled; a model zip's
 pickled entries are never unpickled; the shipped models load without pickle and act as they
@@ -24,10 +24,8 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 import tendon2r_gym  # noqa: F401  (registers Tendon2R-v0)
 from tendon2r_gym.app import cli, tools
-from tendon2r_gym.envs.registration import make as make_env
-from tendon2r_gym.policies import inference
-from tendon2r_gym.policies.bundle import bundle_meta, bundle_names, bundled_model
-from tendon2r_gym.policies.files import (
+from tendon2r_gym.artifacts.bundle import bundle_meta, bundle_names, bundled_model
+from tendon2r_gym.artifacts.files import (
     TRUST_HELP,
     PickleRefused,
     convert_stats,
@@ -35,8 +33,10 @@ from tendon2r_gym.policies.files import (
     read_stats,
     trusting_pickle,
 )
+from tendon2r_gym.artifacts.runs import RunFolder, training_record
+from tendon2r_gym.envs.registration import make as make_env
+from tendon2r_gym.policies import inference
 from tendon2r_gym.policies.learned import PPOPolicy
-from tendon2r_gym.policies.runs import RunFolder, training_record
 from tendon2r_gym.presets import MODELS_DIR
 from tendon2r_gym.training import Hyperparams
 from tendon2r_gym.training.init_from import initial_model, load_initial

@@ -1,7 +1,11 @@
-"""The package's structure: no import cycle between its modules (checked on the source)."""
+"""The package's structure, checked on the source: no import cycle between its modules, no layer
+importing a later one, no module past the size limit; and no module below training/ that needs
+torch to import (checked in fresh interpreters)."""
 
 import ast
 from pathlib import Path
+
+import pytest
 
 import tendon2r_gym
 
@@ -72,8 +76,9 @@ def test_no_two_modules_import_each_other_type_checking_included():
 #: The package's layers, in the order data flows (arm parameters -> model -> env -> policy ->
 #: rollout -> metrics -> report); the top-level modules are shared helpers below them all.
 LAYERS = (
-    "", "simulation", "task", "envs", "policies", "evaluation", "identification", "training", "app"
-)
+    "", "simulation", "task", "envs", "artifacts", "policies", "evaluation", "identification",
+    "training", "app",
+)  # fmt: skip
 
 
 def _layer(module: str) -> int:
@@ -93,7 +98,7 @@ def test_no_layer_imports_a_later_one_type_checking_included():
         for a, deps in _imports(type_checking=True).items()
         for b in deps
         # the package's __init__ re-exports; the shim keeps a path that a model file pickled
-        if _layer(b) > _layer(a) and a not in ("tendon2r_gym", "tendon2r_gym.training.split_view")
+        if _layer(b) > _layer(a) and a not in ("tendon2r_gym", "tendon2r_gym.policies.split_view")
     )
     assert not upward, upward
 
@@ -138,3 +143,35 @@ def test_no_library_module_is_longer_than_the_limit():
         if (n := code_lines(p.read_text())) > MAX_MODULE_LINES
     }
     assert not long, long
+
+
+#: Modules that import torch by design below training/: the shim at a path a shipped model file
+#: pickled for its policy class (loading that class is loading torch).
+TORCH_BY_DESIGN = ("tendon2r_gym.policies.split_view",)
+#: What a fresh interpreter runs: torch and Stable-Baselines3 made unimportable, then the module.
+_WITHOUT_TORCH = (
+    "import sys; sys.modules['torch'] = None; sys.modules['stable_baselines3'] = None; "
+    "import importlib; importlib.import_module(sys.argv[1])"
+)
+
+
+def _below_training() -> list[str]:
+    """Returns the library modules of the layers below training/ (the top-level helpers
+    included), but `TORCH_BY_DESIGN`."""
+    modules = (_module(p) for p in sorted(PACKAGE.rglob("*.py")))
+    return [m for m in modules if _layer(m) < LAYERS.index("training") and m != "tendon2r_gym"
+            and m not in TORCH_BY_DESIGN]  # fmt: skip
+
+
+@pytest.mark.parametrize("module", _below_training())
+def test_no_module_below_training_needs_torch_to_import(module):
+    """Torch and Stable-Baselines3 are imported only where a model is loaded or trained (inside
+    the functions that do it): each module below training/ imports in a fresh interpreter in
+    which neither can be imported."""
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, "-c", _WITHOUT_TORCH, module], capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stderr[-2000:]

@@ -16,13 +16,13 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 from tendon2r_gym.app.args import parse
 from tendon2r_gym.app.cli import TrainArgs, experiment, train_main
+from tendon2r_gym.artifacts.bundle import bundle_meta, bundle_runs, bundled_model
+from tendon2r_gym.artifacts.files import load_policy, load_vecnormalize
+from tendon2r_gym.artifacts.runs import REMOVED, RunFolder
 from tendon2r_gym.evaluation.evaluator import evaluate
 from tendon2r_gym.evaluation.metrics import beats, selection_rank, within_limits
-from tendon2r_gym.policies.bundle import bundle_meta, bundle_runs, bundled_model
-from tendon2r_gym.policies.files import load_policy, load_vecnormalize
 from tendon2r_gym.policies.learned import PPOPolicy
 from tendon2r_gym.policies.residual import residual_command
-from tendon2r_gym.policies.runs import REMOVED, RunFolder
 from tendon2r_gym.presets import PPO_CONFIG
 from tendon2r_gym.training import Hyperparams
 
@@ -233,7 +233,7 @@ def test_hyperparams_are_validated_once_naming_the_field(field, value, match):
 @pytest.mark.parametrize("key", sorted(REMOVED))
 def test_a_removed_option_in_a_new_entry_is_an_unknown_key(tmp_path, key):
     """A removed option (held off or on) is no key of a hyperparameter entry; only a run
-    record written before it went may hold it off (tendon2r_gym.policies.runs.REMOVED)."""
+    record written before it went may hold it off (tendon2r_gym.artifacts.runs.REMOVED)."""
     path = tmp_path / "mine.yaml"
     path.write_text(yaml.safe_dump({"mine": {"base": "default", key: REMOVED[key]}}))
     with pytest.raises(ValueError, match=rf"mine: unknown key '{key}'"):
@@ -573,8 +573,8 @@ def test_a_model_that_observed_its_arm_runs_on_one_fixed_arm(tmp_path, force_lim
     the very features the training env would compute for that arm, and acts on them.  A model
     that observed the force limit runs on the arm's env with the model's settings
     (in_model_settings, as the benchmark makes it), which observes that arm's own limit."""
+    from tendon2r_gym.artifacts.model_env import in_model_settings
     from tendon2r_gym.evaluation.evaluator import evaluate
-    from tendon2r_gym.policies.model_env import in_model_settings
     from tendon2r_gym.task.arms import MechanismRanges
 
     config = _tiny(tmp_path)
@@ -623,7 +623,7 @@ def test_frame_stack_trains_resumes_and_deploys_as_sb3_stacks(tmp_path, stride):
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
     from tendon2r_gym.evaluation.evaluator import evaluate
-    from tendon2r_gym.policies.history import stacked
+    from tendon2r_gym.training.frame_stack import stacked
 
     config = _tiny(tmp_path, frame_stack=3, frame_stride=stride)
     run_dir = tmp_path / "run"

@@ -9,7 +9,7 @@ import yaml
 from test_training import _tiny, _train
 
 from tendon2r_gym.app.cli import train_main
-from tendon2r_gym.policies.runs import CONFIG, CONFIG_END, CONFIG_HEAD, RunFolder, read_record
+from tendon2r_gym.artifacts.runs import CONFIG, CONFIG_END, CONFIG_HEAD, RunFolder, read_record
 
 SEEDS = ("0", "1")
 #: The records a --resume reads (config.yaml, then the summaries and evaluations).
@@ -75,5 +75,5 @@ def test_resume_of_a_record_cut_short_is_refused_naming_it_on_any_executor(
     before = _files(run)
     with pytest.raises(ValueError, match=rf"^{re.escape(str(record))} is corrupt: ") as err:
         train_main(["--run-dir", str(run), "--resume", "--workers", workers])
-    assert "; to recover, " in str(err.value)
+    assert "; to recover: " in str(err.value)
     assert _files(run) == before

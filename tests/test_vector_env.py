@@ -193,7 +193,8 @@ def test_sb3_adapter_steps_like_dummy_vec_env(kwargs):
     episodes."""
     from stable_baselines3.common.env_util import make_vec_env
 
-    from tendon2r_gym.policies.residual import Residual, make_training_env
+    from tendon2r_gym.policies.residual import Residual
+    from tendon2r_gym.training.manager import make_training_env
     from tendon2r_gym.training.vector_env_sb3 import SB3VecEnv
 
     native = SB3VecEnv(Tendon2RVectorEnv(3, autoreset_mode="SameStep", **kwargs), Residual(0.5))
@@ -222,7 +223,8 @@ def test_sb3_adapter_filters_the_residual_as_the_wrapper_does():
     ResidualPDWrapper's, each slot's restarting with its episode (8-step episodes here)."""
     from stable_baselines3.common.env_util import make_vec_env
 
-    from tendon2r_gym.policies.residual import Residual, make_training_env
+    from tendon2r_gym.policies.residual import Residual
+    from tendon2r_gym.training.manager import make_training_env
     from tendon2r_gym.training.vector_env_sb3 import SB3VecEnv
 
     kwargs = {"episode_duration": 0.008}

@@ -28,6 +28,7 @@ import yaml
 from research.studies import joints, one_or_more, save_json
 from tendon2r_gym.app.args import arg, parse
 from tendon2r_gym.app.benchmark import benchmark_own_arm
+from tendon2r_gym.artifacts.runs import command_line
 from tendon2r_gym.envs.env_config import ACTION_MODES, EnvConfig
 from tendon2r_gym.evaluation.metrics import (
     RATE_LIMIT_X_PD,
@@ -36,7 +37,6 @@ from tendon2r_gym.evaluation.metrics import (
     smoothness_x_pd,
     within_limits,
 )
-from tendon2r_gym.policies.runs import command_line
 from tendon2r_gym.presets import load_yaml, preset_path
 from tendon2r_gym.task.arms import draw_arms
 from tendon2r_gym.validation import invalid

@@ -41,7 +41,7 @@ from typing import Annotated, Any, Literal
 
 from research.studies import save_json
 from tendon2r_gym.app.args import arg, parse
-from tendon2r_gym.policies.runs import command_line
+from tendon2r_gym.artifacts.runs import command_line
 
 PROBES = Path(__file__).resolve().with_name("change_probes.py")
 #: Where a change's files go, in the order of ``classify``'s answer.
@@ -515,7 +515,7 @@ def kept(before: dict[str, Any], after: dict[str, Any]) -> list[dict[str, Any]]:
 
 def contract_changes(before: dict[str, Any], after: dict[str, Any]) -> list[str]:
     """Returns the ids whose contract lost or changed a pinned value (a contract may grow:
-    tendon2r_gym.policies.contract.changes); raises if one had at HEAD already (the study then
+    tendon2r_gym.envs.contract.changes); raises if one had at HEAD already (the study then
     cannot tell the change's effect)."""
     if broken := [i for i, paths in before["contracts"].items() if paths]:
         raise RuntimeError(f"HEAD's contracts of {broken} are not the pinned ones")

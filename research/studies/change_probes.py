@@ -149,13 +149,13 @@ def fingerprint() -> dict[str, Any]:
     """Returns what an off-by-default change must keep: digests of ENV_ID's single-env and
     vector-env rollouts and of the compiled models of FINGERPRINT_PRESETS, and every
     registered id's contract paths that changed from its pinned contract (a contract may
-    grow: tendon2r_gym.policies.contract.changes)."""
+    grow: tendon2r_gym.envs.contract.changes)."""
     import re
 
     import gymnasium as gym
 
+    from tendon2r_gym.envs.contract import changes, env_contract, pinned, pinned_contract
     from tendon2r_gym.envs.env_config import EnvConfig
-    from tendon2r_gym.policies.contract import changes, env_contract, pinned, pinned_contract
     from tendon2r_gym.simulation.model import build_model
 
     obs, rewards, _ = single()
@@ -367,11 +367,12 @@ PROMOTED, ORIGINAL = "random_reference_copy", "random_reference"
 
 def promote(check: Checks, root: Path) -> None:
     """The bundle ``random_reference_copy``, registered in shipped.yaml."""
+    from tendon2r_gym.artifacts.bundle import bundle_meta, bundle_names, bundled_model
+    from tendon2r_gym.artifacts.registry import shipped
+    from tendon2r_gym.artifacts.runs import RunFolder, stem_of
+    from tendon2r_gym.envs.contract import contract_hash
     from tendon2r_gym.envs.registration import make
-    from tendon2r_gym.policies.bundle import bundle_meta, bundle_names, bundled_model
     from tendon2r_gym.policies.learned import PPOPolicy
-    from tendon2r_gym.policies.registry import contract_hash, shipped
-    from tendon2r_gym.policies.runs import RunFolder, stem_of
     from tendon2r_gym.training import Hyperparams
 
     lines = shipped()

@@ -103,7 +103,7 @@ def model_id(bundle: str) -> str:
     retrained."""
     import hashlib
 
-    from tendon2r_gym.policies.bundle import bundled_model
+    from tendon2r_gym.artifacts.bundle import bundled_model
 
     return hashlib.sha256(bundled_model(bundle).read_bytes()).hexdigest()[:12]
 
@@ -115,11 +115,11 @@ def evaluate_arm(
     the arm is reported with its error).  ``done``: the rows of an earlier run on the same
     arm, whose PD rows and the rows of bundles not retrained since (model_id) are kept."""
     from research.studies.realism import on_its_pd
+    from tendon2r_gym.artifacts.bundle import bundle_names, bundled_model
+    from tendon2r_gym.artifacts.model_env import in_model_settings
     from tendon2r_gym.envs.env_config import EnvConfig
     from tendon2r_gym.evaluation.evaluator import evaluate
     from tendon2r_gym.evaluation.tuning import tune_pd
-    from tendon2r_gym.policies.bundle import bundle_names, bundled_model
-    from tendon2r_gym.policies.model_env import in_model_settings
     from tendon2r_gym.task.gains import gains_of
 
     if done is not None:  # tune_pd's choice, with the arm's other gains (as tune_pd keeps them)
@@ -167,10 +167,10 @@ def arm_job(job: ArmJob) -> dict[str, Any]:
 
 def summarize(arms: dict[str, Any]) -> dict[str, Any]:
     """Returns, per bundle and kind of arm, the module docstring's summary against PD tuned."""
+    from tendon2r_gym.artifacts.bundle import bundled_model
+    from tendon2r_gym.artifacts.runs import training_record
     from tendon2r_gym.evaluation.metrics import beats, smooth_enough, smoothness_x_pd, worst_ratio
-    from tendon2r_gym.policies.bundle import bundled_model
     from tendon2r_gym.policies.residual import Residual
-    from tendon2r_gym.policies.runs import training_record
 
     out: dict[str, Any] = {}
     for name, arm in arms.items():
@@ -292,7 +292,7 @@ def earlier_arms(out: Path, partial: Path) -> dict[str, Any]:
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     from research.studies.envelope_generalists import arm_job  # by name, also under -m
-    from tendon2r_gym.policies.runs import command_line
+    from tendon2r_gym.artifacts.runs import command_line
     from tendon2r_gym.training.executors import entered, make_executor, without_executor_flags
 
     args = parse(Args, argv, __doc__)

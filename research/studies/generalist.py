@@ -37,6 +37,20 @@ import yaml
 from research.studies import joints, save_json
 from tendon2r_gym.app.args import arg, parse
 from tendon2r_gym.app.benchmark import GENERALISTS, LEARNED
+from tendon2r_gym.artifacts.bundle import bundle_meta, bundle_names, bundled_model
+from tendon2r_gym.artifacts.model_env import (
+    feature_ranges,
+    in_model_settings,
+    model_settings,
+    observes_arm,
+)
+from tendon2r_gym.artifacts.runs import (
+    RunFolder,
+    command_line,
+    stem_of,
+    training_record,
+    training_summary,
+)
 from tendon2r_gym.envs.env_config import EnvConfig
 from tendon2r_gym.evaluation.evaluator import evaluate
 from tendon2r_gym.evaluation.metrics import (
@@ -49,21 +63,7 @@ from tendon2r_gym.evaluation.metrics import (
     worst_ratio,
 )
 from tendon2r_gym.formatting import pair
-from tendon2r_gym.policies.bundle import bundle_meta, bundle_names, bundled_model
-from tendon2r_gym.policies.model_env import (
-    feature_ranges,
-    in_model_settings,
-    model_settings,
-    observes_arm,
-)
 from tendon2r_gym.policies.residual import Residual
-from tendon2r_gym.policies.runs import (
-    RunFolder,
-    command_line,
-    stem_of,
-    training_record,
-    training_summary,
-)
 from tendon2r_gym.presets import load_yaml, preset_path
 from tendon2r_gym.task.arms import GEOMETRY, draw_arms
 from tendon2r_gym.task.observation import OPTIONAL, layout_mask
@@ -370,7 +370,7 @@ def finetune_curves(
     on the entry's evaluation seeds), with the generalist zero-shot and PD on the same
     episodes at step 0; and its best model's RMS on the study's ``seeds`` (the episodes the
     specialist was scored on), beside the specialist's."""
-    from tendon2r_gym.policies.runs import EVALUATIONS, SUMMARY
+    from tendon2r_gym.artifacts.runs import EVALUATIONS, SUMMARY
     from tendon2r_gym.presets import PPO_CONFIG
     from tendon2r_gym.training import Experiment, Hyperparams, fine_tune
 

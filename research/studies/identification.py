@@ -126,11 +126,11 @@ def residual_on(true_kw: dict[str, Any], belief: dict[str, Any],
     env (its arm features are then the believed ones): ``residual_<EFFORT>``, or
     ``residual_missing`` with the reason if the believed arm lies outside its training
     ranges."""
+    from tendon2r_gym.artifacts.bundle import bundled_model
     from tendon2r_gym.envs.registration import make as make_env
     from tendon2r_gym.evaluation.evaluator import make_policy
     from tendon2r_gym.evaluation.metrics import tracking_metrics
     from tendon2r_gym.evaluation.rollout import rollouts
-    from tendon2r_gym.policies.bundle import bundled_model
 
     probe = make_env(**{**belief, "pd_gains": gains})
     try:

@@ -134,7 +134,7 @@ def row_config(name: str, steps: int) -> Hyperparams:
 
 
 def _run(name: str, seed: int, steps: int, root: str) -> dict[str, Any]:
-    from tendon2r_gym.policies.runs import RunFolder, seed_dir
+    from tendon2r_gym.artifacts.runs import RunFolder, seed_dir
     from tendon2r_gym.training import train_run
 
     run = RunFolder(seed_dir(Path(root) / name, seed))
@@ -161,7 +161,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     args = parse(Args, argv, __doc__)
     one_or_more("--seeds", args.seeds, "one or more seeds")
     one_or_more("--rows", args.rows, "one or more of the rows --help lists")
-    from tendon2r_gym.policies.runs import command_line
+    from tendon2r_gym.artifacts.runs import command_line
 
     command = command_line(argv, "python -m research.studies.learnability")
     if args.render:  # re-render the tables of an earlier run's JSON (no training)

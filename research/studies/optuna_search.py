@@ -59,7 +59,7 @@ def zoo_command(args: Args, seed: int) -> list[str]:
 
 def main(argv: list[str] | None = None) -> dict:
     args = parse(Args, argv, __doc__)
-    from tendon2r_gym.policies.runs import command_line
+    from tendon2r_gym.artifacts.runs import command_line
 
     command = command_line(argv, "python -m research.studies.optuna_search")
     Path(args.storage).parent.mkdir(parents=True, exist_ok=True)

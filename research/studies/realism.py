@@ -24,12 +24,12 @@ import numpy as np
 
 from tendon2r_gym.app.args import arg, parse
 from tendon2r_gym.app.report import fmt, unsure
+from tendon2r_gym.artifacts.bundle import bundle_meta, bundled_model
+from tendon2r_gym.artifacts.model_env import trained_on_drawn_gains
+from tendon2r_gym.artifacts.runs import command_line
 from tendon2r_gym.evaluation.evaluator import evaluate, jittered_rms, reproducible_to
 from tendon2r_gym.evaluation.metrics import smoothness_x_pd, worst_ratio
 from tendon2r_gym.evaluation.tuning import tune_pd
-from tendon2r_gym.policies.bundle import bundle_meta, bundled_model
-from tendon2r_gym.policies.model_env import trained_on_drawn_gains
-from tendon2r_gym.policies.runs import command_line
 
 #: The arms: the real_arm preset, then REALISM_ARMS arms of
 #: perturbed_arms (REALISM_SEED); REALISM_BUNDLE is the residual trained

@@ -26,13 +26,13 @@ import numpy as np
 from research.studies import joints, one_or_more, save_json
 from research.studies.realism import TUNE_EPISODES, on_its_pd, realism_arms
 from tendon2r_gym.app.args import arg, parse
+from tendon2r_gym.artifacts.model_env import trained_on_drawn_gains
+from tendon2r_gym.artifacts.runs import BEST_METRICS, CONFIG, SUMMARY, RunFolder, command_line
 from tendon2r_gym.envs.env_config import EnvConfig
 from tendon2r_gym.evaluation.evaluator import evaluate
 from tendon2r_gym.evaluation.metrics import beats, worst_ratio
 from tendon2r_gym.evaluation.tuning import tune_pd
 from tendon2r_gym.formatting import pair
-from tendon2r_gym.policies.model_env import trained_on_drawn_gains
-from tendon2r_gym.policies.runs import BEST_METRICS, CONFIG, SUMMARY, RunFolder, command_line
 from tendon2r_gym.task import observation
 from tendon2r_gym.task.arms import CONTROLLER, GAIN_UNITS, MechanismRanges
 from tendon2r_gym.task.gains import gains_of, true_phase_per_hz

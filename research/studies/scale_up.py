@@ -100,7 +100,7 @@ def bits(run: Path) -> dict[str, Any]:
     import numpy as np
     import torch
 
-    from tendon2r_gym.policies.runs import RunFolder
+    from tendon2r_gym.artifacts.runs import RunFolder
 
     folder = RunFolder(run)
     rows = [{k: v for k, v in r.items() if k != "wall_time_s"}
@@ -224,7 +224,7 @@ class Args:
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     from research.studies import computed_or_read
-    from tendon2r_gym.policies.runs import command_line
+    from tendon2r_gym.artifacts.runs import command_line
     from tendon2r_gym.validation import invalid
 
     args = parse(Args, argv, __doc__)

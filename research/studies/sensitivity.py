@@ -89,7 +89,7 @@ def variant(name: str, steps: int | None) -> Any:
 
 def _run(name: str, steps: int | None, root: str) -> dict[str, Any]:
     """Trains a variant in ``root/<name>`` (continuing or reusing a run found there)."""
-    from tendon2r_gym.policies.runs import SUMMARY
+    from tendon2r_gym.artifacts.runs import SUMMARY
     from tendon2r_gym.training import Experiment
 
     exp = Experiment(variant(name, steps), Path(root) / name, [0], f"sensitivity {name}")
@@ -122,7 +122,7 @@ class Args:
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    from tendon2r_gym.policies.runs import command_line
+    from tendon2r_gym.artifacts.runs import command_line
 
     args = parse(Args, argv, __doc__)
     one_or_more("--variants", args.variants, f"one or more of {list(VARIANTS)}")

@@ -26,8 +26,8 @@ import numpy as np  # noqa: E402
 import tendon2r_gym  # noqa: E402, F401
 from research.studies import one_or_more  # noqa: E402
 from tendon2r_gym.app.args import arg, parse  # noqa: E402
+from tendon2r_gym.artifacts.runs import command_line  # noqa: E402
 from tendon2r_gym.envs.vector_env import ARMS_PER_THREAD  # noqa: E402
-from tendon2r_gym.policies.runs import command_line  # noqa: E402
 
 #: The single env with every effect of tendon2r_gym.simulation.realism on, and the same arm without
 #: them (real_arm is the pull_only arm with real cables, motors and sensors).
@@ -322,7 +322,7 @@ def ppo_throughput(setup: dict[str, Any], timesteps: int, eval_freq: int) -> dic
 
 def _train_child(spec: dict[str, Any]) -> None:
     """Runs in the child process of ppo_throughput: trains and prints the summary as JSON."""
-    from tendon2r_gym.policies.runs import RunFolder
+    from tendon2r_gym.artifacts.runs import RunFolder
     from tendon2r_gym.training import Hyperparams, train_run
 
     hp = Hyperparams.from_entry("default")

@@ -23,14 +23,14 @@ import numpy as np
 from research.studies import joints, save_json
 from research.studies.generalist import action_mode_of, model_of, sweep_arms
 from tendon2r_gym.app.args import arg, parse
+from tendon2r_gym.artifacts.model_env import in_model_settings
+from tendon2r_gym.artifacts.runs import command_line, training_record
 from tendon2r_gym.envs.env_config import EnvConfig
 from tendon2r_gym.envs.task import RAD_PER_DEG, Task
 from tendon2r_gym.evaluation.evaluator import evaluate
 from tendon2r_gym.evaluation.metrics import SETTLE_S, settled, smoothness_x_pd
 from tendon2r_gym.evaluation.rollout import Trace
 from tendon2r_gym.ops import BATCH
-from tendon2r_gym.policies.model_env import in_model_settings
-from tendon2r_gym.policies.runs import command_line, training_record
 
 #: What a reward's tracking term is read from: the fields of an env config that shape it.
 REWARD_FIELDS = ("tracking_form", "tracking_sigma_deg")

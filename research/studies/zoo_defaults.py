@@ -28,8 +28,8 @@ import yaml
 
 from research.studies import joints, save_json
 from tendon2r_gym.app.args import arg, parse
+from tendon2r_gym.artifacts.runs import command_line
 from tendon2r_gym.evaluation.metrics import SETTLE_S
-from tendon2r_gym.policies.runs import command_line
 from tendon2r_gym.validation import integer, invalid
 
 ENV_IDS = ("Tendon2R-v0", "Tendon2R-v1")
@@ -111,9 +111,9 @@ def evaluate_zoo_model(
     import torch
     from stable_baselines3.common.vec_env import DummyVecEnv
 
+    from tendon2r_gym.artifacts.files import load_model, load_vecnormalize
     from tendon2r_gym.evaluation.metrics import tracking_metrics
     from tendon2r_gym.evaluation.rollout import rollouts
-    from tendon2r_gym.policies.files import load_model, load_vecnormalize
     from tendon2r_gym.policies.learned import PPOPolicy
     from tendon2r_gym.policies.residual import NO_RESIDUAL
 

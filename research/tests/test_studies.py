@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from research.studies import learnability, speed
+from tendon2r_gym.artifacts.bundle import bundle_names
 from tendon2r_gym.formatting import pair
-from tendon2r_gym.policies.bundle import bundle_names
 from tendon2r_gym.simulation.mechanism import Mechanism
 
 RESULTS = Path(__file__).resolve().parent.parent / "results"
@@ -308,9 +308,9 @@ def test_realism_ablation_scores_runs_on_the_realism_arms(tmp_path, monkeypatch,
 
     from research.studies import realism_ablation
     from research.studies.realism import realism_arms
+    from tendon2r_gym.artifacts.bundle import bundled_model
     from tendon2r_gym.envs.env_config import EnvConfig
     from tendon2r_gym.evaluation.metrics import beats, worst_ratio
-    from tendon2r_gym.policies.bundle import bundled_model
     from tendon2r_gym.task.gains import tuned_bandwidth
 
     monkeypatch.setattr(realism_ablation, "realism_arms", lambda: realism_arms()[:2])
@@ -360,8 +360,8 @@ def test_generalist_ablation_names_each_bundles_reward_as_its_entry_sets_it():
     (the registered one if the entry sets none), its sigma if the entry changes it, and each
     weight the entry changes."""
     from research.studies import generalist
+    from tendon2r_gym.artifacts.bundle import bundled_model
     from tendon2r_gym.envs.env_config import EnvConfig
-    from tendon2r_gym.policies.bundle import bundled_model
     from tendon2r_gym.training import Hyperparams
 
     registered = EnvConfig.make()
@@ -381,7 +381,7 @@ def test_generalist_ablation_reads_who_saw_the_arm_from_each_run():
     """The ablation table's "arm features seen by" comes from each bundle's recorded run (its
     observation layout and hide lists), not from its name."""
     from research.studies.generalist import arm_seen_by
-    from tendon2r_gym.policies.bundle import bundled_model
+    from tendon2r_gym.artifacts.bundle import bundled_model
 
     assert arm_seen_by(bundled_model("default")) == "nobody (blind)"
     assert arm_seen_by(bundled_model("generalist")) == "actor and critic"
@@ -518,7 +518,7 @@ def test_generalist_study_column_runs_a_bundle_or_one_of_its_seeds():
     default columns add each shipped generalist's other seeds; a bad column is a ValueError
     naming --bundles, a seed the bundle lacks one naming the seed."""
     from research.studies import generalist
-    from tendon2r_gym.policies.bundle import bundle_meta, bundled_model
+    from tendon2r_gym.artifacts.bundle import bundle_meta, bundled_model
 
     meta = bundle_meta("generalist")
     assert generalist.model_of("generalist") == bundled_model("generalist")
@@ -665,8 +665,8 @@ def test_envelope_generalists_study_runs_each_bundle_on_its_arms(
     assert md == "\n".join(study.lines(result)) + "\n"
     assert study.main([*argv, "--only-report"]) == result
     # --resume keeps the arms a run finished (its partial file), computing none again ...
+    from tendon2r_gym.artifacts.bundle import bundled_model
     from tendon2r_gym.evaluation import evaluator, tuning
-    from tendon2r_gym.policies.bundle import bundled_model
 
     monkeypatch.setattr(tuning, "tune_pd", lambda *a, **k: pytest.fail("tuned PD again"))
     monkeypatch.setattr(evaluator, "evaluate", lambda *a, **k: pytest.fail("recomputed a row"))

@@ -25,6 +25,10 @@ import numpy as np
 from tendon2r_gym.app import report
 from tendon2r_gym.app.plots import plot_trace
 from tendon2r_gym.app.report import fmt, tol
+from tendon2r_gym.artifacts import registry
+from tendon2r_gym.artifacts.bundle import bundle_meta, bundle_names, bundled_model
+from tendon2r_gym.artifacts.model_env import in_model_settings, settings_on
+from tendon2r_gym.artifacts.runs import model_files, training_record, training_summary
 from tendon2r_gym.envs.env_config import EnvConfig, resolve
 from tendon2r_gym.envs.registration import make as make_env
 from tendon2r_gym.evaluation.evaluator import (
@@ -34,11 +38,7 @@ from tendon2r_gym.evaluation.evaluator import (
     names,
     reproducible_to,
 )
-from tendon2r_gym.policies import registry
-from tendon2r_gym.policies.bundle import bundle_meta, bundle_names, bundled_model
-from tendon2r_gym.policies.model_env import in_model_settings, settings_on
 from tendon2r_gym.policies.residual import Residual
-from tendon2r_gym.policies.runs import model_files, training_record, training_summary
 from tendon2r_gym.presets import DATA_DIR
 from tendon2r_gym.validation import invalid
 
@@ -133,7 +133,7 @@ def generalist_rows(
     training on it), or ``missing`` with the reason when the arm is outside its training
     ranges.  A residual trained on drawn PD gains runs with ``tuned`` (the arm's tuned
     pd_gains), as tendon2r-tune-pd would give them to it."""
-    from tendon2r_gym.policies.model_env import trained_on_drawn_gains
+    from tendon2r_gym.artifacts.model_env import trained_on_drawn_gains
 
     rows = []
     for bundle in (b for b in ZERO_SHOT if b in bundle_names()):

@@ -20,9 +20,9 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from tendon2r_gym.app.args import arg, env_help, parse, run
+from tendon2r_gym.artifacts.files import TRUST_HELP, trusting_pickle
 from tendon2r_gym.evaluation.evaluator import names as policy_names
 from tendon2r_gym.evaluation.tuning import SCANS
-from tendon2r_gym.policies.files import TRUST_HELP, trusting_pickle
 from tendon2r_gym.training.hyperparams import VEC_ENVS
 
 if typing.TYPE_CHECKING:
@@ -105,8 +105,8 @@ def experiment(args: TrainArgs, command: str = "") -> Experiment:
 
 
 def train_main(argv: list[str] | None = None) -> dict[str, Any]:
-    from tendon2r_gym.policies.bundle import bundle_runs, check_destination
-    from tendon2r_gym.policies.runs import command_line
+    from tendon2r_gym.artifacts.bundle import bundle_runs, check_destination
+    from tendon2r_gym.artifacts.runs import command_line
 
     args = parse(TrainArgs, argv)
     if args.bundle is not None:  # refused before training, not after it
@@ -174,7 +174,7 @@ def evaluate_main(argv: list[str] | None = None) -> dict[str, Any]:
         env_kwargs["episode_duration"] = args.episode_duration
     model = resolve_model(args.policy, args.model, args.bundle, env_kwargs)
     if model is not None:  # a model runs in the settings it trained in (e.g. its action mode)
-        from tendon2r_gym.policies.model_env import in_model_settings
+        from tendon2r_gym.artifacts.model_env import in_model_settings
 
         env_kwargs = in_model_settings(model, env_kwargs)
     seeds = list(range(args.seed, args.seed + args.episodes))
@@ -246,7 +246,7 @@ class BenchmarkArgs:
 
 def benchmark_main(argv: list[str] | None = None) -> dict[str, Any]:
     from tendon2r_gym.app.benchmark import benchmark_bundled, benchmark_own_arm
-    from tendon2r_gym.policies.runs import command_line
+    from tendon2r_gym.artifacts.runs import command_line
     from tendon2r_gym.validation import integer, invalid
 
     args = parse(BenchmarkArgs, argv)
@@ -319,8 +319,8 @@ class TunePDArgs:
 def tune_pd_main(argv: list[str] | None = None) -> dict[str, Any]:
     import yaml
 
+    from tendon2r_gym.artifacts.runs import command_line
     from tendon2r_gym.evaluation.tuning import tune_pd
-    from tendon2r_gym.policies.runs import command_line
     from tendon2r_gym.presets import PPO_CONFIG, load_yaml, preset_path
     from tendon2r_gym.training import Hyperparams
     from tendon2r_gym.training.executors import entered, make_executor

@@ -15,9 +15,9 @@ from typing import Any
 import numpy as np
 
 from tendon2r_gym.app import markdown
+from tendon2r_gym.artifacts.model_env import MODEL_SETTINGS
 from tendon2r_gym.evaluation.evaluator import BASELINE, JITTER, REPRO_RUNS, names
 from tendon2r_gym.evaluation.metrics import beats, smoothness_x_pd
-from tendon2r_gym.policies.model_env import MODEL_SETTINGS
 
 #: Figures quoted from the lab reports (their own measurements), shown for comparison only.
 REPORT_ROWS = {

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Annotated
 
 from tendon2r_gym.app.args import arg, parse, run
-from tendon2r_gym.policies.files import TRUST_HELP
+from tendon2r_gym.artifacts.files import TRUST_HELP
 
 if typing.TYPE_CHECKING:
     from tendon2r_gym.envs.env_config import EnvConfig
@@ -176,8 +176,8 @@ class BundleArgs:
 
 
 def bundle_main(argv: list[str] | None = None) -> Path:
-    from tendon2r_gym.policies.bundle import bundle_runs, check_destination
-    from tendon2r_gym.policies.runs import command_line
+    from tendon2r_gym.artifacts.bundle import bundle_runs, check_destination
+    from tendon2r_gym.artifacts.runs import command_line
     from tendon2r_gym.presets import MODELS_DIR
     from tendon2r_gym.validation import invalid
 

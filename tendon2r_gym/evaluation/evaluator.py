@@ -11,12 +11,12 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from tendon2r_gym.artifacts.bundle import bundle_names, bundled_model
 from tendon2r_gym.envs.env_config import EnvConfig, resolve
 from tendon2r_gym.envs.registration import make as make_env
 from tendon2r_gym.evaluation.metrics import tracking_metrics
 from tendon2r_gym.evaluation.rollout import Policy, Trace, rollouts
 from tendon2r_gym.policies.baselines import ComputedTorquePolicy, PDPolicy
-from tendon2r_gym.policies.bundle import bundle_names, bundled_model
 from tendon2r_gym.validation import invalid
 
 

@@ -1,2 +1,3 @@
-"""Policies: the PD and computed-torque baselines, trained PPO models (their files, run
-folders, bundles and float64 inference) and the registry of shipped models."""
+"""Policies: the controllers.  The PD and computed-torque baselines (baselines), the residual
+wrapper that puts PD inside an env (residual), trained PPO models (learned) with their
+observation history (history) and their float64 inference (inference)."""

@@ -4,16 +4,15 @@ every ``stride`` control steps, oldest first, zeros before an episode's first.
 With stride 1 this is SB3's VecFrameStack (rl_zoo3's ``frame_stack``), which training keeps
 using then; a stride spreads the same ``n`` frames over ``(n - 1) * stride + 1`` steps, a
 window long enough to tell the arm's response (e.g. a hidden mass error) from a few inputs.
-`FrameHistory` is the one buffer: the training wrapper (`StridedFrameStack`)
-and the deployed policy (tendon2r_gym.policies.learned.PPOPolicy) both stack through it."""
+`FrameHistory` is the one buffer: the training wrapper
+(tendon2r_gym.training.frame_stack.StridedFrameStack) and the deployed policy
+(tendon2r_gym.policies.learned.PPOPolicy) both stack through it."""
 
 from __future__ import annotations
 
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
-from stable_baselines3.common.vec_env import VecEnvWrapper, VecFrameStack
 
 
 class FrameHistory:
@@ -55,40 +54,3 @@ class FrameHistory:
         new array: the history's buffer changes in place)."""
         picked = frames[..., :: self.stride, :]
         return picked.reshape(*picked.shape[:-2], -1).copy()
-
-
-class StridedFrameStack(VecEnvWrapper):
-    """SB3's VecFrameStack for vector observations, with frames ``stride`` steps apart;
-    ``infos[i]["terminal_observation"]`` is stacked too, as VecFrameStack does."""
-
-    def __init__(self, venv: Any, n_stack: int, stride: int) -> None:
-        space = venv.observation_space
-        box = gym.spaces.Box(
-            np.tile(space.low, n_stack), np.tile(space.high, n_stack), dtype=space.dtype
-        )
-        super().__init__(venv, observation_space=box)
-        self.history = FrameHistory(n_stack, stride)
-
-    def reset(self) -> np.ndarray:
-        self.history.clear()
-        return self.history.push(self.venv.reset())
-
-    def step_wait(self) -> Any:
-        obs, rewards, dones, infos = self.venv.step_wait()
-        for i, done in enumerate(dones):
-            if done and "terminal_observation" in infos[i]:
-                infos[i]["terminal_observation"] = self.history.peek(
-                    i, infos[i]["terminal_observation"]
-                )
-        return self.history.push(obs, dones), rewards, dones, infos
-
-
-def stacked(vecnorm: Any, frame_stack: int, frame_stride: int = 1) -> Any:
-    """Returns what the policy trains on: ``vecnorm``; with frame_stack > 1 SB3's VecFrameStack
-    of it (rl_zoo3's order: normalize, then stack), or `StridedFrameStack` with a
-    stride."""
-    if frame_stack == 1:
-        return vecnorm
-    if frame_stride == 1:
-        return VecFrameStack(vecnorm, frame_stack)
-    return StridedFrameStack(vecnorm, frame_stack, frame_stride)

@@ -10,8 +10,8 @@ loop amplifies those bits until whole benchmark figures differ.
 (multiply, add, divide: IEEE-754 correctly rounded whatever the CPU's instruction set) in an
 order fixed here: each sum of a layer as a pairwise tree, tanh from `exp` of a fixed
 polynomial; no BLAS, no libm, no threads.  It covers SB3's ActorCriticPolicy as SB3 builds
-it (its MlpPolicy, and `SplitViewPolicy`'s masked
-input): a flattened Box observation, Linear layers with Tanh or ReLU, and a Box action whose
+it (its MlpPolicy, and the masked input of tendon2r_gym.training.split_view.SplitViewPolicy):
+a flattened Box observation, Linear layers with Tanh or ReLU, and a Box action whose
 deterministic action is the mean, clipped to the action space.  It reads the weights again
 whenever they change (training evaluates its live model).  Its actions equal SB3's to
 float32 rounding (its input is rounded to float32, as SB3's is, and so is its action).
@@ -83,6 +83,11 @@ def linear(x: np.ndarray, weight: np.ndarray, bias: np.ndarray | None) -> np.nda
     return out if bias is None else out + bias
 
 
+#: SplitViewPolicy's features extractor, by its class's module and name (a model class: it
+#: lives where models are trained, tendon2r_gym.training.split_view): its input times a mask.
+MASKED_FLATTEN = ("tendon2r_gym.training.split_view", "MaskedFlatten")
+
+
 def _as64(tensor: Any) -> np.ndarray:
     return tensor.detach().cpu().numpy().astype(np.float64)
 
@@ -97,8 +102,6 @@ def actor_layers(policy: Any) -> list[tuple[str, Any]] | None:
     from stable_baselines3.common.torch_layers import FlattenExtractor, MlpExtractor
     from torch import nn
 
-    from tendon2r_gym.policies.split_view import MaskedFlatten
-
     as_built = ("_predict", "get_distribution", "extract_features", "_get_action_dist_from_latent")
     if not (
         isinstance(policy, ActorCriticPolicy)
@@ -111,7 +114,7 @@ def actor_layers(policy: Any) -> list[tuple[str, Any]] | None:
     ):
         return None
     extractor = policy.pi_features_extractor
-    if type(extractor) is MaskedFlatten:
+    if (type(extractor).__module__, type(extractor).__qualname__) == MASKED_FLATTEN:
         layers: list[tuple[str, Any]] = [("mask", _as64(extractor.keep))]
     elif type(extractor) is FlattenExtractor:
         layers = []

@@ -1,10 +1,10 @@
 """Trained PPO policies: a run's model, loaded for the env it runs in.
 
 A trained model only meets the env it was trained for: `PPOPolicy.load` compares the env
-config recorded in the run (``run.json``) with the env's (tendon2r_gym.policies.model_env) and
+config recorded in the run (``run.json``) with the env's (tendon2r_gym.artifacts.model_env) and
 refuses another mechanism, reference set or observation layout, and its model zip and
 VecNormalize statistics when unreadable or made for another observation or action size
-(tendon2r_gym.policies.files).  Neither file is unpickled: the policy is built from the zip's
+(tendon2r_gym.artifacts.files).  Neither file is unpickled: the policy is built from the zip's
 plain JSON and weights, the statistics read from plain arrays; an earlier version's pickled
 statistics load only with the trust option (files.TRUST_HELP).  A residual model adds its
 action to PD's command (tendon2r_gym.policies.residual).
@@ -18,10 +18,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from tendon2r_gym.llvm import load_triton
-from tendon2r_gym.policies import inference
-from tendon2r_gym.policies.baselines import PDPolicy
-from tendon2r_gym.policies.files import (
+from tendon2r_gym.artifacts.files import (
     check_model_spaces,
     check_stats_shape,
     load_policy,
@@ -29,9 +26,12 @@ from tendon2r_gym.policies.files import (
     model_data,
     read_stats,
 )
-from tendon2r_gym.policies.model_env import arm_features, check_model_env, deployed_gains
+from tendon2r_gym.artifacts.model_env import arm_features, check_model_env, deployed_gains
+from tendon2r_gym.artifacts.runs import RUN_META, model_files, stem_of, training_record
+from tendon2r_gym.llvm import load_triton
+from tendon2r_gym.policies import inference
+from tendon2r_gym.policies.baselines import PDPolicy
 from tendon2r_gym.policies.residual import Residual, ResidualFilter, residual_command
-from tendon2r_gym.policies.runs import RUN_META, model_files, stem_of, training_record
 from tendon2r_gym.task.gains import Gains, gains_of
 
 

@@ -18,15 +18,13 @@ from __future__ import annotations
 
 import dataclasses
 import os
-from collections.abc import Mapping
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
 from tendon2r_gym.envs.env import Tendon2REnv
-from tendon2r_gym.envs.env_config import EnvConfig, resolve
-from tendon2r_gym.envs.registration import make as make_env
+from tendon2r_gym.envs.env_config import EnvConfig
 from tendon2r_gym.envs.registration import resolved
 from tendon2r_gym.envs.timing import low_pass_alpha
 from tendon2r_gym.policies.baselines import PDPolicy
@@ -73,7 +71,7 @@ class Residual:
     @classmethod
     def from_record(cls, record: dict[str, Any] | None) -> Residual:
         """Returns the residual an entry or a model's run record (run.json, as
-        tendon2r_gym.policies.runs reads it) gives; a field recorded before it existed, or no
+        tendon2r_gym.artifacts.runs reads it) gives; a field recorded before it existed, or no
         record, takes its default (no filter)."""
         record = record or {}
         return cls(
@@ -199,14 +197,3 @@ def make_residual_env(
     env = Tendon2REnv(config, **render)
     wrapped = ResidualPDWrapper(env, residual_scale, residual_filter_tau, residual_units)
     return gym.wrappers.TimeLimit(wrapped, env.timing.max_episode_steps)
-
-
-def make_training_env(
-    env_kwargs: EnvConfig | Mapping[str, Any], residual: Residual = NO_RESIDUAL
-) -> gym.Env:
-    """Returns Tendon2R-v0 of ``env_kwargs`` (an EnvConfig, or env kwargs: resolved once),
-    wrapped for residual learning if ``residual`` is active."""
-    env = make_env(preset=resolve(env_kwargs))
-    if not residual.active:
-        return env
-    return ResidualPDWrapper(env, **residual.to_record())

@@ -61,7 +61,7 @@ def from_flags(kwargs: Mapping[str, Any], start: Iterable[str] = ()) -> dict[str
 
 def as_flags(record: Mapping[str, Any]) -> dict[str, Any]:
     """Returns an env config record with ``observe`` as the FLAGS it replaced: the form the
-    env ids' and shipped models' pinned contracts were hashed in (tendon2r_gym.policies.contract),
+    env ids' and shipped models' pinned contracts were hashed in (tendon2r_gym.envs.contract),
     so that a record of the same behaviour keeps its hash."""
     out = {k: v for k, v in record.items() if k != "observe"}
     observe = record.get("observe", ())

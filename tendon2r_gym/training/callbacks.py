@@ -15,6 +15,14 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 
+from tendon2r_gym.artifacts.files import NormStats
+from tendon2r_gym.artifacts.runs import (
+    BEST_METRICS,
+    CHECKPOINT_PREFIX,
+    PD_EVAL,
+    RunFolder,
+    stats_files,
+)
 from tendon2r_gym.envs.registration import make as make_env
 from tendon2r_gym.evaluation.metrics import (
     beats,
@@ -26,16 +34,8 @@ from tendon2r_gym.evaluation.metrics import (
 from tendon2r_gym.evaluation.rollout import rollouts
 from tendon2r_gym.formatting import pair
 from tendon2r_gym.policies.baselines import PDPolicy
-from tendon2r_gym.policies.files import NormStats
 from tendon2r_gym.policies.learned import PPOPolicy
 from tendon2r_gym.policies.residual import Residual
-from tendon2r_gym.policies.runs import (
-    BEST_METRICS,
-    CHECKPOINT_PREFIX,
-    PD_EVAL,
-    RunFolder,
-    stats_files,
-)
 from tendon2r_gym.training.executors import STOP_REQUESTED
 
 #: pd_eval.json's key of PD's metrics on the eval seeds started on the reference.

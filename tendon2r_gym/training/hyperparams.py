@@ -90,7 +90,7 @@ class Hyperparams:
     checkpoint_minutes: float = 2.0  # and a checkpoint at least this often (wall time)
     # Observation entries (EnvConfig.observation.entries(): e.g. arm, or one drawn field such as
     # arm.density_scale) that only the critic sees (a privileged critic):
-    # tendon2r_gym.policies.split_view.
+    # tendon2r_gym.training.split_view.
     hide_from_actor: tuple[str, ...] = ()
     # Start from a trained model's weights and VecNormalize statistics (fine-tuning): a bundle
     # name (e.g. generalist) or a model zip; it must cover the env (learned.check_model_env).
@@ -231,7 +231,7 @@ class Hyperparams:
         the actor) and its policy_kwargs, for an env of ``env_config``."""
         if not self.hide_from_actor:
             return "MlpPolicy", self.policy_kwargs
-        from tendon2r_gym.policies.split_view import SplitViewPolicy
+        from tendon2r_gym.training.split_view import SplitViewPolicy
 
         keep = env_config.observation.mask(self.hide_from_actor).tolist()
         # one mask per stacked frame

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 from typing import TYPE_CHECKING, Any
 
-from tendon2r_gym.policies.runs import RunFolder, model_files, seed_dir, stem_of
+from tendon2r_gym.artifacts.runs import RunFolder, model_files, seed_dir, stem_of
 from tendon2r_gym.training.executors import Executor, InProcess, pin_threads
 from tendon2r_gym.training.hyperparams import Hyperparams
 from tendon2r_gym.training.records import training_lock
@@ -94,7 +94,7 @@ def train_seed(spec: SeedSpec, seed: int, base: str | Path | None = None) -> dic
     from tendon2r_gym.llvm import load_triton
 
     load_triton()  # before torch (tendon2r_gym.training's own order)
-    from tendon2r_gym.policies.files import trusting_pickle
+    from tendon2r_gym.artifacts.files import trusting_pickle
 
     with trusting_pickle(spec.trust_pickle):
         return _train_seed(spec, seed, base)
@@ -156,7 +156,7 @@ def _run_jobs(
     ends, and a run folder that a job sent back (from a node that does not see this one's
     files) is put in place then.  Raises KeyboardInterrupt after the jobs if one was stopped
     by Ctrl-C."""
-    from tendon2r_gym.policies.files import trusted
+    from tendon2r_gym.artifacts.files import trusted
 
     remote = bool(getattr(executor, "remote", False))
     shared = bool(getattr(executor, "shared_files", True))

@@ -1,7 +1,7 @@
 """The run owner (rl_zoo3's ExperimentManager): one training command, its seeds and folders.
 
 ``Experiment`` trains one run per seed in ``base/seed_<n>/`` (names from
-tendon2r_gym.policies.runs) and survives interruption:
+tendon2r_gym.artifacts.runs) and survives interruption:
 - Ctrl-C (or SIGTERM) stops training at the next env step (StopOnSignal), saves
   ``last_model`` and the summary, then raises KeyboardInterrupt, so a multi-seed command stops
   as a whole (exit code 130) after writing the summary of the seeds that finished;
@@ -30,14 +30,14 @@ from __future__ import annotations
 import contextlib
 import json
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from tendon2r_gym.envs.env_config import EnvConfig
-from tendon2r_gym.policies.history import stacked
-from tendon2r_gym.policies.residual import make_training_env
-from tendon2r_gym.policies.runs import (
+import gymnasium as gym
+
+from tendon2r_gym.artifacts.runs import (
     BEST_METRICS,
     CONFIG,
     EVALUATIONS,
@@ -49,6 +49,9 @@ from tendon2r_gym.policies.runs import (
     seed_dir,
     seed_dirs,
 )
+from tendon2r_gym.envs.env_config import EnvConfig, resolve
+from tendon2r_gym.envs.registration import make as make_env
+from tendon2r_gym.policies.residual import NO_RESIDUAL, Residual, ResidualPDWrapper
 from tendon2r_gym.training.callbacks import (
     StopOnSignal,
     TimedCheckpointCallback,
@@ -57,6 +60,7 @@ from tendon2r_gym.training.callbacks import (
     quiet_writer_threads,
     save_model,
 )
+from tendon2r_gym.training.frame_stack import stacked
 from tendon2r_gym.training.hyperparams import Hyperparams
 from tendon2r_gym.training.init_from import fine_tune, initial_model, load_initial
 from tendon2r_gym.training.records import (
@@ -215,13 +219,24 @@ def recorded_hyperparams(run: RunFolder) -> Hyperparams:
         return Hyperparams.from_dict(values, CONFIG)
     except ValueError as e:  # edited, or naming a file that moved (an experiment file)
         raise ValueError(
-            f"{run.file(CONFIG)}: its hyperparameters are invalid ({e}); to recover, put back a "
+            f"{run.file(CONFIG)}: its hyperparameters are invalid ({e}); to recover: put back a "
             "file they name that moved (env_kwargs.preset), or restore it from a copy (a bundle "
             "keeps one)"
         ) from None
 
 
 # -- one run -----------------------------------------------------------------------------------
+def make_training_env(
+    env_kwargs: EnvConfig | Mapping[str, Any], residual: Residual = NO_RESIDUAL
+) -> gym.Env:
+    """Returns Tendon2R-v0 of ``env_kwargs`` (an EnvConfig, or env kwargs: resolved once),
+    wrapped for residual learning if ``residual`` is active."""
+    env = make_env(preset=resolve(env_kwargs))
+    if not residual.active:
+        return env
+    return ResidualPDWrapper(env, **residual.to_record())
+
+
 def make_vec_env(hp: Hyperparams, seed: int) -> Any:
     """Returns the training VecEnv: the native vector env (one process, batched physics and PD)
     with SB3's VecMonitor, or SB3's make_vec_env with Subproc/Dummy."""
@@ -246,7 +261,7 @@ def _load_newest(run: RunFolder, venv: Any, hp: Hyperparams) -> tuple[Any, Any]:
     """Returns (PPO, VecNormalize) from the newest readable saved state of the run, read
     without unpickling (files.load_ppo; an earlier version's pickled statistics only with
     the trust option, else the error names it); a corrupt one is skipped with a warning."""
-    from tendon2r_gym.policies.files import PickleRefused, load_ppo, load_vecnormalize
+    from tendon2r_gym.artifacts.files import PickleRefused, load_ppo, load_vecnormalize
 
     candidates = run.checkpoint_candidates()
     if not candidates:

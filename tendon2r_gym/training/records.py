@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from tendon2r_gym.policies.runs import (
+from tendon2r_gym.artifacts.runs import (
     BEST_METRICS,
     EVALUATIONS,
     SUMMARY,

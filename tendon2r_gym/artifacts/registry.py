@@ -3,10 +3,10 @@
 Each line gives the model's role, its training entry (``tendon2r_gym/data/ppo.yaml``), the
 preset it was trained on, its bundled seeds (the first is the primary one) and the hash of the
 env contract it needs: the env config its runs recorded (run.json ``env_config``: every env
-argument, resolved, and the observation layout), as `contract_hash` computes it.  Its
-``group`` says where the benchmark runs it: ``preset`` (the preset's own table), ``generalist``
-(zero-shot on your arm), ``realism`` (the perturbed arms) or ``references`` (held-out
-references).
+argument, resolved, and the observation layout), as tendon2r_gym.envs.contract.contract_hash
+computes it.  Its ``group`` says where the benchmark runs it: ``preset`` (the preset's own
+table), ``generalist`` (zero-shot on your arm), ``realism`` (the perturbed arms) or
+``references`` (held-out references).
 
 Promoting a model is its bundle folder (``tendon2r-bundle``) and one line there; the benchmark,
 the CLI, the tests and the docs read the rest from here.
@@ -15,10 +15,7 @@ the CLI, the tests and the docs read the rest from here.
 from __future__ import annotations
 
 import functools
-import hashlib
-import json
 from dataclasses import dataclass
-from typing import Any
 
 from tendon2r_gym.presets import DATA_DIR, load_yaml
 from tendon2r_gym.validation import check_keys, invalid
@@ -62,9 +59,3 @@ def shipped() -> dict[str, Shipped]:
 def names(group: str | None = None) -> list[str]:
     """Returns the shipped models' names (of one group)."""
     return [n for n, s in shipped().items() if group is None or s.group == group]
-
-
-def contract_hash(env_config: dict[str, Any]) -> str:
-    """Returns the hash of an env contract: SHA-256 of its canonical JSON, 12 hex digits."""
-    text = json.dumps(env_config, sort_keys=True, separators=(",", ":"))
-    return hashlib.sha256(text.encode()).hexdigest()[:12]

@@ -1,7 +1,8 @@
 """What a trained model needs of its env: the settings its actions, timing and observation
 depend on (MODEL_SETTINGS), the check that an env is one it runs in (a generalist: any arm
 inside its training ranges), the arm slice a model that observed its arm expects on one fixed
-arm, the env kwargs a fine-tune inherits and the PD gains a deployed residual uses."""
+arm, and the PD gains a deployed residual uses (the env kwargs a fine-tune inherits:
+tendon2r_gym.training.init_from.fine_tune_env_kwargs)."""
 
 from __future__ import annotations
 
@@ -14,8 +15,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from tendon2r_gym.artifacts.runs import training_record
 from tendon2r_gym.envs.env_config import EnvConfig, resolve
-from tendon2r_gym.policies.runs import training_record
 from tendon2r_gym.simulation.mechanism import Mechanism
 from tendon2r_gym.task import observation
 from tendon2r_gym.task.arms import CONTROLLER, MechanismRanges, gain_field, reference_ranges
@@ -175,20 +176,6 @@ def feature_ranges(recorded: dict[str, Any]) -> MechanismRanges | None:
         return None
     value = recorded.get("arm_feature_ranges") or recorded["mechanism_ranges"]
     return MechanismRanges.from_value(value)
-
-
-def fine_tune_env_kwargs(model_path: str | Path, env_kwargs: dict[str, Any]) -> dict[str, Any]:
-    """Returns the env kwargs on which a run fine-tunes the model (``init_from``) on the env
-    of ``env_kwargs``: with the model's `model_settings` (what its actions mean, its
-    timing), and, if it observed its arm, the arm slice over the model's ranges
-    (observe ``arm``, ``arm_feature_ranges``), so that the run's every env, its record and
-    its deployment see the arm as the model did."""
-    out = in_model_settings(model_path, env_kwargs)
-    recorded = (training_record(model_path) or {}).get("env_config", {})
-    if observes_arm(recorded):  # the observe list of the run's own experiment (``out``)
-        observe = [n for n in resolve(out).observe if n != "arm"] + ["arm"]
-        out.update(observe=observe, arm_feature_ranges=feature_ranges(recorded).to_dict())
-    return out
 
 
 def drawn_gains(recorded: dict[str, Any]) -> list[str]:

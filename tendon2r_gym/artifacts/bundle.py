@@ -1,6 +1,6 @@
 """The bundled PPO models (package data, ``tendon2r_gym/data/models/<name>/``): copy and look up.
 
-Layout (the small files of each run, tendon2r_gym.policies.runs.BUNDLE_FILES)::
+Layout (the small files of each run, tendon2r_gym.artifacts.runs.BUNDLE_FILES)::
 
     <name>/bundle.json        seeds, primary seed, the training and bundling commands
     <name>/seed_<n>/          best_model.zip, best_model_vecnormalize.npz, run.json, ...
@@ -9,7 +9,7 @@ The primary seed (the first one trained, chosen before training, not the best on
 that ``tendon2r-evaluate --policy ppo`` uses; the others give the spread over training seeds.
 Each run.json records the env config the model was trained with.  A bundle holds no pickle:
 its statistics are plain arrays (npz), and its model zip is read without unpickling
-(tendon2r_gym.policies.files); bundling a run of an earlier version, whose statistics are a
+(tendon2r_gym.artifacts.files); bundling a run of an earlier version, whose statistics are a
 pickle, converts them, and only with the trust option.
 
 A bundle's name is one plain folder name under the models root (`check_name`), and
@@ -27,8 +27,8 @@ import uuid
 from pathlib import Path
 from typing import Any
 
-from tendon2r_gym.policies.files import corrupt, load_policy, read_json, read_stats
-from tendon2r_gym.policies.runs import (
+from tendon2r_gym.artifacts.files import corrupt, load_policy, read_json, read_stats
+from tendon2r_gym.artifacts.runs import (
     BEST,
     BUNDLE_FILES,
     STATS,

@@ -19,7 +19,7 @@ A training run writes, in ``runs/<name>/seed_<n>/``::
                                  each checkpoint, as if the run were interrupted there)
     tb/                          TensorBoard logs
 
-A bundle (tendon2r_gym.policies.bundle) copies the small files of a run: `BUNDLE_FILES`
+A bundle (tendon2r_gym.artifacts.bundle) copies the small files of a run: `BUNDLE_FILES`
 (no pickle: a bundle's statistics are the npz).  Each
 record is checked when it is read (`read_record`): a corrupt one is a ValueError naming
 the file, what is wrong with it and how to recover.  A training option this version no longer
@@ -38,6 +38,7 @@ from typing import Any
 
 import yaml
 
+from tendon2r_gym.artifacts.files import corrupt
 from tendon2r_gym.validation import invalid
 
 RUN_META = "run.json"
@@ -52,7 +53,7 @@ LAST = "last_model"
 CHECKPOINTS = "checkpoints"
 CHECKPOINT_PREFIX = "rl_model"
 TENSORBOARD = "tb"
-#: A model's statistics beside ``<name>.zip``: plain arrays (tendon2r_gym.policies.files), and
+#: A model's statistics beside ``<name>.zip``: plain arrays (tendon2r_gym.artifacts.files), and
 #: the pickle that earlier versions wrote (and SB3's own VecNormalize.save writes).
 STATS = "_vecnormalize.npz"
 LEGACY_STATS = "_vecnormalize.pkl"
@@ -139,35 +140,36 @@ def _is_off(value: Any, off: Any) -> bool:
     return value == off
 
 
-def corrupt(path: Path, what: str) -> ValueError:
-    """Returns the ValueError of a corrupt run file: ``<path> is corrupt: <what>; to recover,
-    <how>`` (`RECOVERY`), on one line."""
+def corrupt_record(path: Path, what: str) -> ValueError:
+    """Returns the error of a corrupt run file (files.corrupt): ``<path> is corrupt: <what>;
+    to recover: <how>``, how as `RECOVERY` says."""
     how = RECOVERY.get(path.name, f"restore it from a copy, or {_AGAIN}")
-    return ValueError(" ".join(f"{path} is corrupt: {what}; to recover, {how}".split()))
+    return corrupt(path, f"corrupt: {what}", how)
 
 
 def read_record(path: Path) -> Any:
     """Returns the data of a run record (JSON, or YAML for config.yaml), or None if there is
-    no such file; raises `corrupt` if it is empty, does not parse, or is not shaped as
+    no such file; raises `corrupt_record` if it is empty, does not parse, or is not shaped as
     `SHAPES` says.  The hyperparameters and run.json come `without_removed`."""
     if not path.is_file():
         return None
     try:
         text = path.read_text()
     except UnicodeDecodeError:
-        raise corrupt(path, "it is not UTF-8 text") from None
+        raise corrupt_record(path, "it is not UTF-8 text") from None
     if not text.strip():
-        raise corrupt(path, "it is empty")
+        raise corrupt_record(path, "it is empty")
     if path.name == CONFIG and text.startswith(CONFIG_HEAD):
         if text.rstrip().splitlines()[-1] != CONFIG_END:
-            raise corrupt(path, f"it is cut short (its last line is not {CONFIG_END!r})")
+            raise corrupt_record(path, f"it is cut short (its last line is not {CONFIG_END!r})")
     yaml_file = path.suffix == ".yaml"
     try:
         data = yaml.safe_load(text) if yaml_file else json.loads(text)
     except (yaml.YAMLError, json.JSONDecodeError) as e:
-        raise corrupt(path, f"it is not valid {'YAML' if yaml_file else 'JSON'} ({e})") from None
+        kind = "YAML" if yaml_file else "JSON"
+        raise corrupt_record(path, f"it is not valid {kind} ({e})") from None
     if (problem := _mismatch(data, SHAPES.get(path.name))) is not None:
-        raise corrupt(path, problem)
+        raise corrupt_record(path, problem)
     return without_removed(data, path) if path.name in (CONFIG, RUN_META) else data
 
 
@@ -325,7 +327,8 @@ class RunFolder:
         path = self.file(COMMAND)
         lines = path.read_text().splitlines()
         if not lines or not lines[0].strip():
-            raise corrupt(path, "it is empty (its first line is the command that started the run)")
+            what = "it is empty (its first line is the command that started the run)"
+            raise corrupt_record(path, what)
         return lines[0]
 
     def pd_eval_rms(self) -> list[float] | None:

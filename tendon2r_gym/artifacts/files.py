@@ -50,8 +50,9 @@ _POLICY_WEIGHTS = "policy.pth"
 
 
 def corrupt(path: str | Path, what: str, recover: str = RECOVER_MODEL) -> ValueError:
-    """Returns the project's error for a corrupt file: ``<path> is <what>; to recover: ...``."""
-    return ValueError(f"{path} is {what}; to recover: {recover}")
+    """Returns the project's error for a corrupt file (a model file, a bundle's record, a run
+    record): ``<path> is <what>; to recover: <recover>``, on one line."""
+    return ValueError(" ".join(f"{path} is {what}; to recover: {recover}".split()))
 
 
 def mismatch(path: str | Path, what: str, theirs: Any, ours: Any, env: str) -> ValueError:
@@ -107,19 +108,20 @@ def refuse_pickle(path: str | Path, what: str, recover: str = CONVERT) -> Pickle
 
 # -- model zip ---------------------------------------------------------------------------------
 #: The policy classes a model zip may name, by the module and name SB3 recorded (MlpPolicy is
-#: SB3's ActorCriticPolicy; tendon2r_gym.training.split_view is where the shipped real_arm
-#: model recorded SplitViewPolicy).  The class is imported from here, never unpickled.
+#: SB3's ActorCriticPolicy; SplitViewPolicy is a trained model's class, which the shipped
+#: generalist_real model recorded under tendon2r_gym.policies.split_view).  The class is
+#: imported from here, by name when a model is loaded, never unpickled.
 POLICY_CLASSES = {
     ("stable_baselines3.common.policies", "ActorCriticPolicy"): (
         "stable_baselines3.common.policies",
         "ActorCriticPolicy",
     ),
     ("tendon2r_gym.policies.split_view", "SplitViewPolicy"): (
-        "tendon2r_gym.policies.split_view",
+        "tendon2r_gym.training.split_view",
         "SplitViewPolicy",
     ),
     ("tendon2r_gym.training.split_view", "SplitViewPolicy"): (
-        "tendon2r_gym.policies.split_view",
+        "tendon2r_gym.training.split_view",
         "SplitViewPolicy",
     ),
 }
