@@ -59,7 +59,7 @@ class SeedSpec:
     # For a node that does not see the driver's files: the files the hyperparameters name
     # (path relative to cwd -> bytes).
     inputs: Mapping[str, bytes] = field(default_factory=dict)
-    trust_pickle: bool = False  # the driver's --trust-pickle (policies.files.trusting_pickle)
+    trust_pickle: bool = False  # the driver's --trust-pickle (artifacts.files.trusting_pickle)
 
 
 @dataclass(frozen=True)
