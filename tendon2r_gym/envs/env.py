@@ -117,7 +117,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     [mechanism](mechanism.md#the-force-limit).
 
     ## Version History
-    Each id's contract is frozen (tendon2r_gym.policies.contract); CHANGELOG.md says what each changed.
+    Each id's contract is frozen (tendon2r_gym.envs.contract); CHANGELOG.md says what each changed.
 
     - v2: the default for new work: v1 with ``action_filter_tau`` 0.002, the command a motor
       follows, so that ordinary PPO settings learn it (research/results/clients.md).
