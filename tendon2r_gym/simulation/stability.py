@@ -33,6 +33,7 @@ at values thousands of times larger.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import OrderedDict
 from typing import NamedTuple
@@ -173,6 +174,7 @@ def check_stability(model: mujoco.MjModel, mech: Mechanism) -> None:
         )
 
 
+@functools.lru_cache(maxsize=64)  # an experiment is resolved many times: one check per arm
 def stable_sim_dt(mech: Mechanism, ctrl_dt: float, max_substeps: int) -> float:
     """Returns the step a mechanism whose sim_dt was left out gets: its own (the default) if
     the integrator keeps it stable, else the largest ctrl_dt / k below it (k <= max_substeps)
