@@ -313,6 +313,9 @@ def env_page(root: Path = ROOT) -> str:
             "release's details.",
             "",
             *version_lines(root),
+            "",
+            "Which PPO settings learn each id, and what to expect of them: "
+            "[your own PPO settings](training.md#your-own-ppo-settings).",
         ]
     )
     lines = [

@@ -120,9 +120,11 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     Each id's contract is frozen (tendon2r_gym.envs.contract); CHANGELOG.md says what each changed.
 
     - v2: the default for new work: v1 with ``action_filter_tau`` 0.002, the command a motor
-      follows, so that ordinary PPO settings learn it (research/results/clients.md).
-      ``Tendon2RResidual-v2`` is residual: PD inside, the action a correction of each joint's
-      torque in multiples of its need (tendon2r_gym.policies.residual.make_residual_env).
+      follows, so that ordinary PPO settings learn it: SB3's and CleanRL's defaults do; a
+      discount of 0.9 (rl_zoo3's Reacher entry) does not, and learns the residual id
+      ([training](training.md#your-own-ppo-settings)).  ``Tendon2RResidual-v2`` is residual:
+      PD inside, the action a correction of each joint's torque in multiples of its need
+      (tendon2r_gym.policies.residual.make_residual_env); every client tried learns it.
     - v1: ``reset_noise_scale`` 0.02 and ``observe=["error_rate"]``, what the shipped plain-PPO
       entries learn on.  ``Tendon2RResidual-v1`` is the same env under a second id.
     - v0: the first id, frozen at its last contract (``reset_noise_scale`` 0.001, no error
