@@ -408,10 +408,11 @@ def _benchmark_bundles() -> list[str]:
     def evaluate(policy, env_kwargs, seeds, model=None, options=None, jitter=None):
         if model is not None:
             seen.append(Path(model).as_posix())
-        return {"policy": policy, "rms_deg": [0.0, 0.0], "max_deg": [0.0, 0.0]}, [None]
+        # stub figures > 0: the rows' statistics divide by PD's
+        return {"policy": policy, "rms_deg": [1.0, 1.0], "max_deg": [1.0, 1.0]}, [None]
 
     benchmark.evaluate = evaluate
-    benchmark.jittered_rms = lambda *a, **k: [[0.0, 0.0]]
+    benchmark.jittered_rms = lambda *a, **k: [[1.0, 1.0]]
     benchmark.plot_trace = lambda *a, **k: None
     benchmark.report.bundled_page = lambda result: []
     benchmark._write = lambda out, result, lines: result
