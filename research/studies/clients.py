@@ -1,7 +1,9 @@
 """Ordinary PPO clients on the registered ids: what a user's own settings learn.
 
-    python -m research.studies.clients --steps 1000000 --seeds 0 1 2        # results/clients.*
-    python -m research.studies.clients --env-ids Tendon2RResidual-v2 --steps 300000
+    python -m research.studies.clients --steps 300000 --seeds 0 1 2         # results/clients.*
+    python -m research.studies.clients --settings Tendon2RResidual-v2 --clients project \
+        --seeds 0 --residual-steps 3500000 --eval-every 250000           # the project's entry
+    python -m research.studies.clients --only-report                    # the page, from the runs
     python -m research.studies.clients --steps 4096 --eval-every 2048 --seeds 0 --out x  # smoke
 
 Each client is a PPO setting a user brings from elsewhere, applied to ``gym.make(env_id)`` with
