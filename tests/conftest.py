@@ -32,24 +32,35 @@ def mech(request) -> Mechanism:
 SHORT_EPISODE_S = 0.2
 
 
+def shortened(base: type) -> type:
+    """Returns a subclass of the vector env ``base`` whose episodes last SHORT_EPISODE_S: a
+    resolved config (its ``preset``) is replaced with that duration, env kwargs get it."""
+    import dataclasses
+
+    from tendon2r_gym.envs.env_config import EnvConfig
+
+    class Short(base):
+        shortened = True
+
+        def __init__(self, num_envs, *args, **kwargs):
+            preset = args[0] if args else kwargs.get("preset")
+            if not isinstance(preset, EnvConfig):
+                kwargs = {**kwargs, "episode_duration": SHORT_EPISODE_S}
+            elif args:  # a resolved config: its episodes shortened
+                args = (dataclasses.replace(preset, episode_duration=SHORT_EPISODE_S), *args[1:])
+            else:
+                kwargs["preset"] = dataclasses.replace(preset, episode_duration=SHORT_EPISODE_S)
+            super().__init__(num_envs, *args, **kwargs)
+
+    return Short
+
+
 @pytest.fixture
 def short_episodes(monkeypatch):
     """Every vector env (evaluation rollouts, training, studies) runs SHORT_EPISODE_S episodes
     instead of its config's: for the tests of a command's end-to-end plumbing (files, rows,
     pages), whose properties do not depend on how long an episode is.  A model still loads
     against its full env contract; only the rollouts are shorter."""
-    import dataclasses
-
     from tendon2r_gym.envs import vector_env
-    from tendon2r_gym.envs.env_config import EnvConfig
 
-    class Short(vector_env.Tendon2RVectorEnv):
-        def __init__(self, num_envs, *args, **kwargs):
-            config = kwargs.pop("config", None) or (args[0] if args else None)
-            if isinstance(config, EnvConfig):  # a resolved config: its episodes shortened
-                short = dataclasses.replace(config, episode_duration=SHORT_EPISODE_S)
-                super().__init__(num_envs, short, *args[1:], **kwargs)
-                return
-            super().__init__(num_envs, *args, **{**kwargs, "episode_duration": SHORT_EPISODE_S})
-
-    monkeypatch.setattr(vector_env, "Tendon2RVectorEnv", Short)
+    monkeypatch.setattr(vector_env, "Tendon2RVectorEnv", shortened(vector_env.Tendon2RVectorEnv))

@@ -7,37 +7,20 @@ import json
 import pytest
 
 from tendon2r_gym.training import executors
-
-#: Seconds per episode in the tests (tests/conftest.py's short_episodes, in every worker too).
-SHORT_EPISODE_S = 0.2
+from tests.conftest import shortened
 
 
 def _shorten() -> None:
-    """In a worker: every vector env runs SHORT_EPISODE_S episodes (short_episodes, which a
-    spawned worker does not inherit) and each figure gets one jittered rerun."""
-    import dataclasses
-
+    """In a worker: every vector env runs the tests' short episodes (tests/conftest.py's
+    short_episodes, which a spawned worker does not inherit) and each figure gets one
+    jittered rerun."""
     from tendon2r_gym.envs import vector_env
-    from tendon2r_gym.envs.env_config import EnvConfig
     from tendon2r_gym.evaluation import evaluator
 
     evaluator.REPRO_RUNS = 1
     base = vector_env.Tendon2RVectorEnv
-    if getattr(base, "shortened", False):
-        return
-
-    class Short(base):
-        shortened = True
-
-        def __init__(self, num_envs, *args, **kwargs):
-            config = kwargs.pop("config", None) or (args[0] if args else None)
-            if isinstance(config, EnvConfig):  # a resolved config: its episodes shortened
-                short = dataclasses.replace(config, episode_duration=SHORT_EPISODE_S)
-                super().__init__(num_envs, short, *args[1:], **kwargs)
-                return
-            super().__init__(num_envs, *args, **{**kwargs, "episode_duration": SHORT_EPISODE_S})
-
-    vector_env.Tendon2RVectorEnv = Short
+    if not getattr(base, "shortened", False):
+        vector_env.Tendon2RVectorEnv = shortened(base)
 
 
 def _short_job(fn, job):
