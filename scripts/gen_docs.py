@@ -123,27 +123,23 @@ def blocks(root: Path = ROOT) -> dict[Path, str]:
     """Returns the text of each hand-written file that holds generated blocks (README's
     tables, the training page's clients summary), its blocks rewritten."""
     readme = root / "README.md"
-    text = with_readme_block(readme.read_text(), readme_block(root))
-    text = with_readme_block(text, readme_models_block(), MODELS_BEGIN, MODELS_END)
+    text = with_block(readme.read_text(), readme_block(root))
+    text = with_block(text, readme_models_block(), MODELS_BEGIN, MODELS_END)
     out = {readme: text}
     training = root / DOCS / "training.md"
     if training.is_file():
         clients = "\n".join([CLIENTS_BEGIN, *docs_results.clients_block(root), CLIENTS_END])
-        out[training] = with_readme_block(
-            training.read_text(), clients, CLIENTS_BEGIN, CLIENTS_END
-        )
+        out[training] = with_block(training.read_text(), clients, CLIENTS_BEGIN, CLIENTS_END)
     return out
 
 
-def with_readme_block(
-    readme: str, block: str, begin: str = README_BEGIN, end: str = README_END
-) -> str:
-    """Returns README's text with the block between ``begin`` and ``end`` replaced (unchanged
-    if it has no such block)."""
-    if begin not in readme:
-        return readme
-    a, b = readme.index(begin), readme.index(end) + len(end)
-    return readme[:a] + block + readme[b:]
+def with_block(text: str, block: str, begin: str = README_BEGIN, end: str = README_END) -> str:
+    """Returns a hand-written file's text (README's results table by default) with the block between
+    ``begin`` and ``end`` replaced (unchanged if it has no such block)."""
+    if begin not in text:
+        return text
+    a, b = text.index(begin), text.index(end) + len(end)
+    return text[:a] + block + text[b:]
 
 
 def missing_images(pages: dict[str, str], docs: Path, root: Path) -> list[str]:
