@@ -185,10 +185,10 @@ def stable_sim_dt(mech: Mechanism, ctrl_dt: float, max_substeps: int) -> float:
     model = build_model(mech.ideal())
     first = max(1, math.ceil(ctrl_dt / mech.sim_dt - 1e-9))  # the substeps at its own step
     for k in range(first, max_substeps + 1):
-        dt = mech.sim_dt if k == first else ctrl_dt / k
+        candidate = mech if k == first else mech.replace(sim_dt=ctrl_dt / k)
         try:
-            check_stability(model, mech.replace(sim_dt=dt) if dt != mech.sim_dt else mech)
+            check_stability(model, candidate)
         except ValueError:
             continue
-        return dt
+        return candidate.sim_dt
     return mech.sim_dt
