@@ -22,7 +22,8 @@ from tendon2r_gym.evaluation.metrics import smoothness_x_pd
 #: The studies whose results have a page (``research/results/<name>.md``, where it exists),
 #: linked from the results page in this order.  A study that writes its Markdown there needs
 #: only its name here.
-STUDIES = ("realism", "identification", "envelope", "envelope_generalists", "clients")
+STUDIES = ("ten_seeds", "realism", "identification", "envelope", "envelope_generalists",
+           "clients")
 
 
 #: A benchmark row's plots (tendon2r_gym.app.plots.plot_trace), by the link's label.
@@ -93,6 +94,25 @@ def profile_block(rows: list[dict[str, Any]]) -> list[str]:
         "stratified bootstrap bands, the presets as strata.",
         "",
         figure(gen_figures.PROFILE_FIGURE, "Performance profile of plain and residual PPO"),
+    ]
+
+
+def ten_seeds_section(root: Path) -> list[str]:
+    """Returns the default preset's rows over ten training seeds (research/results/
+    ten_seeds.json), if that study has run."""
+    path = root / "research" / "results" / "ten_seeds.json"
+    if not path.is_file():
+        return []
+    result = json.loads(path.read_text())
+    return [
+        "",
+        "### Over ten training seeds",
+        "",
+        f"The `{result['preset']}` preset's two recipes, trained on {len(result['seeds'])} seeds "
+        "each and evaluated on the same episodes as above",
+        f"([the study](studies/ten_seeds.md), `{result['command']}`):",
+        "",
+        *report.seeds_table(result["rows"]),
     ]
 
 
@@ -187,6 +207,7 @@ def results_page(root: Path = ROOT) -> str:
             *indented(report.NOTES),
             "",
             *bundled_section(root, main),
+            *ten_seeds_section(root),
         ]
     lines += ["", *studies_section(root)]
     if reports:
