@@ -42,9 +42,9 @@ class Args:
         "runs/ten_seeds"
     )
     workers: Annotated[int, arg("train this many seeds at once in local worker processes")] = 1
-    cluster: Annotated[
-        str | None, arg("train the seeds on a Ray cluster: auto or HOST:PORT")
-    ] = None
+    cluster: Annotated[str | None, arg("train the seeds on a Ray cluster: auto or HOST:PORT")] = (
+        None
+    )
     steps: Annotated[int | None, arg("training steps per seed (default: the entry's)")] = None
     config: Annotated[str | None, arg("hyperparameter file (default: configs/ppo.yaml)")] = None
     out: Annotated[str, arg("folder of ten_seeds.md and ten_seeds.json")] = str(OUT)
