@@ -13,6 +13,7 @@ from typing import Any
 import gen_figures
 from docs_common import ROOT, benchmark_reports, figure, header, newest_id, shown
 
+from tendon2r_gym.app import report
 from tendon2r_gym.app.markdown import code, code_block, page, pair, table
 from tendon2r_gym.artifacts import registry
 from tendon2r_gym.artifacts.bundle import MODELS_DIR, bundle_meta, bundled_model
@@ -131,7 +132,7 @@ def model_card(line: registry.Shipped, reports: dict[str, dict[str, Any]]) -> li
                 s["timesteps"],
                 s["wall_time_s"],
                 s["best_timesteps"],
-                "never" if beat is None else f"{beat['timesteps']} / {beat['wall_time_s']} s",
+                report.first_beat(beat),
                 pair(s["best_rms_deg"], ".3g"),
             )
         )

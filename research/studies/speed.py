@@ -24,7 +24,7 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
 import tendon2r_gym  # noqa: E402, F401
-from research.studies import one_or_more  # noqa: E402
+from research.studies import joints, one_or_more  # noqa: E402
 from tendon2r_gym.app.args import arg, parse  # noqa: E402
 from tendon2r_gym.artifacts.runs import command_line  # noqa: E402
 from tendon2r_gym.envs.vector_env import ARMS_PER_THREAD  # noqa: E402
@@ -595,7 +595,7 @@ def main(argv: list[str] | None = None) -> dict:
         *(
             f"| {label} | {r['n_envs']} x {r['n_steps']}, {r['batch_size']} | "
             f"{r['steps_per_s']:.0f} | {r['env_steps_per_s_with_startup']:.0f} | "
-            f"{r['peak_pss_mb']:.0f} | {' / '.join(f'{v:.4f}' for v in r['best_rms_deg'])} |"
+            f"{r['peak_pss_mb']:.0f} | {joints(r['best_rms_deg'], 4)} |"
             for label, r in result["ppo"].items()
         ),
         "",

@@ -83,9 +83,11 @@ def _setting(name: str, value: Any) -> str:
     return f"{name} {value}"
 
 
-def _beat(value: Any) -> str:
+def first_beat(value: Any) -> str:
+    """Returns when a training first beat PD (``first_beat_pd``), as "steps / wall s", "never",
+    or a comma-separated list of them for several seeds."""
     if isinstance(value, list):
-        return ", ".join(_beat(v) for v in value)
+        return ", ".join(first_beat(v) for v in value)
     return "never" if value is None else f"{value['timesteps']} / {value['wall_time_s']} s"
 
 
@@ -146,7 +148,7 @@ def training_table(rows: list[dict[str, Any]]) -> list[str]:
     head = ["env", "policy", "train steps", "train wall (s)", "first beat PD (steps / wall)"]
     out = [
         [name, shown_policy(r), r["train_steps"], r.get("train_wall_s", ""),
-         _beat(r.get("first_beat_pd"))]
+         first_beat(r.get("first_beat_pd"))]
         for name, group in _by_env(rows)
         for r in group
         if "train_steps" in r
