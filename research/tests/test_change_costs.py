@@ -10,6 +10,7 @@ import pytest
 
 from research.studies import change_costs as cc
 from research.studies.change_probes import PROBES
+from tests.reading import figures
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -71,9 +72,11 @@ def test_the_verdict_names_every_reason():
     assert cc.verdict(kind, two, {}, [ok], []) == (True, [])
     four = _files(library=["tendon2r_gym/a.py", "tendon2r_gym/b.py", "tendon2r_gym/c.py"],
                   data=["tendon2r_gym/data/d.yaml"])  # fmt: skip
-    met, why = cc.verdict(kind, four, {}, [{**ok, "ok": False}], ["Tendon2R-v1"])
-    assert not met and len(why) == 3
-    assert "check failed: x" in why[0] and "Tendon2R-v1" in why[1] and "target at most 3" in why[2]
+    failed, contracts = {**ok, "ok": False}, ["Tendon2R-v1"]
+    met, why = cc.verdict(kind, four, {}, [failed], contracts)
+    assert not met and len(why) == 3  # each reason names what it is about
+    assert failed["check"] in why[0].split() and contracts[0] in why[1]
+    assert figures(why[2]) == [4, kind.target]  # the library and data files, the target
 
 
 def test_a_promotion_is_a_bundle_and_one_registry_line():
