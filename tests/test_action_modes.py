@@ -35,7 +35,7 @@ def test_joint_torque_action_applies_that_torque(preset):
         checked += 1
         check.qpos[:], check.qvel[:], check.ctrl[:] = q, dq, d.ctrl
         mujoco.mj_forward(m, check)
-        tau = a * env._torque_map.max_torque
+        tau = a * env.torque_map.max_torque
         np.testing.assert_allclose(
             check.qfrc_actuator, tau, rtol=1e-2, atol=1e-2 * np.max(np.abs(tau))
         )
@@ -52,7 +52,7 @@ def test_max_joint_torque_saturates_a_tendon():
     for j in range(2):
         a = np.zeros(2)
         a[j] = 1.0
-        u = env._torque_map.joint_torque_command(np.zeros((1, 2)), a[None])[0]
+        u = env.torque_map.joint_torque_command(np.zeros((1, 2)), a[None])[0]
         assert np.max(np.abs(u)) == pytest.approx(1.0, rel=1e-2)
 
 

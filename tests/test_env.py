@@ -237,9 +237,10 @@ def test_the_true_observation_under_sensor_noise_is_that_of_the_true_state():
         env = Tendon2REnv(observation_noise=[1e-3, 0.1], **kwargs)
         env.reset(seed=0)
         obs = env.step(np.array([0.3, -0.2]))[0]
-        truth = env._true_entries(obs.tolist(), env._state())
+        truth = env.with_true_state(obs)
         assert not np.allclose(obs, truth)
-        np.testing.assert_allclose(truth, env._get_obs(measured=False), rtol=1e-12, atol=1e-15)
+        true_state = env.current_observation(measured=False)
+        np.testing.assert_allclose(truth, true_state, rtol=1e-12, atol=1e-15)
 
 
 def test_same_seed_same_episode_bit_for_bit():
@@ -592,7 +593,7 @@ def test_control_authority_is_the_speed_a_full_joint_torque_adds_in_one_step():
         data.qpos[:2] = q
         mujoco.mj_fwdPosition(model, data)
         mujoco.mj_fullM(model, data, M)
-        expected = cfg.ctrl_dt * env._torque_map.max_torque * np.diag(np.linalg.inv(M))[:2]
+        expected = cfg.ctrl_dt * env.torque_map.max_torque * np.diag(np.linalg.inv(M))[:2]
         np.testing.assert_allclose(gained[k], expected, rtol=0.02)
     peak = gained.max(axis=0)
     authority = np.array(cfg.needs.control_authority)

@@ -311,12 +311,12 @@ def test_moment_arm_rows_are_the_dense_matrix(preset):
     """MomentArms.rows (floats, the env's info) is MomentArms.dense (the array PD reads) bit for
     bit, on the ideal model and on a realistic one (spools, friction tendons, sparse ten_J),
     and the info's condition number is actuation.cond of it."""
-    from tendon2r_gym.simulation.actuation import cond
+    from tendon2r_gym.simulation.actuation import MomentArms, cond
 
     env = gym.make("Tendon2R-v0", preset=preset)
     env.reset(seed=0)
-    u = env.unwrapped
+    arms = MomentArms(env.unwrapped.model, env.unwrapped.data)  # as the env reads its own
     for a in np.random.default_rng(0).uniform(-1, 1, (20, *env.action_space.shape)):
         info = env.step(a)[4]
-        assert [list(r) for r in u._arms.rows()] == u._arms.dense().tolist()
-        assert info["moment_arm_cond"] == cond(u._arms.dense())
+        assert [list(r) for r in arms.rows()] == arms.dense().tolist()
+        assert info["moment_arm_cond"] == cond(arms.dense())

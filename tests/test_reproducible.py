@@ -105,7 +105,8 @@ def _short_rows(learned_only: bool = False) -> list[dict]:
     kwargs = SHORT_ARM
     model = bundled_model(SHORT_BUNDLE)
     if learned_only:
-        rows = [benchmark._row("short", "ppo residual", "ppo", kwargs, SHORT_SEEDS, model, None)]
+        row = benchmark.policy_row("short", "ppo residual", "ppo", kwargs, SHORT_SEEDS, model, None)
+        rows = [row]
     else:
         rows = benchmark.compare("short", kwargs, {"ppo residual": [model]}, SHORT_SEEDS, None)
     return [{k: v for k, v in r.items() if k != "eval_s"} for r in rows]  # eval_s: wall time

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from tendon2r_gym import Mechanism, Reference, ReferenceRanges
-from tendon2r_gym.envs.env import Tendon2REnv
 from tendon2r_gym.envs.env_config import EnvConfig
 from tendon2r_gym.simulation.model import build_model
 from tendon2r_gym.simulation.stability import LIMITS, check_stability, rates
@@ -97,14 +96,16 @@ BAD_ENV_KWARGS = [
 
 @pytest.mark.parametrize(("kwargs", "match"), BAD_ENV_KWARGS)
 def test_bad_env_kwargs_raise_a_clear_error_at_construction(kwargs, match, monkeypatch):
+    from tendon2r_gym.envs import env as env_module
+
     built = []
-    build = Tendon2REnv._initialize_simulation
+    build = env_module.build_model  # the env's own model, from its arm
 
-    def spy(self):  # builds as usual: a late failure still raises, but after the spy saw it
+    def spy(mechanism):  # builds as usual: a late failure still raises, but after the spy saw it
         built.append(1)
-        return build(self)
+        return build(mechanism)
 
-    monkeypatch.setattr(Tendon2REnv, "_initialize_simulation", spy)
+    monkeypatch.setattr(env_module, "build_model", spy)
     with pytest.raises(ValueError, match=match) as err:
         gym.make("Tendon2R-v0", **kwargs)
     assert "allowed" in str(err.value) or "did you mean" in str(err.value)

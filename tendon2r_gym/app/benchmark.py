@@ -73,7 +73,7 @@ def compare(
     rows = []
     config = resolve(env_kwargs)  # once for the baselines and the models' settings
     for policy in names(BASELINE):
-        rows.append(_row(name, policy, policy, config, seeds, None, plots))
+        rows.append(policy_row(name, policy, policy, config, seeds, None, plots))
         _tick(progress)
     for label, models in learned.items():
         if not models:
@@ -82,10 +82,10 @@ def compare(
         # A model runs in the settings it was trained in (its action mode, timing...: the
         # same arm, reference and episodes as PD's), and its rows name those that differ.
         tag = settings_on(models[0], config)
-        kwargs = {**env_kwargs, **tag}  # an experiment of its own: resolved once by _row
+        kwargs = {**env_kwargs, **tag}  # an experiment of its own: resolved once by policy_row
         per_seed = []
         for i, model in enumerate(models):
-            row = _row(name, label, "ppo", kwargs, seeds, model, plots if i == 0 else None)
+            row = policy_row(name, label, "ppo", kwargs, seeds, model, plots if i == 0 else None)
             per_seed.append({**row, **tag})
             _tick(progress)
         rows.append(per_seed[0])
@@ -146,13 +146,13 @@ def generalist_rows(
             rows.append({"env": name, "policy": label, "missing": reason})
             continue
         tag = settings_on(model, on)  # as compare: the settings it trained in
-        row = _row(name, label, "ppo", {**on, **tag}, seeds, model, None)
+        row = policy_row(name, label, "ppo", {**on, **tag}, seeds, model, None)
         rows.append({**row, **tag})
         _print(rows[-1])
     return rows
 
 
-def _row(
+def policy_row(
     name: str,
     label: str,
     policy: str,
@@ -161,6 +161,11 @@ def _row(
     model: Path | None,
     plots: Path | None,
 ) -> dict[str, Any]:
+    """Returns one row of the benchmark: ``policy`` ("pd", "ct", or "ppo" with ``model``)
+    evaluated on the env ``env_kwargs`` over ``seeds``, labelled ``name`` (the env) and
+    ``label`` (the policy), with its figures' reproducibility (``rms_deg_jittered``,
+    ``reproducible_to``) and a model's training summary; with ``plots``, the first episode's
+    plot.  `compare` builds its rows with it; tests run a single row."""
     start = time.perf_counter()
     config = resolve(env_kwargs)  # once for the row's evaluations
     metrics, traces = evaluate(policy, config, seeds, model)
@@ -441,8 +446,8 @@ def _own_arm_rows(
         bar.set_postfix_str("evaluating")
         name = Path(env_config).stem
         rows = compare(name, env_kwargs, learned, list(range(episodes)), out / "plots", bar)
-        row = _row(name, "PD tuned", "pd", {**env_kwargs, "pd_gains": tuned},
-                   list(range(episodes)), None, None)  # fmt: skip
+        row = policy_row(name, "PD tuned", "pd", {**env_kwargs, "pd_gains": tuned},
+                         list(range(episodes)), None, None)  # fmt: skip
         rows.append({**row, "pd_gains": tuned})
         _print(rows[-1])
         rows += generalist_rows(name, env_kwargs, list(range(episodes)), tuned)

@@ -240,11 +240,14 @@ class Tendon2REnv(MujocoEnv, EzPickle):
             if self._sensing is not None:
                 self._sensing.set_arm(0, timing.observation_delay_steps, arm.observation_noise)
         self._last_action = self.task.rest_command(arm)
-        self._torque_map: TorqueToTension | None = None
+        #: In ``action_mode="joint_torque"``, the map from normalized joint torques to tendon
+        #: commands at the current q (its ``max_torque`` scales the action); None in tension
+        #: mode.  Public so that tests can check the torque an action asks for.
+        self.torque_map: TorqueToTension | None = None
         max_torque = None
         if self.config.action_mode == "joint_torque":
-            self._torque_map = TorqueToTension(self.mechanism)
-            max_torque = self._torque_map.max_torque
+            self.torque_map = TorqueToTension(self.mechanism)
+            max_torque = self.torque_map.max_torque
         self._rate_inv = [
             float(x) for x in self.task.rate_need_inverse(arm.needs.torque_rate_need, max_torque)
         ]
@@ -289,10 +292,10 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         if self._filtered:
             a = self.task.command(a, last)
         self._last_action = a
-        if self._torque_map is None:
+        if self.torque_map is None:
             u = a
         else:  # joint_torque: PD's tension distribution at the current q
-            u = self._torque_map.joint_torque_command(self._qpos[None], np.array([a]))[0]
+            u = self.torque_map.joint_torque_command(self._qpos[None], np.array([a]))[0]
         self.sent_command = u  # the motors' normalized command as sent (recordings hold it)
         if self._delay is not None:  # the motors get the command of delay_steps ago
             u = self._delay.one(u)
@@ -355,11 +358,21 @@ class Tendon2REnv(MujocoEnv, EzPickle):
             SCALAR, q1, q2, w1, w2, self.data.time, self._ref, self._arm, self._last_action
         )
 
-    def _get_obs(self, measured: bool = True) -> np.ndarray:
-        """Returns the observation (`_obs_entries` as an array): of what the sensors
-        measure, or with ``measured=False`` of the true state."""
+    def current_observation(self, measured: bool = True) -> np.ndarray:
+        """Returns the observation now: with sensors (``observation_noise``,
+        ``observation_delay``), of what they measured at the last step or reset; without, of
+        the joint state (after ``set_state``, of the state set); with ``measured=False``, of the
+        true state.  Tests read it."""
         state = self._measured if measured and self._sensing is not None else self._state()
         return np.array(self._obs_entries(state), dtype=np.float64)
+
+    def with_true_state(self, observation: np.ndarray) -> np.ndarray:
+        """Returns ``observation``, one the sensors gave at this step, with every entry the
+        joint state sets rewritten from the true state: the observation that reward and info
+        read (`step` does this rewrite; tests compare it with
+        ``current_observation(measured=False)``)."""
+        entries = np.asarray(observation, dtype=np.float64).tolist()
+        return np.array(self._true_entries(entries, self._state()), dtype=np.float64)
 
     def _true_entries(self, parts: list[float], state: list[float]) -> list[float]:
         """Returns the observation's entries of the true ``state`` (`_state`): ``parts``
@@ -418,9 +431,9 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         if self._sensing is not None:
             self._sensing.reset(0, self._state(), self.np_random)
             self._measured = self._sensing.read()[0].tolist()
-            self._last_truth = self._get_obs(measured=False)
+            self._last_truth = self.current_observation(measured=False)
         self._warning_count = self._warnings()
-        self._last_obs = self._get_obs()
+        self._last_obs = self.current_observation()
         return self._last_obs
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
