@@ -184,3 +184,58 @@ def test_no_module_below_training_needs_torch_to_import():
         [sys.executable, "-c", _WITHOUT_TORCH, *modules], capture_output=True, text=True
     )
     assert len(modules) > 40 and done.returncode == 0, (done.stdout + done.stderr)[-2000:]
+
+
+#: The test folders: tests/ checks the library, research/tests/ the studies.
+TEST_DIRS = (PACKAGE.parent / "tests", PACKAGE.parent / "research" / "tests")
+#: The top-level packages of code that is not the library: the tests' and the studies'.
+TEST_ROOTS = ("tests", "research")
+
+
+def private_reads(source: str) -> set[str]:
+    """Returns each ``obj._name`` that ``source`` (a test file) reads from code other than its
+    own: ``_name`` one underscore then a letter (no dunder), not a name the file defines
+    (function, class, method, variable or attribute it sets), and ``obj`` not a module of the
+    tests or the studies (``from research.studies import x``: x's helpers are its tests'
+    subject)."""
+    tree = ast.parse(source)
+    own: set[str] = set()
+    ours: set[str] = set()  # the modules of the tests and the studies it imports
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            own.add(node.name)
+        elif isinstance(node, ast.Name) and isinstance(node.ctx, ast.Store):
+            own.add(node.id)
+        elif isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store):
+            own.add(node.attr)
+        elif isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] in TEST_ROOTS:
+            ours.update(a.asname or a.name for a in node.names)
+    return {
+        ast.unparse(node)
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Attribute)
+        and node.attr[:1] == "_" and node.attr[1:2].isalpha()
+        and node.attr not in own
+        and not (isinstance(node.value, ast.Name) and node.value.id in ours)
+    }  # fmt: skip
+
+
+def test_private_reads_sees_a_library_attribute_only():
+    source = (
+        "from research.studies import study\nclass P(Base):\n    def _torque(self):\n"
+        "        return super()._torque() + study._helper()\n"
+        "def _mine():\n    env = make()\n    return env._state(), env.__class__, _mine()\n"
+    )
+    assert private_reads(source) == {"env._state"}
+
+
+def test_no_test_reads_a_private_attribute_of_the_library():
+    """A test checks what a user can reach: public names, or a public attribute documented as
+    a test hook; never ``obj._name`` of the library."""
+    found = {
+        f"{path.relative_to(PACKAGE.parent)}: {read}"
+        for folder in TEST_DIRS
+        for path in sorted(folder.rglob("test_*.py"))
+        for read in private_reads(path.read_text())
+    }
+    assert not found, sorted(found)
