@@ -7,11 +7,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from research.studies import learnability, speed
 from tendon2r_gym.artifacts.bundle import bundle_names
 from tendon2r_gym.formatting import pair
 from tendon2r_gym.simulation.mechanism import Mechanism
+from tests.reading import bullets, figures, form, rows_by_name, rows_of
+from tests.reading import row as named_row
 
 RESULTS = Path(__file__).resolve().parent.parent / "results"
 ABLATIONS = Path(__file__).resolve().parent.parent / "configs" / "ablations.yaml"
@@ -37,13 +40,12 @@ def test_bench_speed_writes_every_figure(tmp_path, monkeypatch):
     small = {k: {**v, "n_envs": 2} if v else v for k, v in speed.PPO_SETUPS.items()
              if "dummy" not in k}  # fmt: skip
     monkeypatch.setattr(speed, "PPO_SETUPS", small)
-    result = speed.main(
-        ["--steps", "200", "--ppo-timesteps", "512", "--eval-freq", "4096",
-         "--first-win-timesteps", "512", "--vector-seconds",
-         "0.05", "--repeats", "1", "--single-rounds", "1", "--num-envs", "1", "2",
-         "--max-processes", "1",
-         "--out", str(tmp_path)]
-    )  # fmt: skip
+    argv = ["--steps", "200", "--ppo-timesteps", "512", "--eval-freq", "4096",
+            "--first-win-timesteps", "512", "--vector-seconds",
+            "0.05", "--repeats", "1", "--single-rounds", "1", "--num-envs", "1", "2",
+            "--max-processes", "1",
+            "--out", str(tmp_path)]  # fmt: skip
+    result = speed.main(argv)
     saved = json.loads((tmp_path / "speed.json").read_text())
     # A figure, not a timing check: with 200 steps on a loaded machine the difference of two
     # timings may even come out negative.
@@ -59,7 +61,14 @@ def test_bench_speed_writes_every_figure(tmp_path, monkeypatch):
     for run in saved["ppo"].values():
         assert run["timesteps"] >= 512 and run["peak_pss_mb"] > 0
     md = (tmp_path / "speed.md").read_text()
-    assert "--out" in md and "target >= 4x" in md and "600 MB" in md
+    from tendon2r_gym.artifacts.runs import command_line
+
+    assert command_line(argv, "python -m research.studies.speed") in md  # what produced it
+    assert set(speed.targets(saved, [1, 2])) <= set(md.splitlines()), "the targets, met or not"
+    for env_id in ("Tendon2R-v0", "Reacher-v5"):
+        cells = named_row(md, env_id)
+        assert figures(cells[1])[0] == saved[env_id]["substeps"]
+        assert figures(cells[2])[0] == pytest.approx(saved[env_id]["raw_physics_us"], abs=0.05)
 
 
 def test_learnability_study_end_to_end(tmp_path, short_episodes):
@@ -71,7 +80,13 @@ def test_learnability_study_end_to_end(tmp_path, short_episodes):
     for row in result["rows"]:
         assert len(row["rms_deg_per_seed"]) == 2 and len(row["rms_deg_mean"]) == 2
     md = (tmp_path / "learnability.md").read_text()
-    assert "| defaults |" in md and "--steps 256" in md
+    shown = rows_by_name(md)
+    assert list(shown) == ["defaults", "landed_reward"]
+    for r in result["rows"]:
+        assert figures(shown[r["row"]][2]) == pytest.approx(r["rms_deg_mean"], abs=5e-4)
+        assert figures(shown[r["row"]][4]) == [r["beat_pd_seeds"], 2]
+    words = result["command"].split()
+    assert words[words.index("--steps") + 1] == "256" and result["command"] in md
 
 
 def test_learnability_rows_change_what_they_say():
@@ -143,12 +158,18 @@ def test_arm_sweep_summary_counts_push_pull_arms_in_tension_mode(tmp_path):
         {**result, "arms": {f"{a['arm']}_{a['action_mode']}": a for a in arms}}, tmp_path
     )
     md = (tmp_path / "arm_sweep.md").read_text()
-    assert "tension mode, push-pull arms: <= PD on 1 of 2." in md
-    assert "at least one action mode on 3 of 3 arms" in md
-    assert "ppo scratch, tension: <= PD on both joints on 2 of 3 arms; <= PD within" in md
-    assert "the smoothness limits on 1." in md  # arm c: 12x PD's rate, over plain PPO's 10x
-    assert "**WORSE**; tension 1.0x, rate 2.0x PD)" in md
-    assert "rate 12.0x PD, **over the limits**)" in md
+    # Each count: wins, arms, wins within the smoothness limits (arm c: 12x PD's rate, over
+    # plain PPO's 10x and residual PPO's 3x); then plain PPO in either mode; then plain PPO on
+    # the push-pull arms in tension mode (a and c).
+    counts = [figures(line) for line in bullets(md)]
+    assert counts == [[2, 3, 1], [1, 1, 1], [3, 3, 2], [1, 1, 1], [3, 3], [1, 2]]
+    plain = [r[4] for r in rows_of(md)]
+    assert [figures(c) for c in plain] == [
+        [0.1, 0.1, a["ppo scratch"]["tension_x_pd"], a["ppo scratch"]["tension_rate_x_pd"]]
+        for a in arms
+    ]
+    lost, won, won_b, over = map(form, plain)  # a cell reads its verdict, not just figures
+    assert won == won_b and len({lost, won, over}) == 3
 
 
 def test_arm_sweep_only_retrains_one_row_and_keeps_the_others(tmp_path, short_episodes):
@@ -174,7 +195,9 @@ def test_arm_sweep_only_retrains_one_row_and_keeps_the_others(tmp_path, short_ep
     assert result["commands"]["ppo residual"] == "the old sweep"
     assert result["commands"]["ppo scratch"].endswith("--only scratch")
     assert sorted(p.name for p in (runs / "default_tension").iterdir()) == ["ppo_scratch"]
-    assert "residual PPO cells are kept from `the old sweep`" in (out / "arm_sweep.md").read_text()
+    md = (out / "arm_sweep.md").read_text()  # names the command each kept row comes from
+    assert result["commands"]["ppo residual"] in md.split("`")
+    assert arm_sweep._produced_by(result)[0] in md.splitlines()
     arm["env_config"] = {**config, "ctrl_dt": 0.002}  # another config of the arm
     (out / "arm_sweep.json").write_text(json.dumps(earlier))
     with pytest.raises(ValueError, match="arm 'default_tension'"):
@@ -249,10 +272,21 @@ def test_sensitivity_reports_the_tension_rate_against_pd(tmp_path):
     }
     sensitivity.write(result, tmp_path)
     md = (tmp_path / "sensitivity.md").read_text()
-    assert "| yes | 2.00 / 2.00 (1.0x) | 1.0x / 1.5x (within) |" in md
-    assert "| **no** | 6.00 / 6.00 (3.0x) | 1.0x / 1.5x (within) |" in md
-    assert "| yes | 2.00 / 2.00 (1.0x) | 1.0x / 12.0x (**over**) |" in md
-    assert "**2 of 3**" in md and "within the smoothness limits too: 1 of 3" in md
+    shown = rows_by_name(md)
+    assert list(shown) == [r["variant"] for r in result["runs"]]
+    beats = {name: cells[4] for name, cells in shown.items()}
+    assert beats["gamma_0.95"] != beats["defaults"] == beats["lr_x3"] == beats["epochs_5"]
+    for r in result["runs"]:  # the tension rate, its multiple of PD's; then on the reference
+        cells = shown[r["variant"]]
+        rate_x_pd = r["best_tension_rate_N_per_s"][0] / 2.0
+        assert figures(cells[5]) == [*r["best_tension_rate_N_per_s"], rate_x_pd]
+        on_ref = r["best_on_reference"]
+        assert figures(cells[6]) == [on_ref["tension_x_pd"], on_ref["tension_rate_x_pd"]]
+    kept = {form(shown[name][6]) for name in ("defaults", "gamma_0.95", "epochs_5")}
+    assert len(kept) == 1 and form(shown["lr_x3"][6]) not in kept  # within the limits, or not
+    # beat PD: 2 of the 3 variants (the defaults row aside), 67%, target 80%; within the
+    # limits too: 1 of 3
+    assert figures(md.rstrip().splitlines()[-1]) == [2, 3, 67, 80, 1, 3]
 
 
 def test_generalist_study_end_to_end(tmp_path):
@@ -270,8 +304,8 @@ def test_generalist_study_end_to_end(tmp_path):
     for name, arm in out["arms"].items():
         assert arm["rows"]["ct"]["rms_deg"][0] < arm["rows"]["pd"]["rms_deg"][0]
         authority = EnvConfig.make(**arm["env_kwargs"]).needs.control_authority
-        shown = pair(authority, ".3g")
-        assert f"| {name} | " in text and f" | {shown} | " in text
+        cells = next(r for r in rows_of(text) if r[0] == name)  # the arms' table
+        assert cells[2] == pair(authority, ".3g")
     assert worst_ratio([1.0, 3.0], [2.0, 1.0]) == 3.0
 
 
@@ -290,13 +324,20 @@ def test_generalist_fine_tuning_curve(tmp_path, short_episodes):
     row = out["finetune"][name]
     for label in ("fine-tuned", "scratch"):
         assert row[label]["curve"] and row[label]["wall_time_s"] > 0
-    config = (tmp_path / "runs" / name / "fine-tuned" / "seed_0" / "config.yaml").read_text()
-    assert "init_from: generalist" in config
-    scratch = (tmp_path / "runs" / name / "scratch" / "seed_0" / "config.yaml").read_text()
-    assert "init_from: null" in scratch
-    assert (
-        "## Fine-tuning against training from scratch" in (tmp_path / "generalist.md").read_text()
-    )
+    configs = {label: yaml.safe_load((tmp_path / "runs" / name / label / "seed_0" /
+                                      "config.yaml").read_text())
+               for label in ("fine-tuned", "scratch")}  # fmt: skip
+    assert configs["fine-tuned"]["init_from"] == "generalist"
+    assert configs["scratch"]["init_from"] is None
+    md = (tmp_path / "generalist.md").read_text()  # the section: step 0, then each curve's
+    steps = [r for r in rows_of(md) if len(r) == 4 and r[0] == name and r[1][0].isdigit()]
+    assert figures(steps[0][1]) == [0]
+    start = [row["zero_shot_rms_deg"], row["pd_rms_deg"]]
+    np.testing.assert_allclose([figures(c) for c in steps[0][2:]], start, rtol=0, atol=5e-4)
+    curve = row["fine-tuned"]["curve"]
+    assert [figures(r[1])[0] for r in steps[1:]] == [s for s, _ in curve]
+    shown = [figures(r[2]) for r in steps[1:]]
+    np.testing.assert_allclose(shown, [a for _, a in curve], rtol=0, atol=5e-4)
 
 
 def test_realism_ablation_scores_runs_on_the_realism_arms(tmp_path, monkeypatch, short_episodes):
@@ -324,26 +365,32 @@ def test_realism_ablation_scores_runs_on_the_realism_arms(tmp_path, monkeypatch,
     assert record["command"].startswith("tendon2r-train --hyperparams real_arm ")
     text = (tmp_path / "realism_ablation.md").read_text()
     per_arm = [line for line in text.splitlines() if line.startswith("| perturbed ")]
-    assert len(per_arm) == len(arms) - 1 and "actor not arm.density_scale" in text
-    assert f"| {realism_ablation._network_and_pd(record)} |" in text
-    assert "PD tuned per arm (trained on 9.83 to 46.9 Hz" in text  # each arm's tuned PD
-    for a in arms:
-        assert f"| {a['tuned_pd']['bandwidth_hz']:.3g} Hz, " in text
+    assert len(per_arm) == len(arms) - 1
+    (run_row,) = [r for r in rows_of(text) if r[0] == "1"]  # the runs' table: run 1
+    assert record["hide_from_actor"][0] == "arm.density_scale"  # its critic's alone
+    assert run_row[2].endswith(", ".join(record["hide_from_actor"]))
+    assert run_row[3] == realism_ablation._network_and_pd(record)
+    # its layers, the bandwidths it trained on and the phase they were drawn at
+    assert figures(run_row[3]) == [256, 256, 9.83, 46.9, 0.45, 0.9]
+    for a in arms:  # each arm's tuned PD
+        tuned_cell = named_row(text, a["arm"])[2]
+        bandwidth, phase = a["tuned_pd"]["bandwidth_hz"], a["tuned_pd"]["true_loop_phase_rad"]
+        assert figures(tuned_cell) == [float(f"{bandwidth:.3g}"), round(phase, 2)]
     fixed = {**record, "env_kwargs": {"pd_gains": {"bandwidth_hz": 12.29}}}
     assert realism_ablation._network_and_pd(fixed).endswith("; PD 12.29 Hz")
     scheduled = {**record, "env_kwargs": {"pd_gains": {"max_delay_phase": 0.5}}}
-    assert "PD 0.5 rad / loop delay, <= 30 Hz" in realism_ablation._network_and_pd(scheduled)
+    assert figures(realism_ablation._network_and_pd(scheduled)) == [256, 256, 0.5, 30]
     drawn = {"mechanism_ranges": ["real_arm", {"pd_bandwidth_hz": [10.0, 40.0]}]}
     shown = realism_ablation._network_and_pd({**record, "env_kwargs": drawn})
-    assert "PD tuned per arm (trained on 10 to 40 Hz drawn per episode)" in shown
+    assert figures(shown) == [256, 256, 10, 40]
     phase = {"mechanism_ranges": ["real_arm", {"pd_max_delay_phase": [0.3, 0.6]}]}
     shown = realism_ablation._network_and_pd({**record, "env_kwargs": phase})
-    assert "PD tuned per arm (trained on 0.3 to 0.6 rad drawn per episode)" in shown
+    assert figures(shown) == [256, 256, 0.3, 0.6]
     tied = {"pd_bandwidth_hz": [10.0, 40.0], "pd_tuned_phase": [0.5, 0.7]}
     shown = realism_ablation._network_and_pd(
         {**record, "env_kwargs": {"mechanism_ranges": ["real_arm", tied]}}
     )
-    assert "10 to 40 Hz drawn per episode at 0.5 to 0.7 rad of the arm's true loop)" in shown
+    assert figures(shown) == [256, 256, 10, 40, 0.5, 0.7]
     # a tuned PD's phase is the one that would draw its bandwidth (gains.tuned_bandwidth)
     tuned = realism_ablation._tuned_pd({"preset": "real_arm", "pd_gains": {"bandwidth_hz": 20}})
     arm = EnvConfig.make("real_arm")
@@ -469,7 +516,8 @@ def test_generalist_transient_section_shows_whole_and_settled_rms_on_sweep_arms(
     bundles = ["generalist", "generalist_scratch", "generalist@1"]
     lines = generalist.transient_lines(arms, bundles)
     table = [line for line in lines if line.startswith("| ")]
-    assert table[0].count("whole (settled)") == 2 and "generalist_scratch" not in table[0]
+    head = table[0].strip("| ").split(" | ")  # a column per seed of the generalist alone
+    assert [cell.split(":")[0] for cell in head[2:]] == ["generalist", "generalist@1"]
     assert table[1:] == [
         "| sweep_a | 0.0013 / 0.0009 | 0.0012 / 0.0015 (0.0003 / 0.0002) "
         "| 0.0011 / 0.0014 (0.0004 / 0.0001) |"
@@ -603,7 +651,13 @@ def test_transient_study_end_to_end(tmp_path):
     assert arm["specialist_rms_deg"] == specialist
     assert arm["tension_x_pd"] > 0 and arm["tension_rate_x_pd"] > 0
     text = (tmp_path / "transient.md").read_text()
-    assert out["command"] in text and "| sweep_course_2 | " in text
+    assert out["command"] in text
+    (cells,) = rows_of(text)  # the one arm's row: its shares, its RMS and the specialist's
+    assert cells[0] == "sweep_course_2"
+    assert figures(" ".join(cells[1:4])) == pytest.approx(
+        [share["squared_error"], share["own_reward"], share["registered_reward"]], abs=5e-3
+    )
+    assert figures(cells[6]) == pytest.approx(specialist, abs=5e-5)
 
 
 def test_envelope_survey_counts_every_draw_and_reports_from_its_json(tmp_path):
@@ -695,8 +749,9 @@ def test_identification_effort_compares_the_residual_with_pd_on_the_same_gains()
     row = {"arm": 0, "closed_loop": {"nominal": {**pd, **smooth}, "identified": {**pd, **rough},
                                      "true": {**pd}}}  # fmt: skip
     text = "\n".join(effort_lines([row]))
-    assert "| 0 | 2 / 2 / 2 | 10 / 10 / 10 | 1 / 1 / - | 2 / 5 / - |" in text
-    assert "on 1 of its 2 runs" in text  # the rate limit is 3x PD's for a residual
+    assert rows_of(text) == [["0", "2 / 2 / 2", "10 / 10 / 10", "1 / 1 / -", "2 / 5 / -"]]
+    # the residual kept the rate limit (3x PD's for a residual) on 1 of its 2 runs
+    assert figures(text.splitlines()[-1]) == [1, 2]
 
 
 def test_identification_hidden_true_sets_only_what_the_recording_does_not_show():

@@ -7,6 +7,7 @@ import pytest
 import yaml
 
 from research.studies import zoo_defaults
+from tests.reading import figures, rows_by_name
 
 
 def test_zoo_defaults_end_to_end(tmp_path, short_episodes):
@@ -27,7 +28,14 @@ def test_zoo_defaults_end_to_end(tmp_path, short_episodes):
         conf = yaml.safe_load((runs / run["env_id"] / "seed_0" / "ppo.yml").read_text())
         assert conf == {run["env_id"]: {**shipped, "n_timesteps": 256}}
     md = (out / "zoo_defaults.md").read_text()
-    assert "| Tendon2R-v0 |" in md and "| Tendon2R-v1 |" in md and "--steps 256" in md
+    shown = rows_by_name(md)
+    assert list(shown) == list(zoo_defaults.ENV_IDS)
+    for run in saved["runs"]:
+        cells = shown[run["env_id"]]
+        assert figures(cells[2]) == [run["seed"]]
+        assert figures(cells[3]) == pytest.approx(run["rms_deg"], abs=5e-4)
+    words = saved["command"].split()
+    assert words[words.index("--steps") + 1] == "256" and saved["command"] in md
     with pytest.raises(ValueError, match="run_dir = .* without an earlier run"):
         zoo_defaults.main(["--steps", "256", "--env-ids", "Tendon2R-v0", "--out", str(out),
                            "--run-dir", str(runs)])  # fmt: skip
