@@ -105,7 +105,12 @@ def _check_same_model(tmp_path, config: str) -> tuple[str, mujoco.MjModel]:
 @pytest.mark.parametrize("preset", list_presets())
 def test_export_of_every_preset_is_the_env_model(tmp_path, preset):
     text, _ = _check_same_model(tmp_path, preset)
-    assert f"model of {preset}" in text
+    from tendon2r_gym.app.tools import export_note
+    from tendon2r_gym.envs.env_config import EnvConfig
+    from tendon2r_gym.simulation.model import to_xml
+
+    cfg = EnvConfig.make(preset)  # the file is the preset's model under the preset's note
+    assert text == to_xml(cfg.mechanism, export_note(cfg, preset))
 
 
 @pytest.mark.parametrize("field", sorted(PERTURBATIONS))
