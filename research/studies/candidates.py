@@ -39,28 +39,66 @@ def model_path(value: str) -> Path:
     return path if path.suffix == ".zip" else model_files(RunFolder(path).best)[0]
 
 
-def evaluate_candidate(arm: dict[str, Any], model: Path, seeds: list[int]) -> dict[str, Any]:
-    """Returns one model's metrics on one arm of the study, on the PD tuned recorded there."""
-    from research.studies.envelope_generalists import KEYS
-    from research.studies.realism import on_its_pd
-    from tendon2r_gym.artifacts.model_env import in_model_settings
+#: The classical references (`evaluate_baselines`).
+REFERENCES = ("ct", "ct_floor")
+#: What the floor switches off: the delays, the motor lag and the pulley friction.
+FLOOR = {"motor_delay": 0.0, "motor_tau": 0.0, "tendon_friction": 0.0}
+
+
+def tuned(arm: dict[str, Any]) -> dict[str, Any]:
+    """Returns the arm's kwargs with the gains of the PD tuned recorded on it."""
     from tendon2r_gym.envs.env_config import resolve
-    from tendon2r_gym.evaluation.evaluator import evaluate
     from tendon2r_gym.task.gains import gains_of
 
     kwargs = arm["kwargs"]
     gains = {**gains_of(resolve(kwargs).pd_gains).to_dict(),
              "bandwidth_hz": arm["rows"]["pd_tuned"]["bandwidth_hz"]}  # fmt: skip
+    return {**kwargs, "pd_gains": gains}
+
+
+def floor(kwargs: dict[str, Any]) -> dict[str, Any]:
+    """Returns the arm without its delays, motor lag and pulley friction (FLOOR), with the
+    gains PD schedules on it (the arm's own, not the ones tuned on its delays)."""
+    mechanism = {**kwargs.get("mechanism", {}), **FLOOR}
+    return {**kwargs, "mechanism": mechanism, "observation_delay": 0.0}
+
+
+def evaluate_baselines(arm: dict[str, Any], seeds: list[int]) -> dict[str, Any]:
+    """Returns the classical references on one arm: CT (the nominal model's inverse dynamics
+    plus PD tuned's feedback) and the floor, CT on the arm without delays, lag and friction."""
+    from research.studies.envelope_generalists import KEYS
+    from tendon2r_gym.evaluation.evaluator import evaluate
+
+    out = {}
+    for name, kwargs in (("ct", tuned(arm)), ("ct_floor", floor(arm["kwargs"]))):
+        metrics, _ = evaluate("ct", kwargs, seeds)
+        out[name] = {k: metrics[k] for k in KEYS}
+    return out
+
+
+def evaluate_candidate(arm: dict[str, Any], model: Path, seeds: list[int]) -> dict[str, Any]:
+    """Returns one model's metrics on one arm of the study, on the PD tuned recorded there."""
+    from research.studies.envelope_generalists import KEYS
+    from research.studies.realism import on_its_pd
+    from tendon2r_gym.artifacts.model_env import in_model_settings
+    from tendon2r_gym.evaluation.evaluator import evaluate
+
+    kwargs = arm["kwargs"]
     try:
-        on = in_model_settings(model, on_its_pd(kwargs, {**kwargs, "pd_gains": gains}, model))
+        on = in_model_settings(model, on_its_pd(kwargs, tuned(arm), model))
         metrics, _ = evaluate("ppo", on, seeds, model)
     except ValueError as e:  # outside its ranges
         return {"error": str(e)}
     return {k: metrics[k] for k in KEYS}
 
 
-def summary(rows: list[tuple[dict[str, Any], dict[str, Any]]], residual: bool) -> dict[str, Any]:
-    """Returns the envelope study's summary of (row, PD tuned's row) pairs."""
+def summary(
+    rows: list[tuple[dict[str, Any], dict[str, Any]]],
+    residual: bool,
+    references: list[dict[str, Any]] | None = None,
+) -> dict[str, Any]:
+    """Returns the envelope study's summary of (row, PD tuned's row) pairs, with the median
+    worst-joint ratio to each classical reference (``references``: per pair, name -> row)."""
     import numpy as np
 
     from tendon2r_gym.evaluation.metrics import beats, smooth_enough, smoothness_x_pd, worst_ratio
@@ -70,6 +108,11 @@ def summary(rows: list[tuple[dict[str, Any], dict[str, Any]]], residual: bool) -
     if not done:
         return out
     ratio = [worst_ratio(r["rms_deg"], t["rms_deg"]) for r, t in done]
+    to = {}
+    for name in sorted(references[0]) if references else []:
+        to[name] = float(np.median([worst_ratio(r["rms_deg"], ref[name]["rms_deg"])
+                                    for (r, _), ref in zip(rows, references, strict=True)
+                                    if "error" not in r]))  # fmt: skip
     tension, rate = zip(*(smoothness_x_pd(r, t) for r, t in done), strict=True)
     return {
         **out,
@@ -81,6 +124,7 @@ def summary(rows: list[tuple[dict[str, Any], dict[str, Any]]], residual: bool) -
         "median_rate_x": float(np.median(rate)),
         "max_rate_x": float(np.max(rate)),
         "smooth": sum(smooth_enough(r, t, residual) for r, t in done),
+        "median_ratio_to": to,
     }
 
 
@@ -97,24 +141,33 @@ def lines(result: dict[str, Any]) -> list[str]:
         "",
         "| model | kind | arms | refused | <= PD tuned on both joints | worst-joint ratio: "
         "median / largest | per arm | RMS tension (x PD tuned), median | tension rate (x PD "
-        "tuned): median / largest | within the smoothness limits |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "tuned): median / largest | within the smoothness limits | median worst-joint ratio "
+        "to CT / to the floor |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, kinds in result["summary"].items():
         for kind, s in kinds.items():
             if "median_ratio" not in s:
                 out.append(f"| {name} | {kind} | {s['arms']} | {s['refused']} | - | - | - | - "
-                           "| - | - |")  # fmt: skip
+                           "| - | - | - |")  # fmt: skip
                 continue
             per_arm = ", ".join(f"{x:.2f}" for x in s["ratios"])
             out.append(
                 f"| {name} | {kind} | {s['arms']} | {s['refused']} | {s['beats_pd_tuned']} of "
                 f"{s['arms'] - s['refused']} | {s['median_ratio']:.3f} / {s['max_ratio']:.3f} | "
                 f"{per_arm} | {s['median_tension_x']:.2f} | {s['median_rate_x']:.2f} / "
-                f"{s['max_rate_x']:.2f} | {s['smooth']} of {s['arms'] - s['refused']} |"
+                f"{s['max_rate_x']:.2f} | {s['smooth']} of {s['arms'] - s['refused']} | "
+                f"{s['median_ratio_to']['ct']:.3f} / {s['median_ratio_to']['ct_floor']:.3f} |"
             )
     models = ", ".join(f"`{k}`: `{v}`" for k, v in result["models"].items())
-    return [*out, "", f"Models: {models}."]
+    return [
+        *out,
+        "",
+        f"Models: {models}. `ct`: computed torque (the nominal model's inverse dynamics) with PD "
+        "tuned's gains, what a control engineer builds from the same arm model; `ct_floor`: "
+        "computed torque on the same arm with its delays, motor lag and pulley friction switched "
+        "off (and the gains PD schedules there), what the actuators and sensors cost.",
+    ]
 
 
 @dataclass
@@ -156,23 +209,29 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         study = json.loads(Path(args.study).read_text())
         arms = {k: v for k, v in study["arms"].items() if kind_of(k) in args.kinds}
         seeds = study["seeds"]
-        rows: dict[str, dict[str, Any]] = {name: {} for name in models}
+        rows: dict[str, dict[str, Any]] = {name: {} for name in (*REFERENCES, *models)}
         for arm_name, arm in arms.items():
+            for name, row in evaluate_baselines(arm, seeds).items():
+                rows[name][arm_name] = row
             for name, model in models.items():
                 rows[name][arm_name] = evaluate_candidate(arm, model, seeds)
                 print(arm_name, name, rows[name][arm_name].get("rms_deg"), flush=True)
         shipped = {b for arm in arms.values() for b in arm["rows"] if b not in ("pd", "pd_tuned")}
         table: dict[str, dict[str, Any]] = {}
-        for name in sorted(shipped) + list(models):
-            residual = Residual.from_record(
-                training_record(models[name]) if name in models else _bundled(name)
-            ).active
+        for name in [*REFERENCES, *sorted(shipped), *models]:
+            residual = (
+                name not in REFERENCES
+                and Residual.from_record(
+                    training_record(models[name]) if name in models else _bundled(name)
+                ).active
+            )
             for kind in args.kinds:
-                pairs = [(_row(name, a, arm, rows), arm["rows"]["pd_tuned"])
-                         for a, arm in arms.items() if kind_of(a) == kind
-                         and (name in models or name in arm["rows"])]  # fmt: skip
+                on = [a for a, arm in arms.items()
+                      if kind_of(a) == kind and (name in rows or name in arm["rows"])]  # fmt: skip
+                pairs = [(_row(name, a, arms[a], rows), arms[a]["rows"]["pd_tuned"]) for a in on]
+                refs = [{r: rows[r][a] for r in REFERENCES} for a in on]
                 if pairs:
-                    table.setdefault(name, {})[kind] = summary(pairs, residual)
+                    table.setdefault(name, {})[kind] = summary(pairs, residual, refs)
         return {"command": command, "study": args.study, "kinds": args.kinds, "seeds": seeds,
                 "models": {k: str(v) for k, v in models.items()}, "rows": rows,
                 "summary": table}  # fmt: skip
