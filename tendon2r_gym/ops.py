@@ -1,7 +1,7 @@
 """Elementwise operations for formulas written once and run on Python floats or numpy arrays.
 
-The task (tendon2r_gym.envs.task) and the moment-arm condition number are written as plain
-arithmetic with the few functions below passed in: `SCALAR` (``math``, for the single
+The env's formulas (tendon2r_gym.envs.formulas) and the moment-arm condition number are written
+as plain arithmetic with the few functions below passed in: `SCALAR` (``math``, for the single
 env, where scalar math on two joints is several times faster than numpy) or `BATCH`
 (numpy over N arms, for the vector env).  Both give the same bits: numpy's float64 sin and cos
 round as ``math``'s do on this platform (tests/test_vector_env.py compares whole episodes),

@@ -411,36 +411,36 @@ def test_readme_python_examples_run():
 
 def test_multiscale_tracking_reward_is_bounded_and_keeps_a_gradient_near_zero():
     from tendon2r_gym.envs.env_config import EnvConfig
-    from tendon2r_gym.envs.task import RAD_PER_DEG, Task
+    from tendon2r_gym.envs.formulas import RAD_PER_DEG, Formulas
     from tendon2r_gym.ops import SCALAR
 
-    task = Task(EnvConfig.make(tracking_form="multiscale"))
-    log = Task(EnvConfig.make(tracking_form="log"))
+    multiscale = Formulas(EnvConfig.make(tracking_form="multiscale"))
+    log = Formulas(EnvConfig.make(tracking_form="log"))
 
     def r(t, deg):
         e = deg * RAD_PER_DEG
         return t.reward_terms(SCALAR, e, e, [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], False)["tracking"]
 
     errors = [0.0, 0.001, 0.01, 0.05, 0.1, 1.0, 10.0, 90.0, 180.0]
-    values = [r(task, e) for e in errors]
+    values = [r(multiscale, e) for e in errors]
     assert values[0] == 0.0 and values[-1] == pytest.approx(-1.0, abs=1e-12)
     assert all(a > b for a, b in itertools.pairwise(values)), values
     # From 0.05 to 0.01 deg the multiscale reward gains far more than the log form.
-    assert r(task, 0.01) - r(task, 0.05) > 100 * (r(log, 0.01) - r(log, 0.05))
+    assert r(multiscale, 0.01) - r(multiscale, 0.05) > 100 * (r(log, 0.01) - r(log, 0.05))
 
 
 @pytest.mark.parametrize("form", ["multiscale", "log", "quadratic"])
 def test_tracking_rate_is_the_tracking_kernel_of_the_error_ahead(form):
     """tracking_rate is the tracking form's kernel of e + tracking_horizon de: at errors e
     changing at de, it is the tracking term at the errors e + h de; unweighted, it is 0."""
-    from tendon2r_gym.envs.task import RAD_PER_DEG, Task
+    from tendon2r_gym.envs.formulas import RAD_PER_DEG, Formulas
     from tendon2r_gym.ops import SCALAR
 
     def terms(e1, e2, de1=0.0, de2=0.0, weight=1.0, horizon=0.05):
         cfg = EnvConfig.make(tracking_form=form, tracking_horizon=horizon,
                              reward_scales={"tracking_rate": weight})  # fmt: skip
         zero = [0.0, 0.0]
-        return Task(cfg).reward_terms(SCALAR, e1, e2, zero, zero, zero, False, de1, de2)
+        return Formulas(cfg).reward_terms(SCALAR, e1, e2, zero, zero, zero, False, de1, de2)
 
     e1, e2, de1, de2 = (x * RAD_PER_DEG for x in (0.25, -0.5, 4.0, 1.0))
     moving = terms(e1, e2, de1, de2)
@@ -466,20 +466,20 @@ def test_effort_term_charges_the_commanded_tension(preset):
     """The ctrl term is the commanded tension as a fraction of the force limit: slack tendons
     cost nothing (pull-only: command -1; push-pull: 0) and a tendon at its limit costs 1, in
     both envs; in joint-torque mode it is the normalized torque."""
-    from tendon2r_gym.envs.task import Task
+    from tendon2r_gym.envs.formulas import Formulas
     from tendon2r_gym.ops import SCALAR
 
-    def effort(task, command):
+    def effort(formulas, command):
         zero = [0.0] * len(command)
-        return task.reward_terms(SCALAR, 0.0, 0.0, command, zero, zero, False)["ctrl"]
+        return formulas.reward_terms(SCALAR, 0.0, 0.0, command, zero, zero, False)["ctrl"]
 
     cfg = EnvConfig.make(preset=preset)
-    task, n = Task(cfg), cfg.n_actions
+    tension, n = Formulas(cfg), cfg.n_actions
     slack = -1.0 if cfg.mechanism.pull_only else 0.0
-    assert effort(task, [slack] * n) == 0.0
-    assert effort(task, [1.0] * n) == -n
-    assert effort(task, [1.0] + [slack] * (n - 1)) == -1.0
-    torque = Task(EnvConfig.make(preset=preset, action_mode="joint_torque"))
+    assert effort(tension, [slack] * n) == 0.0
+    assert effort(tension, [1.0] * n) == -n
+    assert effort(tension, [1.0] + [slack] * (n - 1)) == -1.0
+    torque = Formulas(EnvConfig.make(preset=preset, action_mode="joint_torque"))
     assert effort(torque, [0.0, 0.0]) == 0.0 and effort(torque, [-1.0, 0.5]) == -1.25
     # The env reports the same term for the command it applied.
     env = gym.make("Tendon2R-v0", preset=preset)

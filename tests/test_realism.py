@@ -157,7 +157,7 @@ def test_delay_of_k_steps_shifts_the_response_by_k_steps(k, preset):
     sent k steps later (the rest command before them), bit for bit."""
     delayed = gym.make("Tendon2R-v0", preset=preset, mechanism={"motor_delay": k * 0.001})
     ideal = gym.make("Tendon2R-v0", preset=preset)
-    rest = np.array(ideal.unwrapped.task.rest_command(ideal.unwrapped.arm))
+    rest = np.array(ideal.unwrapped.formulas.rest_command(ideal.unwrapped.arm))
     actions = np.random.default_rng(0).uniform(-1, 1, (30, *ideal.action_space.shape))
     shifted = np.concatenate([np.tile(rest, (k, 1)), actions[:-k]])
     delayed.reset(seed=1), ideal.reset(seed=1)

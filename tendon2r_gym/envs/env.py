@@ -13,7 +13,12 @@ from gymnasium.envs.mujoco.mujoco_env import DEFAULT_SIZE, MujocoEnv
 from gymnasium.utils import EzPickle
 
 from tendon2r_gym.envs.env_config import EnvConfig, resolve
-from tendon2r_gym.envs.task import DIVERGENCE_WARNING_IDS, Task, arm_params, reference_params
+from tendon2r_gym.envs.formulas import (
+    DIVERGENCE_WARNING_IDS,
+    Formulas,
+    arm_params,
+    reference_params,
+)
 from tendon2r_gym.envs.timing import Timing
 from tendon2r_gym.llvm import load_triton
 from tendon2r_gym.ops import SCALAR
@@ -196,7 +201,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
 
     def _resolve_ids(self) -> None:
         """Caches views and constants used on every step (no name look-ups in the hot path)."""
-        self.task = Task(self.config)
+        self.formulas = Formulas(self.config)
         cfg, timing = self.config, self.timing
         self._delay: CommandDelay | None = None
         if timing.delay_capacity:
@@ -239,7 +244,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
                 self._delay.set_arm(0, timing.delay_steps, self.drive.ctrl)
             if self._sensing is not None:
                 self._sensing.set_arm(0, timing.observation_delay_steps, arm.observation_noise)
-        self._last_action = self.task.rest_command(arm)
+        self._last_action = self.formulas.rest_command(arm)
         #: In ``action_mode="joint_torque"``, the map from normalized joint torques to tendon
         #: commands at the current q (its ``max_torque`` scales the action); None in tension
         #: mode.  Public so that tests can check the torque an action asks for.
@@ -249,7 +254,8 @@ class Tendon2REnv(MujocoEnv, EzPickle):
             self.torque_map = TorqueToTension(self.mechanism)
             max_torque = self.torque_map.max_torque
         self._rate_inv = [
-            float(x) for x in self.task.rate_need_inverse(arm.needs.torque_rate_need, max_torque)
+            float(x)
+            for x in self.formulas.rate_need_inverse(arm.needs.torque_rate_need, max_torque)
         ]
         # Named sensor reads: each tendon's motor force (N, positive lengthens), contiguous.
         first = self.model.sensor(f"force_{tendon_name(0)}").adr[0]
@@ -265,7 +271,7 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         self._arm = arm_params(arm, self.config)
 
     def _set_reference(self, ref: Reference) -> None:
-        """Sets the episode's reference, cached as Python floats for the task's scalar math."""
+        """Sets the episode's reference, cached as Python floats for the formulas' scalar math."""
         self.reference = ref
         self._ref = reference_params(ref)
 
@@ -285,12 +291,17 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         FORCE_HEADROOM times this."""
         return self.arm.needs.force_need
 
+    @property
+    def task(self) -> Formulas:
+        """`formulas` under its old name, kept while research code reads it by that name."""
+        return self.formulas
+
     # -- gymnasium API -----------------------------------------------------------------------------
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         last = self._last_action
-        a = self.task.checked_action(action)
+        a = self.formulas.checked_action(action)
         if self._filtered:
-            a = self.task.command(a, last)
+            a = self.formulas.command(a, last)
         self._last_action = a
         if self.torque_map is None:
             u = a
@@ -334,11 +345,13 @@ class Tendon2REnv(MujocoEnv, EzPickle):
 
     def _check_divergence(self, state: list[float]) -> bool:
         """Returns whether the last step, which left the true ``state`` (`_state`),
-        diverged (a new MuJoCo instability warning, or a state outside the task's domain); if
-        so, leaves a finite state."""
+        diverged (a new MuJoCo instability warning, or a state outside the valid domain:
+        Formulas.out_of_domain); if so, leaves a finite state."""
         n_warn = self._warnings()
         q1, q2, w1, w2 = state
-        diverged = n_warn > self._warning_count or self.task.out_of_domain(SCALAR, q1, q2, w1, w2)
+        diverged = n_warn > self._warning_count or self.formulas.out_of_domain(
+            SCALAR, q1, q2, w1, w2
+        )
         self._warning_count = n_warn
         if diverged:  # MuJoCo already reset the state on a bad QACC; make sure it is finite.
             qpos = self.data.qpos  # the arm's and the spools'
@@ -351,10 +364,10 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         return self._qpos.tolist() + self._qvel.tolist()
 
     def _obs_entries(self, state: list[float]) -> list[float]:
-        """Returns the observation's entries (tendon2r_gym.envs.task.Task.observation on this arm)
-        of the joint state (q_A, q_B, dq_A, dq_B)."""
+        """Returns the observation's entries (tendon2r_gym.envs.formulas.Formulas.observation
+        on this arm) of the joint state (q_A, q_B, dq_A, dq_B)."""
         q1, q2, w1, w2 = state
-        return self.task.observation(
+        return self.formulas.observation(
             SCALAR, q1, q2, w1, w2, self.data.time, self._ref, self._arm, self._last_action
         )
 
@@ -377,14 +390,15 @@ class Tendon2REnv(MujocoEnv, EzPickle):
     def _true_entries(self, parts: list[float], state: list[float]) -> list[float]:
         """Returns the observation's entries of the true ``state`` (`_state`): ``parts``
         (the entries of the sensors' observation of this step) with the entries the joint
-        state sets rewritten (Task.state_entries, and Task.error_rate_entries if observed)."""
+        state sets rewritten (Formulas.state_entries, and Formulas.error_rate_entries if
+        observed)."""
         qd1, qd2 = parts[obs_layout.Q_DES]
-        joints, rest = self.task.state_entries(SCALAR, *state, qd1, qd2, self._arm)
+        joints, rest = self.formulas.state_entries(SCALAR, *state, qd1, qd2, self._arm)
         head, tail = obs_layout.STATE
         out = joints + parts[head.stop : tail.start] + rest + parts[tail.stop :]
-        if self.task.observes_rate:
+        if self.formulas.observes_rate:
             where = obs_layout.error_rate_slice(self.preview_steps, self._n)
-            out[where] = self.task.error_rate_entries(
+            out[where] = self.formulas.error_rate_entries(
                 SCALAR, *state[2:], *parts[obs_layout.DQ_DES], self._arm
             )
         return out
@@ -396,16 +410,16 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         reward is the sum of the terms."""
         e1, e2 = entries[self._err]
         de1 = de2 = 0.0
-        if self.task.weighs_rate:  # the error's rate, read only where it is weighed
+        if self.formulas.weighs_rate:  # the error's rate, read only where it is weighed
             (w1, w2), (v1, v2) = entries[obs_layout.DQ], entries[obs_layout.DQ_DES]
             de1, de2 = v1 - w1, v2 - w2
-        terms = self.task.reward_terms(
+        terms = self.formulas.reward_terms(
             SCALAR, e1, e2, action, last, self._rate_inv, diverged, de1, de2
         )
-        return self.task.scale(terms)
+        return self.formulas.scale(terms)
 
     def _get_info(self, obs: np.ndarray, terms: dict[str, float], diverged: bool) -> dict[str, Any]:
-        return self.task.step_info(
+        return self.formulas.step_info(
             obs,
             terms,
             self.tendon_tensions(),
@@ -416,16 +430,16 @@ class Tendon2REnv(MujocoEnv, EzPickle):
 
     def reset_model(self) -> np.ndarray:
         rng = self.np_random
-        arm, ref = self.task.episode(rng, self._fixed_reference)
+        arm, ref = self.formulas.episode(rng, self._fixed_reference)
         if arm is not self.arm:  # a drawn arm: its own model
             self._bind_arm(arm)
         self._set_reference(ref)
-        q, qdot = self.task.initial_state(rng, self.reference)
+        q, qdot = self.formulas.initial_state(rng, self.reference)
         if self.drive.has_state:  # spools and lags at rest
             self.drive.settle(self.data, q, qdot)
         else:
             self.set_state(q, qdot)
-        self.sent_command = self._last_action = self.task.rest_command(self.arm)
+        self.sent_command = self._last_action = self.formulas.rest_command(self.arm)
         if self._delay is not None:
             self._delay.reset(slice(None))
         if self._sensing is not None:
@@ -440,11 +454,11 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         """Resets the episode.  ``options={"reference": {...}}`` fixes this episode's reference
         (Reference fields over the nominal one; it must fit the workspace), e.g. for held-out
         evaluation; ``reference_ranges`` then draws nothing."""
-        self._fixed_reference = self.task.reference_option(options)
+        self._fixed_reference = self.formulas.reference_option(options)
         return super().reset(seed=seed, options=options)
 
     def _get_reset_info(self) -> dict[str, Any]:
-        return self.task.reset_info(self.reference, float(self.data.time), self.arm)
+        return self.formulas.reset_info(self.reference, float(self.data.time), self.arm)
 
 
 Tendon2REnv.__doc__ = Tendon2REnv.__doc__.format(

@@ -3,9 +3,9 @@
 ``gym.make_vec("Tendon2R-v1", num_envs=N, vectorization_mode="vector_entry_point")`` returns
 `Tendon2RVectorEnv`.  One MjModel and N simulations are stepped by MuJoCo's batch API
 (C threads, results bit-identical to one MjData per simulation); the observation, reward,
-reference and divergence checks are tendon2r_gym.envs.task's formulas on numpy arrays over the N
-arms.  The same seeds give the same trajectories, observations, rewards and infos as N single
-envs (``gym.make``), bit for bit.
+reference and divergence checks are the formulas of tendon2r_gym.envs.formulas on numpy arrays
+over the N arms.  The same seeds give the same trajectories, observations, rewards and infos as
+N single envs (``gym.make``), bit for bit.
 
 Gymnasium 1.x conventions: ``autoreset_mode`` NEXT_STEP by default (SAME_STEP on request,
 which SB3's adapter uses), per-env ``info`` arrays with their ``_key`` masks, truncation after
@@ -27,7 +27,12 @@ from gymnasium.vector.utils import batch_space
 from mujoco import batch as mj_batch
 
 from tendon2r_gym.envs.env_config import EnvConfig, resolve
-from tendon2r_gym.envs.task import DIVERGENCE_WARNING_IDS, Task, arm_params, reference_params
+from tendon2r_gym.envs.formulas import (
+    DIVERGENCE_WARNING_IDS,
+    Formulas,
+    arm_params,
+    reference_params,
+)
 from tendon2r_gym.envs.timing import Timing
 from tendon2r_gym.envs.vector_info import autoreset, with_final, without_empty
 from tendon2r_gym.ops import BATCH
@@ -114,7 +119,7 @@ class Tendon2RVectorEnv(VectorEnv):
             self._bind_delays(i, cfg, self.drive, timing)
         if cfg.mechanism.elastic:
             self._qfrc_passive = b.bind("qfrc_passive")  # the cables' force on their spools
-        self.task = Task(cfg)
+        self.formulas = Formulas(cfg)
 
         n = self.num_envs
         # Each arm's config, model, drive, observed numbers (arm_params, one row per number)
@@ -123,7 +128,7 @@ class Tendon2RVectorEnv(VectorEnv):
         self._models: list[mujoco.MjModel] = [self.model] * n
         self._drives: list[Drive] = [self.drive] * n
         self._arm = np.tile(np.array(arm_params(cfg, cfg))[:, None], (1, n))
-        self._rest = np.tile(np.array(self.task.rest_command(cfg)), (n, 1))
+        self._rest = np.tile(np.array(self.formulas.rest_command(cfg)), (n, 1))
         self._rngs = [seeding.np_random()[0] for _ in range(n)]
         self._refs: list[Reference] = [cfg.reference] * n
         self._ref = np.zeros((8, n))  # reference_params of each arm, one row per number
@@ -158,7 +163,7 @@ class Tendon2RVectorEnv(VectorEnv):
         Gymnasium's SyncVectorEnv does.  ``options={"reference": {...}}`` fixes the reference,
         as on the single env."""
         n = self.num_envs
-        fixed = self.task.reference_option(options)
+        fixed = self.formulas.reference_option(options)
         mask = np.ones(n, dtype=bool)
         if options and "reset_mask" in options:
             mask = np.asarray(options["reset_mask"], dtype=bool)
@@ -191,14 +196,14 @@ class Tendon2RVectorEnv(VectorEnv):
         """Resets arms ``ids`` as Tendon2REnv.reset_model does, with each arm's own RNG."""
         if len(ids) == 0:
             return
-        task = self.task
-        arms, refs = zip(*(task.episode(self._rngs[i], fixed) for i in ids), strict=True)
+        formulas = self.formulas
+        arms, refs = zip(*(formulas.episode(self._rngs[i], fixed) for i in ids), strict=True)
         if self.config.mechanism_ranges is not None:
             self._set_arms(ids, list(arms))
         self._set_references(ids, list(refs))
         self.batch.reset(ids, stage=mujoco.mjtStage.mjSTAGE_NONE.value)
         for i, ref in zip(ids, refs, strict=True):
-            q, dq = task.initial_state(self._rngs[i], ref)
+            q, dq = formulas.initial_state(self._rngs[i], ref)
             if self.drive.has_state:
                 self._settle(i, q, dq)
             else:
@@ -223,7 +228,7 @@ class Tendon2RVectorEnv(VectorEnv):
             self._models[i] = model = build_model(arm.mechanism)
             self._drives[i] = Drive(model, arm.mechanism)
             self._arm[:, i] = arm_params(arm, cfg)
-            self._rest[i] = self.task.rest_command(arm)
+            self._rest[i] = self.formulas.rest_command(arm)
             self._bind_delays(i, arm, self._drives[i])
         self.batch.set_models(self._models)
         if self._torque_map is not None:
@@ -231,12 +236,12 @@ class Tendon2RVectorEnv(VectorEnv):
         self._bind_rate_need()
 
     def _bind_rate_need(self) -> None:
-        """Sets each slot's 1 / s of the action_rate_need term (Task.rate_need_inverse)."""
+        """Sets each slot's 1 / s of the action_rate_need term (Formulas.rate_need_inverse)."""
         need = np.array([a.needs.torque_rate_need for a in self._arm_cfgs])
         max_torque = None
         if self._torque_map is not None:
             max_torque = np.broadcast_to(self._torque_map.max_torque, need.shape)
-        self._rate_inv = self.task.rate_need_inverse(need, max_torque)
+        self._rate_inv = self.formulas.rate_need_inverse(need, max_torque)
 
     def _bind_delays(
         self, i: int, arm: EnvConfig, drive: Drive, timing: Timing | None = None
@@ -265,7 +270,7 @@ class Tendon2RVectorEnv(VectorEnv):
         envs batch it (``_key`` masks, a mapping per nested dict)."""
         info = {} if info is None else info
         for i in ids:
-            row = self.task.reset_info(self._refs[i], float(self._time[i]), self._arm_cfgs[i])
+            row = self.formulas.reset_info(self._refs[i], float(self._time[i]), self._arm_cfgs[i])
             info = self._add_info(info, row, int(i))
         return info
 
@@ -287,8 +292,8 @@ class Tendon2RVectorEnv(VectorEnv):
         else:  # the common step: every arm, without index arrays
             ids, active = None, slice(None)
         last = self._last_action.copy()
-        if self.task.alpha != 1.0:  # action_filter_tau
-            a = np.stack(self.task.command(list(a.T), list(last.T)), axis=1)
+        if self.formulas.alpha != 1.0:  # action_filter_tau
+            a = np.stack(self.formulas.command(list(a.T), list(last.T)), axis=1)
         self._last_action[active] = a[active]
         if self._torque_map is None:
             u = a
@@ -348,11 +353,11 @@ class Tendon2RVectorEnv(VectorEnv):
 
     def _check_divergence(self, active: np.ndarray | slice, failed: np.ndarray) -> np.ndarray:
         """Per arm: a new MuJoCo instability warning, a failed call, or a state outside the
-        task's domain; a diverged arm is left in a finite state."""
+        valid domain (Formulas.out_of_domain); a diverged arm is left in a finite state."""
         warn = self._warnings()
         q, w = self._qpos, self._qvel
         with np.errstate(invalid="ignore"):
-            out = self.task.out_of_domain(BATCH, q[:, 0], q[:, 1], w[:, 0], w[:, 1])
+            out = self.formulas.out_of_domain(BATCH, q[:, 0], q[:, 1], w[:, 0], w[:, 1])
         bad = (warn > self._warn_count) | failed | out
         self._warn_count[:] = warn
         mask = np.zeros(self.num_envs, dtype=bool)
@@ -367,14 +372,14 @@ class Tendon2RVectorEnv(VectorEnv):
         return np.concatenate([self._qpos[i, :2], self._qvel[i, :2]], axis=-1)
 
     def _observe(self, measured: bool = True) -> np.ndarray:
-        """The observations of every arm (tendon2r_gym.envs.task.Task.observation on arrays): of
-        what the sensors measure, or with ``measured=False`` of the true state."""
+        """The observations of every arm (tendon2r_gym.envs.formulas.Formulas.observation on
+        arrays): of what the sensors measure, or with ``measured=False`` of the true state."""
         if measured and self._sensing is not None:
             q1, q2, w1, w2 = self._sensing.read().T.copy()
         else:
             q, w = self._qpos, self._qvel
             q1, q2, w1, w2 = q[:, 0], q[:, 1], w[:, 0], w[:, 1]
-        parts = self.task.observation(
+        parts = self.formulas.observation(
             BATCH,
             q1,
             q2,
@@ -389,19 +394,19 @@ class Tendon2RVectorEnv(VectorEnv):
 
     def _true_obs(self, measured: np.ndarray) -> np.ndarray:
         """Returns the observations of the true state: ``measured`` (the sensors' observations
-        of this step) with the entries the joint state sets rewritten (Task.state_entries, and
-        Task.error_rate_entries if observed)."""
+        of this step) with the entries the joint state sets rewritten (Formulas.state_entries, and
+        Formulas.error_rate_entries if observed)."""
         truth = measured.copy()
         q, w, q_des = self._qpos, self._qvel, measured[:, obs_layout.Q_DES]
-        joints, rest = self.task.state_entries(
+        joints, rest = self.formulas.state_entries(
             BATCH, q[:, 0], q[:, 1], w[:, 0], w[:, 1], q_des[:, 0], q_des[:, 1], tuple(self._arm)
         )
         head, tail = obs_layout.STATE
         truth[:, head], truth[:, tail] = np.stack(joints, axis=1), np.stack(rest, axis=1)
-        if self.task.observes_rate:
+        if self.formulas.observes_rate:
             cfg, dq_des = self.config, measured[:, obs_layout.DQ_DES]
             where = obs_layout.error_rate_slice(cfg.preview_steps, cfg.n_actions)
-            rate = self.task.error_rate_entries(
+            rate = self.formulas.error_rate_entries(
                 BATCH, w[:, 0], w[:, 1], dq_des[:, 0], dq_des[:, 1], tuple(self._arm)
             )
             truth[:, where] = np.stack(rate, axis=1)
@@ -412,13 +417,13 @@ class Tendon2RVectorEnv(VectorEnv):
     ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         e = obs[:, obs_layout.ERROR]
         de1 = de2 = 0.0
-        if self.task.weighs_rate:  # the error's rate, read only where it is weighed
+        if self.formulas.weighs_rate:  # the error's rate, read only where it is weighed
             de = obs[:, obs_layout.DQ_DES] - obs[:, obs_layout.DQ]
             de1, de2 = de[:, 0], de[:, 1]
-        terms = self.task.reward_terms(
+        terms = self.formulas.reward_terms(
             BATCH, e[:, 0], e[:, 1], list(a.T), list(last.T), self._rate_inv, diverged, de1, de2
         )
-        return self.task.scale(terms)
+        return self.formulas.scale(terms)
 
     def _moment_arm_cond(self) -> np.ndarray:
         """cond(J) of every arm, from the batch's sparse ten_J (as the single env's info)."""
@@ -434,7 +439,7 @@ class Tendon2RVectorEnv(VectorEnv):
             tension = self.drive.tension_view(self._qfrc_passive).copy()
         else:
             tension = -self._sensors[:, self._force]
-        values = self.task.step_info(
+        values = self.formulas.step_info(
             obs,
             terms,
             tension,

@@ -36,7 +36,7 @@ class Needs:
     #: reset info's ``torque_need_Nm``).
     torque_need: tuple[float, float]
     #: Peak rate (N m / s) of each joint's torque that inverse dynamics of the references
-    #: needs: the scale of the ``action_rate_need`` reward term (Task.rate_need_inverse).
+    #: needs: the scale of the ``action_rate_need`` reward term (Formulas.rate_need_inverse).
     torque_rate_need: tuple[float, float]
     #: Each joint's control authority (rad/s per unit of normalized joint-torque action): the
     #: most its speed changes in one control step per unit of action on it alone, ctrl_dt

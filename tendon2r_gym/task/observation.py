@@ -142,7 +142,7 @@ Q, DQ, Q_DES, DQ_DES, ERROR, ERROR_LOG = (
     SLICES[k] for k in ("q", "dq", "q_des", "dq_des", "error", "error_log")
 )
 EFFECTOR_POS, EFFECTOR_VEL = SLICES["effector_pos"], SLICES["effector_vel"]
-#: The two runs of entries that the joint state sets (Task.state_entries): (q, dq) and
+#: The two runs of entries that the joint state sets (Formulas.state_entries): (q, dq) and
 #: (error, error_log, effector_pos, effector_vel); q_des and dq_des lie between them.
 STATE = (slice(Q.start, DQ.stop), slice(ERROR.start, EFFECTOR_VEL.stop))
 

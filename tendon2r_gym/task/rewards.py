@@ -1,6 +1,6 @@
 """The reward's tables: its terms with their default weights and meanings, the tracking forms,
-the error units, and their bounds.  tendon2r_gym.envs.task computes the terms; EnvConfig validates
-``reward_scales`` against these tables.
+the error units, and their bounds.  tendon2r_gym.envs.formulas computes the terms; EnvConfig
+validates ``reward_scales`` against these tables.
 """
 
 from __future__ import annotations
