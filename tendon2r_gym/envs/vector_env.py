@@ -96,9 +96,11 @@ class Tendon2RVectorEnv(VectorEnv):
         first = self.model.sensor(f"force_{tendon_name(0)}").adr[0]
         self._sensors = b.bind("sensordata")
         self._force = slice(first, first + cfg.mechanism.n_tendons)
-        self._torque_map: TorqueToTension | None = None
-        if cfg.action_mode == "joint_torque":  # the single env's distribution, batched
-            self._torque_map = TorqueToTension(cfg.mechanism)
+        #: In ``action_mode="joint_torque"``, the map from normalized joint torques to tendon
+        #: commands (the single env's ``torque_map``, batched over the arms); None in tension mode.
+        self.torque_map: TorqueToTension | None = None
+        if cfg.action_mode == "joint_torque":
+            self.torque_map = TorqueToTension(cfg.mechanism)
         self._ten_J = b.bind("ten_J")
         self._J_rows = sparse_rows(self.model)
         # Realism (tendon2r_gym.simulation.realism): spools and lags; an arm is put at
@@ -231,16 +233,16 @@ class Tendon2RVectorEnv(VectorEnv):
             self._rest[i] = self.formulas.rest_command(arm)
             self._bind_delays(i, arm, self._drives[i])
         self.batch.set_models(self._models)
-        if self._torque_map is not None:
-            self._torque_map.follow([a.mechanism for a in self._arm_cfgs])
+        if self.torque_map is not None:
+            self.torque_map.follow([a.mechanism for a in self._arm_cfgs])
         self._bind_rate_need()
 
     def _bind_rate_need(self) -> None:
         """Sets each slot's 1 / s of the action_rate_need term (Formulas.rate_need_inverse)."""
         need = np.array([a.needs.torque_rate_need for a in self._arm_cfgs])
         max_torque = None
-        if self._torque_map is not None:
-            max_torque = np.broadcast_to(self._torque_map.max_torque, need.shape)
+        if self.torque_map is not None:
+            max_torque = np.broadcast_to(self.torque_map.max_torque, need.shape)
         self._rate_inv = self.formulas.rate_need_inverse(need, max_torque)
 
     def _bind_delays(
@@ -295,11 +297,11 @@ class Tendon2RVectorEnv(VectorEnv):
         if self.formulas.alpha != 1.0:  # action_filter_tau
             a = np.stack(self.formulas.command(list(a.T), list(last.T)), axis=1)
         self._last_action[active] = a[active]
-        if self._torque_map is None:
+        if self.torque_map is None:
             u = a
         else:  # joint_torque: PD's tension distribution at the current q
             # every arm, so that the kinematics batch keeps one size
-            u = self._torque_map.joint_torque_command(self._qpos[:, :2], a)
+            u = self.torque_map.joint_torque_command(self._qpos[:, :2], a)
         if self._delay is not None:  # the motors get the command of delay_steps ago
             u = self._delay(u, active)
         self._ctrl[active] = u[active]
