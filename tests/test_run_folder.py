@@ -204,10 +204,10 @@ def test_a_folder_that_cannot_be_written_stops_training_with_one_line(tmp_path):
     proc = _run_cli(tmp_path, err, _tiny(tmp_path, steps=2048))
     assert proc.returncode == 2, proc.stderr[-3000:]
     lines = [line for line in proc.stderr.splitlines() if line.strip()]
-    assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr[-3000:]
+    assert len(lines) == 1, proc.stderr[-3000:]  # one line: no traceback of any thread
     run = RunFolder(tmp_path / "run" / "seed_0")
     assert lines[0].startswith(f"error: writing to the run folder {run.path} failed at ")
-    assert f"[Errno {err}] {os.strerror(err)}" in lines[0]
+    assert str(OSError(err, os.strerror(err))) in lines[0]  # the OS error, as Python states it
     (kept, _), *_ = run.checkpoint_candidates()
     assert kept.parent == run.checkpoints and not run.file("last_model.zip").exists()
     assert lines[0].endswith(

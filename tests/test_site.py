@@ -202,5 +202,6 @@ def test_every_image_loads(measured):
 def test_the_home_pages_first_screen_shows_the_two_commands(measured):
     commands = measured["/"]["commands"]
     for phrase in ("make test", "make benchmark"):
+        # snapshot: the home page's first screen shows the two commands a visitor runs
         assert phrase in commands, f"{phrase!r} is not on the home page"
         assert commands[phrase] <= HEIGHT, f"{phrase!r} ends at {commands[phrase]:.0f} px"
