@@ -14,6 +14,7 @@ from stable_baselines3 import PPO
 
 from tendon2r_gym.artifacts.bundle import bundled_model
 from tendon2r_gym.policies import inference
+from tests.reading import rows_of
 
 #: A plain MlpPolicy (three commands, residual) and a SplitViewPolicy (masked actor input).
 BUNDLES = ("pull_only", "real_arm")
@@ -179,7 +180,9 @@ def test_the_tables_print_each_rows_tolerance_beside_it():
     row = {"env": "e", "policy": "pd", "rms_deg": [0.1, 0.2], "max_deg": [0.3, 0.4]}
     lines = table([{**row, "reproducible_to": [0.0, 3.2e-9]}])
     assert lines[0].split(" | ")[3] == "reproducible to (deg)"
-    assert "| e | pd | 0.1000 / 0.2000 | 0 / 3.2e-09 | 0.300 / 0.400 |" in lines[2]
+    assert rows_of("\n".join(lines)) == [
+        ["e", "pd", "0.1000 / 0.2000", "0 / 3.2e-09", "0.300 / 0.400"]
+    ]
 
 
 def test_a_rerun_is_compared_row_by_row_within_its_tolerance():

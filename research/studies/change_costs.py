@@ -80,7 +80,7 @@ class Kind:
     copies: tuple[tuple[str, str], ...] = ()
 
 
-OBS, TASK = "tendon2r_gym/task/observation.py", "tendon2r_gym/envs/task.py"
+OBS, TASK = "tendon2r_gym/task/observation.py", "tendon2r_gym/envs/formulas.py"
 MECH, MODEL = "tendon2r_gym/simulation/mechanism.py", "tendon2r_gym/simulation/model.py"
 REALISM = "tendon2r_gym/simulation/realism.py"
 ENV, VECTOR = "tendon2r_gym/envs/env.py", "tendon2r_gym/envs/vector_env.py"

@@ -25,8 +25,8 @@ from research.studies.generalist import action_mode_of, model_of, sweep_arms
 from tendon2r_gym.app.args import arg, parse
 from tendon2r_gym.artifacts.model_env import in_model_settings
 from tendon2r_gym.artifacts.runs import command_line, training_record
-from tendon2r_gym.envs.env_config import EnvConfig
-from tendon2r_gym.envs.task import RAD_PER_DEG, Task
+from tendon2r_gym.envs.env_config import EnvConfig, resolve
+from tendon2r_gym.envs.formulas import RAD_PER_DEG, Formulas
 from tendon2r_gym.evaluation.evaluator import evaluate
 from tendon2r_gym.evaluation.metrics import SETTLE_S, settled, smoothness_x_pd
 from tendon2r_gym.evaluation.rollout import Trace
@@ -36,7 +36,7 @@ from tendon2r_gym.ops import BATCH
 REWARD_FIELDS = ("tracking_form", "tracking_sigma_deg")
 
 
-def tracking_cost(task: Task, trace: Trace) -> np.ndarray:
+def tracking_cost(task: Formulas, trace: Trace) -> np.ndarray:
     """Returns minus the task's unscaled tracking term at each step of an episode."""
     e = trace.error_deg * RAD_PER_DEG
     none: list[Any] = []
@@ -44,7 +44,7 @@ def tracking_cost(task: Task, trace: Trace) -> np.ndarray:
     return -np.asarray(terms["tracking"])
 
 
-def transient_share(traces: list[Trace], costs: dict[str, Task]) -> dict[str, float]:
+def transient_share(traces: list[Trace], costs: dict[str, Formulas]) -> dict[str, float]:
     """Returns the share of the episodes' first SETTLE_S in their squared error and in each
     task's tracking cost."""
     head = [~settled(t) for t in traces]
@@ -98,8 +98,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         except ValueError:  # outside the bundle's ranges
             continue
         tasks = {
-            "own_reward": Task(EnvConfig.make(**arm["env_kwargs"], **own)),
-            "registered_reward": Task(EnvConfig.make(**arm["env_kwargs"])),
+            "own_reward": Formulas(resolve({**arm["env_kwargs"], **own})),
+            "registered_reward": Formulas(resolve(arm["env_kwargs"])),
         }
         pd_metrics, _ = evaluate("pd", arm["env_kwargs"], seeds)
         tension_x_pd, rate_x_pd = smoothness_x_pd(metrics, pd_metrics)

@@ -49,7 +49,7 @@ def test_an_anchor_found_other_than_once_names_the_file():
 @pytest.mark.parametrize(
     ("path", "category"),
     [
-        ("tendon2r_gym/envs/task.py", "library"),
+        ("tendon2r_gym/envs/formulas.py", "library"),
         ("tendon2r_gym/data/shipped.yaml", "data"),
         ("tendon2r_gym/data/presets/x.yaml", "data"),
         ("tendon2r_gym/data/models/x/seed_0/run.json", "bundle"),

@@ -588,7 +588,7 @@ def test_transient_share_counts_the_first_settle_s_of_each_episode():
 
     from research.studies.transient import transient_share
     from tendon2r_gym.envs.env_config import EnvConfig
-    from tendon2r_gym.envs.task import Task
+    from tendon2r_gym.envs.formulas import Formulas
     from tendon2r_gym.evaluation.metrics import SETTLE_S
 
     time = np.arange(200) * 0.001
@@ -597,7 +597,7 @@ def test_transient_share_counts_the_first_settle_s_of_each_episode():
     only_head = SimpleNamespace(time=time, error_deg=np.where(head[:, None], e, 0.0))
     even = SimpleNamespace(time=time, error_deg=np.full((200, 2), 0.01))
     mixed = SimpleNamespace(time=time, error_deg=e)
-    task = {"kernels": Task(EnvConfig.make(tracking_sigma_deg=0.1))}
+    task = {"kernels": Formulas(EnvConfig.make(tracking_sigma_deg=0.1))}
     assert transient_share([only_head], task) == pytest.approx({"squared_error": 1, "kernels": 1})
     assert transient_share([even], task)["squared_error"] == pytest.approx(head.mean())
     assert transient_share([even, only_head], task)["squared_error"] == pytest.approx(
@@ -624,7 +624,7 @@ def test_transient_tracking_cost_is_minus_the_envs_tracking_term():
         errors.append(info["tracking_error_deg"])
         rewards.append(info["reward_tracking"] / 2.0)
     trace = SimpleNamespace(error_deg=np.array(errors))
-    np.testing.assert_allclose(tracking_cost(env.unwrapped.task, trace), -np.array(rewards),
+    np.testing.assert_allclose(tracking_cost(env.unwrapped.formulas, trace), -np.array(rewards),
                                rtol=1e-9)  # fmt: skip
 
 

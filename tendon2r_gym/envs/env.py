@@ -291,11 +291,6 @@ class Tendon2REnv(MujocoEnv, EzPickle):
         FORCE_HEADROOM times this."""
         return self.arm.needs.force_need
 
-    @property
-    def task(self) -> Formulas:
-        """`formulas` under its old name, kept while research code reads it by that name."""
-        return self.formulas
-
     # -- gymnasium API -----------------------------------------------------------------------------
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         last = self._last_action
