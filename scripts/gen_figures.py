@@ -312,7 +312,7 @@ EXCITE = ("default", 4.0)
 def draw_excitation(root: Path, path: Path) -> None:
     """What ``tendon2r-excite --env-config default --duration 4`` writes: the plan's q_des
     (plan.csv) and PD's rehearsal of it on the nominal arm (rehearsal.csv: angles, commands)."""
-    from tendon2r_gym.identification.excitation import design
+    from tendon2r_gym.app.excitation import design
 
     signal, rehearsal = design(*EXCITE)
     t = rehearsal.time

@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
+from tendon2r_gym.app.excitation import MultiSine, record
 from tendon2r_gym.envs.env_config import EnvConfig
 from tendon2r_gym.identification import recording
-from tendon2r_gym.identification.excitation import MultiSine, record
 from tendon2r_gym.identification.identify import identify, load_recordings
 from tests.reading import figures
 
@@ -216,8 +216,8 @@ def test_several_recordings_of_one_arm_are_fitted_together(arm):
 
 
 def test_tendon2r_excite_keeps_the_rehearsal_within_the_limits(tmp_path):
+    from tendon2r_gym.app.excitation import FORCE_MARGIN, RANGE_MARGIN_DEG
     from tendon2r_gym.app.identify import excite_main, record_main
-    from tendon2r_gym.identification.excitation import FORCE_MARGIN, RANGE_MARGIN_DEG
 
     excite_main(["--env-config", "default", "--out", str(tmp_path), "--duration", "1"])
     cfg = EnvConfig.make("default")

@@ -9,8 +9,8 @@ import math
 import numpy as np
 import pytest
 
+from tendon2r_gym.app.excitation import MultiSine, design, record
 from tendon2r_gym.envs.env_config import EnvConfig
-from tendon2r_gym.identification.excitation import MultiSine, design, record
 from tendon2r_gym.identification.holdout import blocks, fold_delays
 from tendon2r_gym.identification.identify import identify
 
@@ -62,8 +62,8 @@ class _PDPlusNoise:
     first-order low-pass at ``cutoff_hz``, ``std`` of the action's range)."""
 
     def __init__(self, config: EnvConfig, seed: int, std: float = 0.05, cutoff_hz: float = 20.0):
+        from tendon2r_gym.app.excitation import _env
         from tendon2r_gym.evaluation.evaluator import make_policy
-        from tendon2r_gym.identification.excitation import _env
 
         env = _env(config, 1.0)
         self.pd = make_policy("pd", env)

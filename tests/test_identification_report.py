@@ -8,8 +8,8 @@ import re
 import numpy as np
 import pytest
 
+from tendon2r_gym.app.excitation import MultiSine, record
 from tendon2r_gym.envs.env_config import EnvConfig
-from tendon2r_gym.identification.excitation import MultiSine, record
 from tendon2r_gym.identification.identify import identify
 from tendon2r_gym.identification.report import (
     NOT_APPLICABLE,

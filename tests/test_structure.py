@@ -74,7 +74,7 @@ def test_no_two_modules_import_each_other_type_checking_included():
 #: The package's layers, in the order data flows (arm parameters -> model -> env -> policy ->
 #: rollout -> metrics -> report); the top-level modules are shared helpers below them all.
 LAYERS = (
-    "", "simulation", "task", "envs", "artifacts", "policies", "evaluation", "identification",
+    "", "simulation", "task", "envs", "identification", "artifacts", "policies", "evaluation",
     "training", "app",
 )  # fmt: skip
 

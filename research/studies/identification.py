@@ -206,8 +206,8 @@ def ideal_check(threads: int | None, duration: float | None = None) -> dict[str,
     """The default (ideal) arm, recorded noise-free with its excitation and identified with
     the default fields: what comes back for each field (nominal: density_scale 1, the loop
     delay 0, the others 0)."""
+    from tendon2r_gym.app.excitation import design, record
     from tendon2r_gym.envs.env_config import EnvConfig
-    from tendon2r_gym.identification.excitation import design, record
     from tendon2r_gym.identification.identify import identify
 
     duration = DURATION if duration is None else duration
@@ -232,7 +232,7 @@ class ArmJob:
 
     index: int
     kwargs: dict[str, Any]
-    signal: Any  # the excitation (tendon2r_gym.identification.excitation.MultiSine)
+    signal: Any  # the excitation (tendon2r_gym.app.excitation.MultiSine)
     tuned_nominal: dict[str, Any]
     threads: int | None
     duration: float = DURATION
@@ -245,9 +245,9 @@ def study(n: int, threads: int | None, partial: Path | None = None,
     (None: one after another in this process); the rows written to ``partial`` as each ends,
     and with ``resume`` those it holds kept."""
     from research.studies.identification import arm_job  # by name, also under python -m
+    from tendon2r_gym.app.excitation import design
     from tendon2r_gym.envs.env_config import EnvConfig
     from tendon2r_gym.evaluation.tuning import tune_pd
-    from tendon2r_gym.identification.excitation import design
 
     duration = DURATION if duration is None else duration
     nominal = EnvConfig.make(NOMINAL)
@@ -283,9 +283,9 @@ def study(n: int, threads: int | None, partial: Path | None = None,
 
 def arm_job(job: ArmJob) -> dict[str, Any]:
     """An executor's job: one true arm's row (module docstring)."""
+    from tendon2r_gym.app.excitation import record
     from tendon2r_gym.envs.env_config import EnvConfig
     from tendon2r_gym.evaluation.tuning import tune_pd
-    from tendon2r_gym.identification.excitation import record
     from tendon2r_gym.identification.identify import identify
 
     i, kw, nominal_kw = job.index, job.kwargs, {"preset": NOMINAL}

@@ -38,8 +38,8 @@ def excite_main(argv: list[str] | None = None) -> dict[str, Any]:
     import numpy as np
     import yaml
 
+    from tendon2r_gym.app.excitation import design
     from tendon2r_gym.envs.env_config import resolve
-    from tendon2r_gym.identification.excitation import design
     from tendon2r_gym.validation import number
 
     args = parse(ExciteArgs, argv)
@@ -84,8 +84,8 @@ class RecordArgs:
 
 
 def record_main(argv: list[str] | None = None) -> Path:
+    from tendon2r_gym.app.excitation import design, record
     from tendon2r_gym.envs.env_config import resolve
-    from tendon2r_gym.identification.excitation import design, record
 
     args = parse(RecordArgs, argv)
     signal = design(resolve(args.excitation), args.duration)[0] if args.excitation else None
