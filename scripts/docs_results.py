@@ -22,7 +22,8 @@ from tendon2r_gym.evaluation.metrics import smoothness_x_pd
 #: The studies whose results have a page (``research/results/<name>.md``, where it exists),
 #: linked from the results page in this order.  A study that writes its Markdown there needs
 #: only its name here.
-STUDIES = ("ten_seeds", "realism", "identification", "envelope", "envelope_generalists", "clients")
+STUDIES = ("ten_seeds", "scale_up", "realism", "identification", "envelope", "envelope_generalists",
+           "clients")
 
 
 #: A benchmark row's plots (tendon2r_gym.app.plots.plot_trace), by the link's label.
