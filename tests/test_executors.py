@@ -95,16 +95,19 @@ def test_two_local_workers_give_the_same_bits_as_one_process_and_name_a_failing_
     assert [p.name for p in run.iterdir() if p.name.startswith(".")] == []
 
 
-def report_threads(job: int) -> tuple[str | None, str | None, int]:
-    """A worker's thread settings: its environment, and torch's once imported."""
+def report_threads(job: int) -> tuple[str | None, str | None, int, int]:
+    """A worker's thread settings: its environment, torch's once imported, and the MuJoCo
+    batch threads of a 64-arm vector env."""
     import torch as worker_torch
 
+    from tendon2r_gym.envs.vector_env import default_nthread
+
     return (os.environ.get("OMP_NUM_THREADS"), os.environ.get("MKL_NUM_THREADS"),
-            worker_torch.get_num_threads())  # fmt: skip
+            worker_torch.get_num_threads(), default_nthread(64))  # fmt: skip
 
 
-def test_a_local_worker_pins_torch_and_blas_to_its_share_and_names_a_failing_job():
-    assert LocalWorkers(2, cpus=1).map(report_threads, [0, 1]) == [("1", "1", 1)] * 2
+def test_a_local_worker_pins_torch_blas_and_mujoco_to_its_share_and_names_a_failing_job():
+    assert LocalWorkers(2, cpus=1).map(report_threads, [0, 1]) == [("1", "1", 1, 1)] * 2
     with pytest.raises(JobError, match=r"^job 1: math domain error") as err:
         LocalWorkers(2).map(math.sqrt, [4.0, -1.0])
     assert isinstance(err.value, ValueError) and isinstance(err.value.__cause__, ValueError)
@@ -223,6 +226,14 @@ def test_a_job_that_raises_on_the_cluster_names_it(cluster):
         pytest.raises(ValueError, match=r"^seed 1: math domain error"),
     ):
         executor.map(math.sqrt, [4.0, -1.0], ["seed 0", "seed 1"])
+
+
+@on_cluster
+def test_a_cluster_job_runs_mujoco_in_its_cpu_share(cluster):
+    from tendon2r_gym.envs.vector_env import default_nthread
+
+    with RayCluster(cluster.address) as executor:
+        assert executor.map(default_nthread, [64, 64]) == [1, 1]
 
 
 def _closed_port() -> int:

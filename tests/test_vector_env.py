@@ -166,6 +166,11 @@ def test_default_threads_follow_the_number_of_arms(monkeypatch):
     assert [vector_env.default_nthread(n) for n in (1, per, 2 * per, 100 * per)] == [1, 1, 2, 2]
     assert Tendon2RVectorEnv(2 * per).batch.nthread == 2
     assert Tendon2RVectorEnv(2 * per, nthread=1).batch.nthread == 1
+    monkeypatch.setenv(vector_env.CPUS_VAR, "1")  # a job's share, from an executor
+    assert vector_env.default_nthread(100 * per) == 1
+    assert Tendon2RVectorEnv(2 * per).batch.nthread == 1
+    monkeypatch.setenv(vector_env.CPUS_VAR, "3")  # a share beyond the usable CPUs
+    assert vector_env.default_nthread(100 * per) == 2
 
 
 def test_batched_pd_equals_single_pd():

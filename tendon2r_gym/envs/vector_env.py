@@ -458,6 +458,11 @@ class Tendon2RVectorEnv(VectorEnv):
         self.batch = None
 
 
+#: The environment variable that gives a job its CPU share: set by the executors that run
+#: several jobs at once (tendon2r_gym.training.executors: local workers, Ray tasks), it caps
+#: the default batch threads, so that N jobs on N cores do not fight over them.
+CPUS_VAR = "TENDON2R_CPUS"
+
 #: Arms per MuJoCo batch thread by default.  On 2 cores (python -m research.studies.speed, columns
 #: native_1thread and native_2threads of research/results/speed.md), a second thread pays from
 #: 16 arms on; at 8 arms and fewer, one and two threads differ by less than the noise between runs.
@@ -466,6 +471,9 @@ ARMS_PER_THREAD = 8
 
 def default_nthread(num_envs: int) -> int:
     """Returns the default number of MuJoCo batch threads: one per ARMS_PER_THREAD arms, at
-    least one, at most the CPUs this process may run on."""
+    least one, at most the CPUs this process may run on and its job's share (CPUS_VAR, if
+    set).  The threads change no result: the batch is bit-identical on any number."""
     cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return max(1, min(cpus or 1, num_envs // ARMS_PER_THREAD))
+    share = os.environ.get(CPUS_VAR, "")
+    cap = min(cpus or 1, int(share)) if share.isdigit() and int(share) > 0 else cpus or 1
+    return max(1, min(cap, num_envs // ARMS_PER_THREAD))

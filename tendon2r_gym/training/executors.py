@@ -18,7 +18,9 @@ remote tasks.
 - Local workers pin torch and BLAS to ``cpus`` threads each (``OMP_NUM_THREADS``,
   ``MKL_NUM_THREADS``, ``OPENBLAS_NUM_THREADS`` in their environment from the start); Ray
   gives each task ``num_cpus=cpus`` and runs a lost node's jobs again elsewhere
-  (``max_retries``).
+  (``max_retries``).  Both give each job its share, ``cpus``, through
+  tendon2r_gym.envs.vector_env.CPUS_VAR, which caps its MuJoCo batch threads (in this
+  process, a training's batch may use every CPU).
 
 Ray is optional (the ``cluster`` extra) and imported only by ``RayCluster``.
 """
@@ -35,6 +37,7 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from typing import Any, Protocol, TypeVar
 
+from tendon2r_gym.envs.vector_env import CPUS_VAR
 from tendon2r_gym.validation import integer, invalid
 
 J = TypeVar("J")
@@ -163,13 +166,20 @@ def _request_stop(signum: int, frame: Any) -> None:
     STOP_REQUESTED.set()
 
 
+def share_cpus(cpus: int) -> None:
+    """Gives this process (a job's worker) its CPU share: ``cpus`` caps its MuJoCo batch
+    threads (tendon2r_gym.envs.vector_env.CPUS_VAR)."""
+    os.environ[CPUS_VAR] = str(cpus)
+
+
 def _init_worker(threads: int, parent: int) -> None:
-    """Starts a local worker: torch and BLAS pinned to ``threads``; SIGINT outside a
-    training's ``learn`` recorded, not raised (the driver sends each worker one SIGINT on
+    """Starts a local worker: torch, BLAS and MuJoCo's batch pinned to ``threads``; SIGINT
+    outside a training's ``learn`` recorded, not raised (the driver sends each worker one SIGINT on
     Ctrl-C: an idle worker must not die of it, and a job still setting up stops, with its
     state saved, as its training starts); a watchdog that sends this process SIGTERM if the
     driver ``parent`` dies, so that no worker trains on unowned."""
     pin_threads(threads)
+    share_cpus(threads)
     signal.signal(signal.SIGINT, _request_stop)
 
     def watch() -> None:
@@ -288,9 +298,10 @@ def _import_ray() -> Any:
     return ray
 
 
-def _apply(fn: Callable[[J], R], job: J) -> R:
+def _apply(fn: Callable[[J], R], job: J, cpus: int = 1) -> R:
     """A Ray task: ``fn(job)`` (any callable, builtins included; the task is named by the job's
-    label)."""
+    label), in the task's CPU share ``cpus`` (`share_cpus`)."""
+    share_cpus(cpus)
     return fn(job)
 
 
@@ -415,7 +426,9 @@ class RayCluster:
             raise RuntimeError("RayCluster.map: enter the executor first (with RayCluster(...))")
         labels = _labels(labels, len(jobs))
         task = ray.remote(num_cpus=self.cpus, max_retries=self.max_retries)(_apply)
-        refs = {task.options(name=labels[i]).remote(fn, job): i for i, job in enumerate(jobs)}
+        refs = {
+            task.options(name=labels[i]).remote(fn, job, self.cpus): i for i, job in enumerate(jobs)
+        }
         results: dict[int, R] = {}
         errors: dict[int, JobError] = {}
         pending = list(refs)
