@@ -29,6 +29,18 @@ def one_or_more(flag: str, values: list[Any], allowed: str) -> list[Any]:
     return values
 
 
+def seeds_flag(flag: str, seeds: list[Any]) -> list[int]:
+    """Returns a study's training seeds, refusing none, one outside [0, 2**32 - 1] and a
+    repeated one (a ValueError naming ``flag``)."""
+    from tendon2r_gym.validation import integer, invalid
+
+    for seed in one_or_more(flag, seeds, "one or more seeds"):
+        integer(flag, seed, 0, 2**32 - 1)
+    if len(set(seeds)) != len(seeds):
+        raise invalid(flag, seeds, "distinct seeds")
+    return seeds
+
+
 def save_json(out: Path, name: str, result: dict[str, Any]) -> None:
     """Creates ``out`` and writes ``result`` to ``out/<name>.json``."""
     out.mkdir(parents=True, exist_ok=True)

@@ -47,13 +47,10 @@ FLOOR = {"motor_delay": 0.0, "motor_tau": 0.0, "tendon_friction": 0.0}
 
 def tuned(arm: dict[str, Any]) -> dict[str, Any]:
     """Returns the arm's kwargs with the gains of the PD tuned recorded on it."""
-    from tendon2r_gym.envs.env_config import resolve
-    from tendon2r_gym.task.gains import gains_of
+    from research.studies.envelope_generalists import recorded_gains
 
     kwargs = arm["kwargs"]
-    gains = {**gains_of(resolve(kwargs).pd_gains).to_dict(),
-             "bandwidth_hz": arm["rows"]["pd_tuned"]["bandwidth_hz"]}  # fmt: skip
-    return {**kwargs, "pd_gains": gains}
+    return {**kwargs, "pd_gains": recorded_gains(kwargs, arm["rows"]["pd_tuned"])}
 
 
 def floor(kwargs: dict[str, Any]) -> dict[str, Any]:
@@ -97,33 +94,27 @@ def summary(
     residual: bool,
     references: list[dict[str, Any]] | None = None,
 ) -> dict[str, Any]:
-    """Returns the envelope study's summary of (row, PD tuned's row) pairs, with the median
-    worst-joint ratio to each classical reference (``references``: per pair, name -> row)."""
+    """Returns the envelope study's summary of (row, PD tuned's row) pairs (its
+    against_pd_tuned), with each arm's worst-joint ratio and the median worst-joint ratio to
+    each classical reference (``references``: per pair, name -> row)."""
     import numpy as np
 
-    from tendon2r_gym.evaluation.metrics import beats, smooth_enough, smoothness_x_pd, worst_ratio
+    from research.studies.envelope_generalists import against_pd_tuned
+    from tendon2r_gym.evaluation.metrics import worst_ratio
 
     done = [(r, t) for r, t in rows if "error" not in r]
     out: dict[str, Any] = {"arms": len(rows), "refused": len(rows) - len(done)}
     if not done:
         return out
-    ratio = [worst_ratio(r["rms_deg"], t["rms_deg"]) for r, t in done]
     to = {}
     for name in sorted(references[0]) if references else []:
         to[name] = float(np.median([worst_ratio(r["rms_deg"], ref[name]["rms_deg"])
                                     for (r, _), ref in zip(rows, references, strict=True)
                                     if "error" not in r]))  # fmt: skip
-    tension, rate = zip(*(smoothness_x_pd(r, t) for r, t in done), strict=True)
     return {
         **out,
-        "beats_pd_tuned": sum(beats(r["rms_deg"], t["rms_deg"]) for r, t in done),
-        "median_ratio": float(np.median(ratio)),
-        "max_ratio": float(np.max(ratio)),
-        "ratios": ratio,
-        "median_tension_x": float(np.median(tension)),
-        "median_rate_x": float(np.median(rate)),
-        "max_rate_x": float(np.max(rate)),
-        "smooth": sum(smooth_enough(r, t, residual) for r, t in done),
+        **against_pd_tuned(done, residual),
+        "ratios": [worst_ratio(r["rms_deg"], t["rms_deg"]) for r, t in done],
         "median_ratio_to": to,
     }
 

@@ -108,6 +108,16 @@ def model_id(bundle: str) -> str:
     return hashlib.sha256(bundled_model(bundle).read_bytes()).hexdigest()[:12]
 
 
+def recorded_gains(kwargs: dict[str, Any], pd_tuned: dict[str, Any]) -> dict[str, Any]:
+    """Returns the gains of the PD tuned recorded on an arm (its row ``pd_tuned``): tune_pd's
+    bandwidth, with the arm's other gains (as tune_pd keeps them)."""
+    from tendon2r_gym.envs.env_config import resolve
+    from tendon2r_gym.task.gains import gains_of
+
+    base = gains_of(resolve(kwargs).pd_gains).to_dict()
+    return {**base, "bandwidth_hz": pd_tuned["bandwidth_hz"]}
+
+
 def evaluate_arm(
     kwargs: dict[str, Any], bundles: list[str], seeds: list[int], done: dict[str, Any] | None = None
 ) -> dict[str, Any]:
@@ -117,15 +127,12 @@ def evaluate_arm(
     from research.studies.realism import on_its_pd
     from tendon2r_gym.artifacts.bundle import bundle_names, bundled_model
     from tendon2r_gym.artifacts.model_env import in_model_settings
-    from tendon2r_gym.envs.env_config import EnvConfig
     from tendon2r_gym.evaluation.evaluator import evaluate
     from tendon2r_gym.evaluation.tuning import tune_pd
-    from tendon2r_gym.task.gains import gains_of
 
-    if done is not None:  # tune_pd's choice, with the arm's other gains (as tune_pd keeps them)
+    if done is not None:  # tune_pd's choice, as recorded
         rows = {k: done[k] for k in ("pd_tuned", "pd")}
-        base = gains_of(EnvConfig.make(**kwargs).pd_gains).to_dict()
-        gains = {**base, "bandwidth_hz": rows["pd_tuned"]["bandwidth_hz"]}
+        gains = recorded_gains(kwargs, rows["pd_tuned"])
     else:
         scan = tune_pd(kwargs, TUNE_EPISODES)
         gains, rows = scan.gains.to_dict(), {}
@@ -165,11 +172,31 @@ def arm_job(job: ArmJob) -> dict[str, Any]:
     return evaluate_arm(job.kwargs, job.bundles, job.seeds, job.done)
 
 
+def against_pd_tuned(
+    pairs: list[tuple[dict[str, Any], dict[str, Any]]], residual: bool
+) -> dict[str, Any]:
+    """Returns the summary of a model's (row, PD tuned's row) pairs on the arms it ran: the
+    arms where it is <= PD tuned on both joints, its worst-joint ratio to PD tuned (median,
+    largest), its RMS tension and tension rate as multiples of PD tuned's (median, largest),
+    and the arms where it keeps the smoothness limits."""
+    from tendon2r_gym.evaluation.metrics import beats, smooth_enough, smoothness_x_pd, worst_ratio
+
+    ratio = [worst_ratio(r["rms_deg"], t["rms_deg"]) for r, t in pairs]
+    tension, rate = zip(*(smoothness_x_pd(r, t) for r, t in pairs), strict=True)
+    return dict(
+        beats_pd_tuned=sum(beats(r["rms_deg"], t["rms_deg"]) for r, t in pairs),
+        median_ratio=float(np.median(ratio)), max_ratio=float(np.max(ratio)),
+        median_tension_x=float(np.median(tension)), max_tension_x=float(np.max(tension)),
+        median_rate_x=float(np.median(rate)), max_rate_x=float(np.max(rate)),
+        smooth=sum(smooth_enough(r, t, residual) for r, t in pairs),
+    )  # fmt: skip
+
+
 def summarize(arms: dict[str, Any]) -> dict[str, Any]:
     """Returns, per bundle and kind of arm, the module docstring's summary against PD tuned."""
     from tendon2r_gym.artifacts.bundle import bundled_model
     from tendon2r_gym.artifacts.runs import training_record
-    from tendon2r_gym.evaluation.metrics import beats, smooth_enough, smoothness_x_pd, worst_ratio
+    from tendon2r_gym.evaluation.metrics import worst_ratio
     from tendon2r_gym.policies.residual import Residual
 
     out: dict[str, Any] = {}
@@ -192,18 +219,12 @@ def summarize(arms: dict[str, Any]) -> dict[str, Any]:
         if not rows:  # it refused every arm
             continue
         residual = Residual.from_record(training_record(bundled_model(s["bundle"]))).active
-        ratio = [worst_ratio(r["rms_deg"], t["rms_deg"]) for r, t, _ in rows]
         vs_pd = [worst_ratio(r["rms_deg"], p["rms_deg"]) for r, _, p in rows]
-        tension, rate = zip(*(smoothness_x_pd(r, t) for r, t, _ in rows), strict=True)
         s.update(
             residual=residual,
-            beats_pd_tuned=sum(beats(r["rms_deg"], t["rms_deg"]) for r, t, _ in rows),
-            median_ratio=float(np.median(ratio)), max_ratio=float(np.max(ratio)),
+            **against_pd_tuned([(r, t) for r, t, _ in rows], residual),
             median_ratio_to_pd=float(np.median(vs_pd)),
-            median_tension_x=float(np.median(tension)), max_tension_x=float(np.max(tension)),
-            median_rate_x=float(np.median(rate)), max_rate_x=float(np.max(rate)),
-            smooth=sum(smooth_enough(r, t, residual) for r, t, _ in rows),
-        )  # fmt: skip
+        )
     return out
 
 

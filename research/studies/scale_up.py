@@ -46,14 +46,11 @@ TARGET = 0.6
 
 def _check(args: Args) -> None:
     """Raises a ValueError naming the first bad flag."""
-    from research.studies import one_or_more
+    from research.studies import one_or_more, seeds_flag
     from tendon2r_gym.validation import integer, invalid
 
     integer("--steps", args.steps, 1, 10**9)
-    for seed in one_or_more("--seeds", args.seeds, "one or more seeds"):
-        integer("--seeds", seed, 0, 2**32 - 1)
-    if len(set(args.seeds)) != len(args.seeds):
-        raise invalid("--seeds", args.seeds, "distinct seeds")
+    seeds_flag("--seeds", args.seeds)
     for mode in one_or_more("--modes", args.modes, f"one or more of {MODES}"):
         if mode not in MODES:
             raise invalid("--modes", mode, f"one of {MODES}")

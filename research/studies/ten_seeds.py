@@ -94,10 +94,10 @@ def lines(result: dict[str, Any]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    from research.studies import computed_or_read, one_or_more
+    from research.studies import computed_or_read, seeds_flag
     from tendon2r_gym.app.benchmark import compare
     from tendon2r_gym.artifacts.runs import command_line
-    from tendon2r_gym.validation import integer, invalid
+    from tendon2r_gym.validation import integer
 
     args = parse(Args, argv, __doc__)
     command = command_line(sys.argv[1:] if argv is None else argv,
@@ -105,10 +105,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     out = Path(args.out)
 
     def compute() -> dict[str, Any]:
-        for seed in one_or_more("--seeds", args.seeds, "one or more seeds"):
-            integer("--seeds", seed, 0, 2**32 - 1)
-        if len(set(args.seeds)) != len(args.seeds):
-            raise invalid("--seeds", args.seeds, "distinct seeds")
+        seeds_flag("--seeds", args.seeds)
         if args.steps is not None:
             integer("--steps", args.steps, 1, 10**9)
         learned = train(args, command)
