@@ -116,31 +116,54 @@ def closed_loop(true_kw: dict[str, Any], beliefs: dict[str, dict[str, Any]],
         pd, _ = evaluate("pd", on, seeds)
         out[name] = {"pd_bandwidth_hz": tuned[name]["bandwidth_hz"],
                      **{f"pd_{k}": pd[k] for k in EFFORT}}  # fmt: skip
-        out[name].update(residual_on(true_kw, belief, tuned[name]))
+        for informed in INFORMED:
+            out[name].update(informed_on(informed, true_kw, belief, tuned[name]))
     return out
 
 
-def residual_on(true_kw: dict[str, Any], belief: dict[str, Any],
+#: The controllers built on the believed arm and rolled out on the true one: the realism
+#: residual (bundle RESIDUAL), and CT, what a control engineer builds from the same belief (the
+#: believed arm's inverse dynamics, model errors included (``modelled``), its loop delay's
+#: gain schedule, PD tuned's feedback).
+INFORMED = ("residual", "ct")
+
+
+def modelled(belief: dict[str, Any]) -> dict[str, Any]:
+    """Returns the believed arm with its model errors folded into its nominal values (density
+    times ``density_scale``, joint damping plus ``extra_joint_damping``): PD's and CT's
+    model of an arm is its nominal one (``Mechanism.ideal``), and a control engineer's model of
+    an identified arm holds what the identification found."""
+    from tendon2r_gym.envs.env_config import EnvConfig
+
+    mech = EnvConfig.make(**belief).mechanism
+    folded = {"density": mech.true_density, "density_scale": 1.0,
+              "joint_damping": mech.true_joint_damping, "extra_joint_damping": 0.0}  # fmt: skip
+    return {**belief, "mechanism": {**belief.get("mechanism", {}), **folded}}
+
+
+def informed_on(name: str, true_kw: dict[str, Any], belief: dict[str, Any],
                 gains: dict[str, Any]) -> dict[str, Any]:  # fmt: skip
-    """The realism residual on the true arm, with PD's ``gains``, loaded on the believed arm's
-    env (its arm features are then the believed ones): ``residual_<EFFORT>``, or
-    ``residual_missing`` with the reason if the believed arm lies outside its training
-    ranges."""
+    """One of INFORMED on the true arm, with PD's ``gains``, built on the believed arm's env
+    (the residual's arm features, CT's model are then the believed ones): ``<name>_<EFFORT>``,
+    or ``<name>_missing`` with the reason if the believed arm lies outside the residual's
+    training ranges."""
     from tendon2r_gym.artifacts.bundle import bundled_model
     from tendon2r_gym.envs.registration import make as make_env
     from tendon2r_gym.evaluation.evaluator import make_policy
     from tendon2r_gym.evaluation.metrics import tracking_metrics
     from tendon2r_gym.evaluation.rollout import rollouts
 
-    probe = make_env(**{**belief, "pd_gains": gains})
+    built_on = belief if name == "residual" else modelled(belief)
+    probe = make_env(**{**built_on, "pd_gains": gains})
     try:
-        policy = make_policy("ppo", probe, bundled_model(RESIDUAL))
+        policy = (make_policy("ppo", probe, bundled_model(RESIDUAL)) if name == "residual"
+                  else make_policy(name, probe))  # fmt: skip
     except ValueError as e:
-        return {"residual_missing": str(e).split(": ", 1)[-1]}
+        return {f"{name}_missing": str(e).split(": ", 1)[-1]}
     finally:
         probe.close()
     res = tracking_metrics(rollouts(policy, {**true_kw, "pd_gains": gains}, list(range(EPISODES))))
-    return {f"residual_{k}": res[k] for k in EFFORT}
+    return {f"{name}_{k}": res[k] for k in EFFORT}
 
 
 def hidden_true(identified: dict[str, Any], true_kw: dict[str, Any],
@@ -320,8 +343,7 @@ def arm_job(job: ArmJob) -> dict[str, Any]:
         "loop_delay_ms": {"true": true_loop * 1e3, "found": ident.loop_delay_s * 1e3,
                           "identified": ident.delay_identified},
         "closed_loop": cl,
-        "gap_closed": {"pd": gap_closed(cl, "pd_rms_deg"),
-                       "residual": gap_closed(cl, "residual_rms_deg")},
+        "gap_closed": {k: gap_closed(cl, f"{k}_rms_deg") for k in ("pd", *INFORMED)},
     }  # fmt: skip
     return row
 
@@ -417,15 +439,10 @@ def lines(result: dict[str, Any]) -> list[str]:
     ]
     for r in rows:
         cl = r["closed_loop"]
-        g = {k: gap_closed(cl, f"{k}_rms_deg") for k in ("pd", "residual")}
-        none = {k: no_gap(cl, f"{k}_rms_deg") for k in ("pd", "residual")}
         pd = [_worst(cl[b]["pd_rms_deg"]) for b in ("nominal", "identified", "true")]
         res = [_worst(cl[b]["residual_rms_deg"]) if "residual_rms_deg" in cl[b] else math.nan
                for b in ("nominal", "identified", "true")]  # fmt: skip
-        gp, gr = (f"{g[k]:.0%}" if g[k] is not None else
-                  "n/a" if none[k] is None else
-                  f"no gap, identified {'within' if none[k] else 'beyond'} {NO_GAP:.0%} of true"
-                  for k in ("pd", "residual"))  # fmt: skip
+        gp, gr = (_gap_cell(cl, f"{k}_rms_deg") for k in ("pd", "residual"))
         missing = [f"{b}: {cl[b]['residual_missing']}" for b in ("nominal", "identified", "true")
                    if "residual_missing" in cl[b]]  # fmt: skip
         if missing:
@@ -441,10 +458,12 @@ def lines(result: dict[str, Any]) -> list[str]:
             f"\nThe residual, hidden true: the gap closed (or, without a gap, within "
             f"{NO_GAP:.0%} of the true choice) on {fine} of {len(views)} arms."
         )
-    for key, label in (("pd", "PD"), ("residual", "residual")):
+    for key, label in (("pd", "PD"), ("residual", "residual"), ("ct", "CT")):
         cls = [r["closed_loop"] for r in rows]
         gaps = [g for cl in cls if (g := gap_closed(cl, f"{key}_rms_deg")) is not None]
         flat = [f for cl in cls if (f := no_gap(cl, f"{key}_rms_deg")) is not None]
+        if not gaps and not flat:  # a study without this row
+            continue
         line = f"\n{label}: "
         if gaps:
             at = sum(closes(cl, f"{key}_rms_deg") for cl in cls)
@@ -458,7 +477,50 @@ def lines(result: dict[str, Any]) -> list[str]:
                 f"choice losing at most {NO_GAP:.0%} against the true one on {sum(flat)}"
             )
         out.append(line + ".")
-    return out + effort_lines(rows)
+    return out + reference_lines(rows) + effort_lines(rows)
+
+
+def reference_lines(rows: list[dict[str, Any]]) -> list[str]:
+    """The classical reference: CT built on each belief (INFORMED), beside PD and the residual
+    on the same belief, and each learned row's ratio to it."""
+    beliefs = ("nominal", "identified", "true")
+    if not any("ct_rms_deg" in r["closed_loop"]["true"] for r in rows):
+        return []  # a study without this row
+    out = [
+        "",
+        "## The classical reference: CT on each belief",
+        "",
+        "CT built on the nominal, the identified and the true arm (its inverse dynamics, its "
+        "loop delay's gain schedule, the feedback of PD tuned on it), on the true arm: what a "
+        "control engineer builds from the same identification. Worst joint's RMS error (deg); "
+        "the residual's ratio to CT on the same belief.",
+        "",
+        "| arm | CT nominal | CT identified | CT true | CT gap closed | residual / CT, "
+        "identified | residual / CT, true |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        cl = r["closed_loop"]
+        if any("ct_rms_deg" not in cl[b] for b in beliefs):
+            continue
+        ct = [_worst(cl[b]["ct_rms_deg"]) for b in beliefs]
+        ratios = [
+            f"{_worst(cl[b]['residual_rms_deg']) / c:.3f}" if "residual_rms_deg" in cl[b] else "-"
+            for b, c in zip(beliefs[1:], ct[1:], strict=True)
+        ]
+        cells = [f"{v:.3g}" for v in ct] + [_gap_cell(cl, "ct_rms_deg"), *ratios]
+        out.append(f"| {r['arm']} | " + " | ".join(cells) + " |")
+    return out
+
+
+def _gap_cell(cl: dict[str, Any], key: str) -> str:
+    """A table's gap-closed cell (gap_closed, or no_gap's verdict without a gap)."""
+    g, none = gap_closed(cl, key), no_gap(cl, key)
+    if g is not None:
+        return f"{g:.0%}"
+    if none is None:
+        return "n/a"
+    return f"no gap, identified {'within' if none else 'beyond'} {NO_GAP:.0%} of true"
 
 
 def _hidden_view(cl: dict[str, Any]) -> dict[str, Any] | None:
@@ -474,10 +536,7 @@ def _hidden(cl: dict[str, Any]) -> tuple[str, str]:
     h = view["identified"]
     if "residual_rms_deg" not in h:
         return f"refused ({h['residual_missing']})", "n/a"
-    g, none = gap_closed(view, "residual_rms_deg"), no_gap(view, "residual_rms_deg")
-    shown = (f"{g:.0%}" if g is not None else "n/a" if none is None
-             else f"no gap, {'within' if none else 'beyond'} {NO_GAP:.0%} of true")  # fmt: skip
-    return f"{_worst(h['residual_rms_deg']):.3g}", shown
+    return f"{_worst(h['residual_rms_deg']):.3g}", _gap_cell(view, "residual_rms_deg")
 
 
 def effort_lines(rows: list[dict[str, Any]]) -> list[str]:

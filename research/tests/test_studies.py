@@ -754,6 +754,37 @@ def test_identification_effort_compares_the_residual_with_pd_on_the_same_gains()
     assert figures(text.splitlines()[-1]) == [1, 2]
 
 
+def test_identification_ct_on_the_true_belief_is_the_registry_s_ct_on_the_true_arm():
+    """CT built on the believed arm's env and rolled out on the true arm's is, for the true
+    belief without model errors, the evaluator's CT on the true arm; a belief with another
+    mass (a model error, which the nominal model PD and CT use leaves out) changes it."""
+    from research.studies import identification as study
+    from tendon2r_gym.evaluation.evaluator import evaluate
+
+    true_kw = {"preset": "real_arm", "episode_duration": 0.5}
+    gains = {"bandwidth_hz": 12.29}
+    mine = study.informed_on("ct", true_kw, true_kw, gains)
+    theirs, _ = evaluate("ct", {**true_kw, "pd_gains": gains}, list(range(study.EPISODES)))
+    assert mine == {f"ct_{k}": theirs[k] for k in study.EFFORT}
+    wrong = study.informed_on("ct", true_kw, {**true_kw, "mechanism": {"density_scale": 1.3}},
+                              gains)  # fmt: skip
+    assert wrong["ct_rms_deg"] != mine["ct_rms_deg"]
+
+
+def test_identification_reference_gives_ct_per_belief_and_the_residual_s_ratio_to_it():
+    from research.studies.identification import reference_lines
+
+    def row(ct, residual):
+        beliefs = zip(("nominal", "identified", "true"), ct, residual, strict=True)
+        cl = {b: {"ct_rms_deg": [c, 0.0], **({} if r is None else {"residual_rms_deg": [r, 0.0]})}
+              for b, c, r in beliefs}  # fmt: skip
+        return {"arm": 3, "closed_loop": cl}
+
+    text = "\n".join(reference_lines([row([0.4, 0.15, 0.1], [0.3, 0.075, None])]))
+    assert rows_of(text) == [["3", "0.4", "0.15", "0.1", "83%", "0.500", "-"]]
+    assert reference_lines([{"arm": 0, "closed_loop": {"true": {}}}]) == []  # no CT rows
+
+
 def test_identification_hidden_true_sets_only_what_the_recording_does_not_show():
     from research.studies.identification import hidden_true
 
