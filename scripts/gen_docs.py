@@ -117,11 +117,13 @@ def readme_models_block() -> str:
 
 #: The training page's summary of what each PPO client learns on each id.
 CLIENTS_BEGIN, CLIENTS_END = "<!-- clients:begin -->", "<!-- clients:end -->"
+REFERENCES_BEGIN, REFERENCES_END = "<!-- references:begin -->", "<!-- references:end -->"
 
 
 def blocks(root: Path = ROOT) -> dict[Path, str]:
     """Returns the text of each hand-written file that holds generated blocks (README's
-    tables, the training page's clients summary), its blocks rewritten."""
+    tables, the training page's clients summary, the real-tendons page's references), its
+    blocks rewritten."""
     readme = root / "README.md"
     text = with_block(readme.read_text(), readme_block(root))
     text = with_block(text, readme_models_block(), MODELS_BEGIN, MODELS_END)
@@ -130,6 +132,10 @@ def blocks(root: Path = ROOT) -> dict[Path, str]:
     if training.is_file():
         clients = "\n".join([CLIENTS_BEGIN, *docs_results.clients_block(root), CLIENTS_END])
         out[training] = with_block(training.read_text(), clients, CLIENTS_BEGIN, CLIENTS_END)
+    tendons = root / DOCS / "real_tendons.md"
+    if tendons.is_file():
+        refs = "\n".join([REFERENCES_BEGIN, *docs_results.references_block(root), REFERENCES_END])
+        out[tendons] = with_block(tendons.read_text(), refs, REFERENCES_BEGIN, REFERENCES_END)
     return out
 
 

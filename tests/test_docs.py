@@ -304,3 +304,27 @@ def test_the_research_page_lists_every_note():
     notes = sorted((ROOT / "research" / "notes").glob("*.md"))
     listed = {cells[0].strip("`") for cells in rows_of(page)}
     assert notes and {f"research/notes/{n.name}" for n in notes} <= listed
+
+
+def test_the_references_block_reads_each_row_of_the_candidates_study(tmp_path):
+    """The real-tendons page's block: one row per controller of research/results/
+    candidates.json, shipped models and candidates told apart, each median placed between PD
+    tuned (0) and the floor (1)."""
+
+    def summary(ratio, to_ct):
+        to = {"ct": to_ct, "ct_floor": ratio / 0.4}
+        return {"one_geometry": {"arms": 8, "refused": 0, "beats_pd_tuned": 5,
+                                 "median_ratio": ratio, "max_ratio": 1.2, "median_rate_x": 1.0,
+                                 "median_ratio_to": to}}  # fmt: skip
+
+    result = {"command": "python -m research.studies.candidates",
+              "summary": {"ct_floor": summary(0.4, 0.5), "real_arm": summary(0.7, 0.8),
+                          "memory": summary(0.85, 0.9)}}  # fmt: skip
+    (tmp_path / "research" / "results").mkdir(parents=True)
+    (tmp_path / "research" / "results" / "candidates.json").write_text(json.dumps(result))
+    rows = rows_of("\n".join(docs_results.references_block(tmp_path)))
+    floor = docs_results.REFERENCE_LABELS["ct_floor"]
+    labels = [floor, "`real_arm` (shipped)", "`memory` (a candidate, not shipped)"]
+    assert [r[0] for r in rows] == labels
+    assert [float(r[-1]) for r in rows] == [1.0, 0.5, 0.25]
+    assert docs_results.references_block(tmp_path / "none")[0].startswith("The candidates study")
