@@ -400,12 +400,20 @@ def lines(result: dict[str, Any]) -> list[str]:
         out.append(
             f"| {r['arm']} | {r['seconds']:.1f} | {step} | " + " | ".join(cells) + f" | {shown} |"
         )
+    unflagged = [f for r in rows for f in r["fields"].values() if f["identified"]]
+    held = sum(f["covered"] for f in unflagged)
+    delays = sum((not r["loop_delay_ms"]["identified"])
+                 or abs(r["loop_delay_ms"]["true"] - r["loop_delay_ms"]["found"]) < 1e-9
+                 for r in rows)  # fmt: skip
     flagged = {n: sum(not r["fields"][n]["identified"] for r in rows) for n in names}
     secs = [r["seconds"] for r in rows]
     out += [
         "",
         f"Arms on which every unflagged field is within 10% and inside its interval, and the "
         f"loop delay (if not flagged) is the true one: **{good} of {len(rows)}**.",
+        f"Unflagged fields whose 95% interval holds the true value: **{held} of "
+        f"{len(unflagged)}** ({held / max(len(unflagged), 1):.0%}). The loop delay is the true "
+        f"one or flagged as not told apart on **{delays} of {len(rows)}** arms.",
         "Flagged per field: " + ", ".join(f"{n} {k}" for n, k in flagged.items()) + ".",
         f"Seconds per identification: median {np.median(secs):.1f}, max {max(secs):.1f} "
         "(wall time in the study's process, on a machine that other jobs may have shared).",
