@@ -118,12 +118,13 @@ def readme_models_block() -> str:
 #: The training page's summary of what each PPO client learns on each id.
 CLIENTS_BEGIN, CLIENTS_END = "<!-- clients:begin -->", "<!-- clients:end -->"
 REFERENCES_BEGIN, REFERENCES_END = "<!-- references:begin -->", "<!-- references:end -->"
+IDENTIFY_BEGIN, IDENTIFY_END = "<!-- identification:begin -->", "<!-- identification:end -->"
 
 
 def blocks(root: Path = ROOT) -> dict[Path, str]:
     """Returns the text of each hand-written file that holds generated blocks (README's
-    tables, the training page's clients summary, the real-tendons page's references), its
-    blocks rewritten."""
+    tables, the training page's clients summary, the real-tendons page's references, the
+    identify page's study summary), its blocks rewritten."""
     readme = root / "README.md"
     text = with_block(readme.read_text(), readme_block(root))
     text = with_block(text, readme_models_block(), MODELS_BEGIN, MODELS_END)
@@ -136,6 +137,10 @@ def blocks(root: Path = ROOT) -> dict[Path, str]:
     if tendons.is_file():
         refs = "\n".join([REFERENCES_BEGIN, *docs_results.references_block(root), REFERENCES_END])
         out[tendons] = with_block(tendons.read_text(), refs, REFERENCES_BEGIN, REFERENCES_END)
+    identify = root / DOCS / "identify.md"
+    if identify.is_file():
+        found = "\n".join([IDENTIFY_BEGIN, *docs_results.identification_block(root), IDENTIFY_END])
+        out[identify] = with_block(identify.read_text(), found, IDENTIFY_BEGIN, IDENTIFY_END)
     return out
 
 

@@ -328,3 +328,18 @@ def test_the_references_block_reads_each_row_of_the_candidates_study(tmp_path):
     assert [r[0] for r in rows] == labels
     assert [float(r[-1]) for r in rows] == [1.0, 0.5, 0.25]
     assert docs_results.references_block(tmp_path / "none")[0].startswith("The candidates study")
+
+
+def test_the_identify_page_quotes_each_identification_study_s_summary_lines(tmp_path):
+    studies = tmp_path / "research" / "results"
+    studies.mkdir(parents=True)
+    page = "\n".join(["# Identification", "| arm | x |", "|---|---|", "| 0 | 1 |",
+                      "Unflagged fields whose 95% interval holds the true value: **3 of 4**.",
+                      "", "PD: median gap closed 90%.", "CT: median gap closed 80%."])  # fmt: skip
+    (studies / "identification_out_of_sample.md").write_text(page + "\n")
+    block = docs_results.identification_block(tmp_path)
+    quoted = [line[2:] for line in block if line.startswith("- ")]
+    assert quoted == [page.splitlines()[i] for i in (4, 6, 7)]
+    assert sum("studies/identification_out_of_sample.md" in line for line in block) == 1
+    assert "studies/identification.md" not in "\n".join(block)  # that set has not run
+    assert docs_results.identification_block(tmp_path / "none")[0].startswith("The identif")
