@@ -32,7 +32,7 @@ __all__ = [
     "positive_span",
     "to_xml",
 ]
-__version__ = "0.9.1"
+__version__ = "0.9.0"
 
 #: The env's versions, each frozen (Gymnasium's rule: a change that can change learning results
 #: is a new version; CHANGELOG.md says what each changed; tendon2r_gym.envs.contract pins them).
