@@ -57,35 +57,6 @@ def test_a_wrong_nominal_motor_mass_and_a_2_ms_motor_delay_with_our_excitation(h
     assert est["motor_mass"].value == pytest.approx(TRUE_MASS, rel=0.1)
 
 
-#: An arm the integrator cannot integrate at the nominal arm's 1 ms: its motor is half the
-#: nominal mass, its links 0.635 of the nominal's, under a softer, more damped cable (the
-#: out-of-sample study's arm 0).
-LIGHT_MOTOR = {"motor_mass": 0.00106, "tendon_elasticity": 2544.0, "tendon_damping": 2.16,
-               "motor_tau": 0.00207, "density_scale": 0.635}  # fmt: skip
-
-
-def test_an_arm_beyond_the_nominal_step_is_fitted_at_a_finer_one():
-    """At the nominal 1 ms the fit refuses the true arm, as an env at that step would, and
-    ends held at a bound; at half the step (the one an env whose step was left out takes for
-    this arm) the intervals hold the truth, and the identified file sets that step."""
-    from tendon2r_gym.identification.problem import Problem
-
-    truth = EnvConfig.make("real_arm", mechanism=LIGHT_MOTOR)
-    nominal = EnvConfig.make("real_arm")
-    assert truth.mechanism.sim_dt == nominal.mechanism.sim_dt / 2  # chosen by the env
-    signal, _ = design(nominal, 4.0)
-    rec = record(truth, "pd", 4.0, seed=0, signal=signal)
-    ident = identify([rec], nominal, list(LIGHT_MOTOR), threads=1)
-    assert ident.finer_sim_dt_s == truth.mechanism.sim_dt, ident.lines()
-    for e in ident.estimates:
-        if e.identified:
-            assert e.interval[0] <= LIGHT_MOTOR[e.field] <= e.interval[1], (e, ident.lines())
-    assert sum(e.identified for e in ident.estimates) >= 3, ident.lines()
-    assert ident.changes["mechanism"]["sim_dt"] == truth.mechanism.sim_dt
-    arm = EnvConfig.make(**ident.experiment("real_arm"))  # every command takes it as it is
-    assert not Problem.integrable(arm.mechanism.replace(sim_dt=nominal.mechanism.sim_dt))
-
-
 class _PDPlusNoise:
     """PD on the env's reference, plus band-limited noise on its action (white noise through a
     first-order low-pass at ``cutoff_hz``, ``std`` of the action's range)."""

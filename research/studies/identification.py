@@ -11,7 +11,7 @@ could not integrate it), as a training's draw would be.  Each one plays tendon2r
 excitation of the nominal arm for DURATION s (the recording seeded by its index), and
 tendon2r-identify fits the default fields to it.  Reported per arm: each field's relative
 error, whether its 95% interval holds the truth, whether it was flagged; the loop delay
-found; the physics step the fit integrated at; the fit's seconds.
+found; the fit's seconds.
 
 In closed loop, on the true arm (EPISODES held-out episodes of its reference):
 
@@ -339,7 +339,6 @@ def arm_job(job: ArmJob) -> dict[str, Any]:
     cl.update(closed_loop(kw, hidden, tuned))
     row = {
         "arm": i, "seconds": ident.seconds, "fields": fields,
-        "fit_sim_dt_ms": (ident.finer_sim_dt_s or nominal.mechanism.sim_dt) * 1e3,
         "identified": beliefs["identified"],
         "loop_delay_ms": {"true": true_loop * 1e3, "found": ident.loop_delay_s * 1e3,
                           "identified": ident.delay_identified},
@@ -376,9 +375,8 @@ def lines(result: dict[str, Any]) -> list[str]:
         "Relative error of each field (a flagged field: `-`), and `*` where its 95% interval "
         "misses the truth.",
         "",
-        "| arm | seconds | physics step of the fit (ms) | " + " | ".join(names)
-        + " | loop delay (true / found, ms) |",
-        "|---|---|---|" + "---|" * len(names) + "---|",
+        "| arm | seconds | " + " | ".join(names) + " | loop delay (true / found, ms) |",
+        "|---|---|" + "---|" * len(names) + "---|",
     ]
     good = 0
     for r in rows:
@@ -396,10 +394,7 @@ def lines(result: dict[str, Any]) -> list[str]:
         ok &= (not d["identified"]) or abs(d["true"] - d["found"]) < 1e-9
         good += ok
         shown = f"{d['true']:g} / {d['found']:g}" + ("" if d["identified"] else " (flagged)")
-        step = f"{r['fit_sim_dt_ms']:g}" if "fit_sim_dt_ms" in r else "-"
-        out.append(
-            f"| {r['arm']} | {r['seconds']:.1f} | {step} | " + " | ".join(cells) + f" | {shown} |"
-        )
+        out.append(f"| {r['arm']} | {r['seconds']:.1f} | " + " | ".join(cells) + f" | {shown} |")
     unflagged = [f for r in rows for f in r["fields"].values() if f["identified"]]
     held = sum(f["covered"] for f in unflagged)
     delays = sum((not r["loop_delay_ms"]["identified"])

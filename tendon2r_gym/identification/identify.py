@@ -38,7 +38,6 @@ finds where to start and the loop delay, and judges each result:
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 import math
 import os
@@ -473,84 +472,18 @@ def identify(
         raise invalid("fit", asked, "at least one field the nominal arm can vary, or a delay")
     if threads is not None:
         integer("threads", threads, 1, 1024)
+    prob = Problem(recordings, config, names, box, threads or os.cpu_count() or 1)
     scan, nominal_steps = _delay_scan(config, asked)
-    first = max(Problem.first_row(config), scan.stop)  # after the longest delay searched
-    check_pieces(recordings, config, len(names), first)
-    threads = threads or os.cpu_count() or 1
-    ident = _fit_at(Problem(recordings, config, names, box, threads), asked, scan, nominal_steps)
-    at = config
-    for _ in range(FINER_STEPS):  # a held fit: is the arm beyond the integrator at this step?
-        if not _held(ident) or (at := _finer(at)) is None:
-            break
-        again = _fit_at(Problem(recordings, at, names, box, threads), asked, scan, nominal_steps)
-        if again.residual_rms_rad[1] >= ident.residual_rms_rad[1]:
-            break
-        ident = again
-    _keep_step(ident, config)
-    ident.skipped = skipped
-    ident.seconds = time.perf_counter() - began
-    return ident
-
-
-#: A fit held at a bound or near the integrator's limit may be after an arm that the
-#: integrator cannot integrate at the nominal arm's step: the fit refuses such arms, as the
-#: env does at that step, while an env whose step was left out takes a finer one for them
-#: (tendon2r_gym.simulation.stability.stable_sim_dt).  The fit is then run again at half the
-#: step, up to this many times, and kept while its residual falls.  Measured on a held-out arm
-#: whose motor is half the nominal mass (research/results/identification_out_of_sample.md): at
-#: 1 ms the cable stiffness ended on its bound and the lag 25% long with an interval that
-#: excluded the truth; at 0.5 ms every field's interval held its true value.
-FINER_STEPS = 2
-#: The integrator's limit this factor from the fit, in any one field: the fit may be held by it.
-NEAR_LIMIT = 1.5
-
-
-def _fit_at(prob: Problem, asked: list[str], scan: range, nominal_steps: int) -> Identification:
-    """The fit on ``prob`` (its arm's step): the coarse start, the loop delay, the judgement."""
-    prob.first = max(prob.first, scan.stop)
+    prob.first = max(prob.first, scan.stop)  # after the longest delay searched
+    check_pieces(recordings, config, len(names), prob.first)
     start, before = _coarse_start(prob, nominal_steps)
-    ident = _judge(prob, asked, _search_delay(prob, scan, start), scan)
+    delays = _search_delay(prob, scan, start)
+    ident = _judge(prob, asked, delays, scan)
+    ident.skipped = skipped
     ident.residual_rms_rad = (before, ident.residual_rms_rad[1])
+    ident.seconds = time.perf_counter() - began
     ident.extras["start"] = start
     return ident
-
-
-def _held(ident: Identification) -> bool:
-    """Whether the fit may be held by its search's limits: a field at a bound other than zero
-    (a damping or friction of zero is a physical value, not a limit of the search), or the
-    integrator's limit within NEAR_LIMIT of the fit in some field."""
-    if any(e.why == "at its bound" and e.value != 0 for e in ident.estimates):
-        return True
-    prob, x = ident.extras["problem"], ident.extras["x"]
-    for i, factor in itertools.product(range(len(x)), (NEAR_LIMIT, 1 / NEAR_LIMIT)):
-        y = x.copy()
-        y[i] *= factor
-        if not prob.stable(prob.arm(y)):
-            return True
-    return False
-
-
-def _finer(config: EnvConfig) -> EnvConfig | None:
-    """The config at half its arm's step (None past MAX_SUBSTEPS steps per control step)."""
-    from tendon2r_gym.envs.env_config import MAX_SUBSTEPS
-
-    dt = config.mechanism.sim_dt / 2
-    if config.ctrl_dt / dt > MAX_SUBSTEPS + 1e-9:
-        return None
-    return dataclasses.replace(config, mechanism=config.mechanism.replace(sim_dt=dt))
-
-
-def _keep_step(ident: Identification, config: EnvConfig) -> None:
-    """Records the fit's step where it is finer than the nominal arm's (``finer_sim_dt_s``);
-    where the identified arm cannot be integrated at the nominal step, the identified arm's
-    changes set it too."""
-    prob: Problem = ident.extras["problem"]
-    dt = prob.mech.sim_dt
-    if dt < config.mechanism.sim_dt:
-        ident.finer_sim_dt_s = dt
-        values = {k: v for k, v in ident.changes["mechanism"].items() if k not in DELAYS}
-        if not Problem.integrable(config.mechanism.replace(**values)):
-            ident.changes["mechanism"]["sim_dt"] = dt
 
 
 def _judge(prob: Problem, asked: list[str], delays: _Delays, scan: range) -> Identification:

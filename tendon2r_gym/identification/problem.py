@@ -114,12 +114,7 @@ class Problem:
         self.rep: Replay | None = None
         self.nominal_model = build_model(self.mech.ideal())  # what the stability check reads
         #: The first row of a piece at any delay tried: every delay's pieces are the same.
-        self.first = self.first_row(config)
-
-    @staticmethod
-    def first_row(config: EnvConfig) -> int:
-        """The first row of a piece at any delay up to MAX_DELAY_S."""
-        return round(MAX_DELAY_S / config.ctrl_dt) + 1
+        self.first = round(MAX_DELAY_S / config.ctrl_dt) + 1
 
     def arm(self, x: np.ndarray) -> Mechanism:
         """The nominal arm with the fields at scaled values ``x``."""
@@ -172,15 +167,6 @@ class Problem:
         except ValueError as e:
             return invalid_field(e)
         return None
-
-    @staticmethod
-    def integrable(mech: Mechanism) -> bool:
-        """Whether the integrator can integrate ``mech`` at its own step."""
-        try:
-            check_stability(build_model(mech.ideal()), mech)
-        except ValueError:
-            return False
-        return True
 
     def at_limit(self, x: np.ndarray, i: int) -> bool:
         """Whether field ``i`` of the fit ``x`` is at the integrator's limit (EDGE_STEP)."""

@@ -72,9 +72,6 @@ class Identification:
     #: The folds' residual (RMS, rad) on the pieces they were fitted on, and on those they
     #: held out (tendon2r_gym.identification.holdout); None without a continuous field.
     holdout_rms_rad: tuple[float, float] | None = None
-    #: The physics step (s) the fit integrated at where it is finer than the nominal arm's
-    #: (tendon2r_gym.identification.identify.FINER_STEPS); None: the nominal arm's.
-    finer_sim_dt_s: float | None = None
     extras: dict[str, Any] = field(default_factory=dict, repr=False)  # for the report
 
     def experiment(self, nominal: str | os.PathLike) -> dict[str, Any]:
@@ -114,11 +111,6 @@ class Identification:
             out.append(
                 f"{'held-out pieces':<20} residual {held:.3g} rad RMS, in-sample {inside:.3g} "
                 f"({held / max(inside, 1e-300):.2g}x)"
-            )
-        if self.finer_sim_dt_s is not None:
-            out.append(
-                f"{'physics step':<20} fitted at sim_dt = {self.finer_sim_dt_s:g} s: at the "
-                "nominal arm's step the fit was held at a bound or near the integrator's limit"
             )
         for name, why in self.skipped.items():
             out.append(f"{name:<20} skipped: {why}")
