@@ -119,6 +119,12 @@ def readme_models_block() -> str:
 CLIENTS_BEGIN, CLIENTS_END = "<!-- clients:begin -->", "<!-- clients:end -->"
 REFERENCES_BEGIN, REFERENCES_END = "<!-- references:begin -->", "<!-- references:end -->"
 IDENTIFY_BEGIN, IDENTIFY_END = "<!-- identification:begin -->", "<!-- identification:end -->"
+#: The hand-written pages' generated blocks: page -> (begin, end, the block's lines from root).
+PAGE_BLOCKS = {
+    "training.md": (CLIENTS_BEGIN, CLIENTS_END, docs_results.clients_block),
+    "real_tendons.md": (REFERENCES_BEGIN, REFERENCES_END, docs_results.references_block),
+    "identify.md": (IDENTIFY_BEGIN, IDENTIFY_END, docs_results.identification_block),
+}
 
 
 def blocks(root: Path = ROOT) -> dict[Path, str]:
@@ -129,18 +135,11 @@ def blocks(root: Path = ROOT) -> dict[Path, str]:
     text = with_block(readme.read_text(), readme_block(root))
     text = with_block(text, readme_models_block(), MODELS_BEGIN, MODELS_END)
     out = {readme: text}
-    training = root / DOCS / "training.md"
-    if training.is_file():
-        clients = "\n".join([CLIENTS_BEGIN, *docs_results.clients_block(root), CLIENTS_END])
-        out[training] = with_block(training.read_text(), clients, CLIENTS_BEGIN, CLIENTS_END)
-    tendons = root / DOCS / "real_tendons.md"
-    if tendons.is_file():
-        refs = "\n".join([REFERENCES_BEGIN, *docs_results.references_block(root), REFERENCES_END])
-        out[tendons] = with_block(tendons.read_text(), refs, REFERENCES_BEGIN, REFERENCES_END)
-    identify = root / DOCS / "identify.md"
-    if identify.is_file():
-        found = "\n".join([IDENTIFY_BEGIN, *docs_results.identification_block(root), IDENTIFY_END])
-        out[identify] = with_block(identify.read_text(), found, IDENTIFY_BEGIN, IDENTIFY_END)
+    for page, (begin, end, block) in PAGE_BLOCKS.items():
+        path = root / DOCS / page
+        if path.is_file():
+            text = "\n".join([begin, *block(root), end])
+            out[path] = with_block(path.read_text(), text, begin, end)
     return out
 
 
