@@ -166,14 +166,16 @@ def study_title(text: str) -> str:
 
 
 def studies_section(root: Path) -> list[str]:
-    """Returns the results page's list of the studies' pages."""
+    """Returns the results page's list of the studies' pages, each with the command its page
+    says made it."""
     pages = study_pages(root)
     if not pages:
         return []
     rows = []
     for file, text in pages.items():
-        name = Path(file).stem
-        command = f"python -m research.studies.{name}"
+        # the command the page says made it (a study's arm set has its flag), else its module
+        made = re.search(r"`(python -m research\.studies\.[^`]+)`", text)
+        command = made.group(1) if made else f"python -m research.studies.{Path(file).stem}"
         rows.append((f"[{study_title(text)}]({file})", code(command)))
     return [
         "## Studies",

@@ -343,3 +343,12 @@ def test_the_identify_page_quotes_each_identification_study_s_summary_lines(tmp_
     links = re.findall(r"\]\(([^)]+)\)", "\n".join(block))
     assert links == ["studies/identification_out_of_sample.md"]  # the other set has not run
     assert docs_results.identification_block(tmp_path / "none")[0].startswith("The identif")
+
+
+def test_a_study_is_listed_with_the_command_its_page_says_made_it(tmp_path):
+    studies = tmp_path / "research" / "results"
+    studies.mkdir(parents=True)
+    made = "python -m research.studies.identification --arm-set out_of_sample"
+    (studies / "identification_out_of_sample.md").write_text(f"# Out of sample\n\nBy `{made}`.\n")
+    rows = rows_of("\n".join(docs_results.studies_section(tmp_path)))
+    assert rows == [["[Out of sample](studies/identification_out_of_sample.md)", f"`{made}`"]]
