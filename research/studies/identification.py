@@ -189,14 +189,16 @@ def hidden_true(identified: dict[str, Any], true_kw: dict[str, Any],
 #: be the best on these.  Without a gap, the identified choice passes if it loses at most this
 #: fraction against the true one.
 NO_GAP = 0.05
+#: The three choices of a closed-loop row: made on the nominal, the identified, the true arm.
+BELIEFS = ("nominal", "identified", "true")
 
 
 def _choices(cl: dict[str, Any], key: str) -> tuple[float, float, float] | None:
     """Returns the worst joint's RMS error (nominal, identified, true), or None if a choice
     is missing."""
-    if any(key not in cl[b] for b in ("nominal", "identified", "true")):
+    if any(key not in cl[b] for b in BELIEFS):
         return None
-    nom, idf, tru = (_worst(cl[b][key]) for b in ("nominal", "identified", "true"))
+    nom, idf, tru = (_worst(cl[b][key]) for b in BELIEFS)
     return nom, idf, tru
 
 
@@ -447,11 +449,11 @@ def lines(result: dict[str, Any]) -> list[str]:
     ]
     for r in rows:
         cl = r["closed_loop"]
-        pd = [_worst(cl[b]["pd_rms_deg"]) for b in ("nominal", "identified", "true")]
+        pd = [_worst(cl[b]["pd_rms_deg"]) for b in BELIEFS]
         res = [_worst(cl[b]["residual_rms_deg"]) if "residual_rms_deg" in cl[b] else math.nan
-               for b in ("nominal", "identified", "true")]  # fmt: skip
+               for b in BELIEFS]  # fmt: skip
         gp, gr = (_gap_cell(cl, f"{k}_rms_deg") for k in ("pd", "residual"))
-        missing = [f"{b}: {cl[b]['residual_missing']}" for b in ("nominal", "identified", "true")
+        missing = [f"{b}: {cl[b]['residual_missing']}" for b in BELIEFS
                    if "residual_missing" in cl[b]]  # fmt: skip
         if missing:
             gr += " (residual refused the arm: " + "; ".join(missing) + ")"
@@ -491,7 +493,6 @@ def lines(result: dict[str, Any]) -> list[str]:
 def reference_lines(rows: list[dict[str, Any]]) -> list[str]:
     """The classical reference: CT built on each belief (INFORMED), beside PD and the residual
     on the same belief, and each learned row's ratio to it."""
-    beliefs = ("nominal", "identified", "true")
     if not any("ct_rms_deg" in r["closed_loop"]["true"] for r in rows):
         return []  # a study without this row
     out = [
@@ -509,12 +510,11 @@ def reference_lines(rows: list[dict[str, Any]]) -> list[str]:
     ]
     for r in rows:
         cl = r["closed_loop"]
-        if any("ct_rms_deg" not in cl[b] for b in beliefs):
+        if (ct := _choices(cl, "ct_rms_deg")) is None:
             continue
-        ct = [_worst(cl[b]["ct_rms_deg"]) for b in beliefs]
         ratios = [
             f"{_worst(cl[b]['residual_rms_deg']) / c:.3f}" if "residual_rms_deg" in cl[b] else "-"
-            for b, c in zip(beliefs[1:], ct[1:], strict=True)
+            for b, c in zip(BELIEFS[1:], ct[1:], strict=True)
         ]
         cells = [f"{v:.3g}" for v in ct] + [_gap_cell(cl, "ct_rms_deg"), *ratios]
         out.append(f"| {r['arm']} | " + " | ".join(cells) + " |")
@@ -553,7 +553,6 @@ def effort_lines(rows: list[dict[str, Any]]) -> list[str]:
     gains and episodes (smoothness_x_pd), with the count within its limits."""
     from tendon2r_gym.evaluation.metrics import smoothness_x_pd, within_limits
 
-    beliefs = ("nominal", "identified", "true")
     out = [
         "",
         "## Control effort and smoothness on the true arm",
@@ -567,9 +566,9 @@ def effort_lines(rows: list[dict[str, Any]]) -> list[str]:
     within, runs = 0, 0
     for r in rows:
         cl = r["closed_loop"]
-        pd = {b: {k: cl[b][f"pd_{k}"] for k in EFFORT} for b in beliefs}
+        pd = {b: {k: cl[b][f"pd_{k}"] for k in EFFORT} for b in BELIEFS}
         res = {}
-        for b in beliefs:
+        for b in BELIEFS:
             if "residual_rms_deg" in cl[b]:
                 res[b] = smoothness_x_pd({k: cl[b][f"residual_{k}"] for k in EFFORT}, pd[b])
                 within += within_limits(*res[b], residual=True)
@@ -579,10 +578,10 @@ def effort_lines(rows: list[dict[str, Any]]) -> list[str]:
             return pair(values, ".3g")
 
         out.append(
-            f"| {r['arm']} | {cells([max(pd[b]['rms_tension_N']) for b in beliefs])} | "
-            f"{cells([max(pd[b]['rms_tension_rate_N_per_s']) for b in beliefs])} | "
-            f"{cells([res[b][0] if b in res else None for b in beliefs])} | "
-            f"{cells([res[b][1] if b in res else None for b in beliefs])} |"
+            f"| {r['arm']} | {cells([max(pd[b]['rms_tension_N']) for b in BELIEFS])} | "
+            f"{cells([max(pd[b]['rms_tension_rate_N_per_s']) for b in BELIEFS])} | "
+            f"{cells([res[b][0] if b in res else None for b in BELIEFS])} | "
+            f"{cells([res[b][1] if b in res else None for b in BELIEFS])} |"
         )
     out += ["", f"The residual keeps the smoothness limits on {within} of its {runs} runs."]
     return out
