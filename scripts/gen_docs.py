@@ -138,8 +138,8 @@ def blocks(root: Path = ROOT) -> dict[Path, str]:
     for page, (begin, end, block) in PAGE_BLOCKS.items():
         path = root / DOCS / page
         if path.is_file():
-            text = "\n".join([begin, *block(root), end])
-            out[path] = with_block(path.read_text(), text, begin, end)
+            generated = "\n".join([begin, *block(root), end])
+            out[path] = with_block(path.read_text(), generated, begin, end)
     return out
 
 

@@ -315,6 +315,7 @@ def test_the_references_block_reads_each_row_of_the_candidates_study(tmp_path):
         to = {"ct": to_ct, "ct_floor": ratio / 0.4}
         return {"one_geometry": {"arms": 8, "refused": 0, "beats_pd_tuned": 5,
                                  "median_ratio": ratio, "max_ratio": 1.2, "median_rate_x": 1.0,
+                                 "median_tension_x": 1.0,
                                  "median_ratio_to": to}}  # fmt: skip
 
     result = {"command": "python -m research.studies.candidates",
